@@ -1,0 +1,3 @@
+from enip_farm.cli import main
+
+main()

@@ -1,0 +1,1 @@
+"""The CIP object model: one module per object class, dispatched by the message router."""

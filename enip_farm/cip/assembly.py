@@ -1,0 +1,46 @@
+"""Assembly object, class 0x04 (CIP Networks Library Vol. 1, 5-5): attribute 3 is the instance's
+data (the device's I/O image, shared with every other view of it), attribute 4 its size in bytes."""
+
+from __future__ import annotations
+
+from enip_farm.cip.object import UINT, Attribute, CipClass, CipInstance
+from enip_farm.protocol.status import GeneralStatus
+
+
+class AssemblyInstance:
+    """One assembly's bytes. `settable` says whether clients may write attribute 3."""
+
+    __slots__ = ("instance_id", "data", "settable")
+
+    def __init__(self, instance_id: int, size: int, settable: bool) -> None:
+        self.instance_id = instance_id
+        self.data = bytearray(size)
+        self.settable = settable
+
+    def get(self) -> bytes:
+        return bytes(self.data)
+
+    def set(self, value: bytes) -> int:
+        size = len(self.data)
+        if len(value) < size:
+            return GeneralStatus.NOT_ENOUGH_DATA
+        if len(value) > size:
+            return GeneralStatus.TOO_MUCH_DATA
+        self.data[:] = value
+        return GeneralStatus.SUCCESS
+
+
+class AssemblyObject(CipClass):
+    class_id = 0x04
+    revision = 2
+
+    def __init__(self, assemblies: list[AssemblyInstance]) -> None:
+        super().__init__()
+        for assembly in assemblies:
+            self.instances[assembly.instance_id] = CipInstance(
+                {
+                    3: Attribute(assembly.get, assembly.set if assembly.settable else None),
+                    4: Attribute(lambda a=assembly: UINT.pack(len(a.data))),
+                },
+                all_ids=(3,),
+            )

@@ -1,0 +1,91 @@
+"""Message Router, class 0x02 (CIP Networks Library Vol. 1, 5-3 and 2-4): decodes each explicit
+request, dispatches it by class id, and answers Multiple Service Packet (0x0A)."""
+
+from __future__ import annotations
+
+import struct
+
+from enip_farm.cip.object import ServiceResult, UINT, CipClass, CipInstance, constant
+from enip_farm.protocol.cip import (
+    REPLY_BIT,
+    CipDecodeError,
+    Service,
+    decode_multiple_service_request,
+    decode_request,
+    encode_multiple_service,
+    encode_reply,
+)
+from enip_farm.protocol.epath import PathError, RequestPath, decode_request_path
+from enip_farm.protocol.status import GeneralStatus
+
+_PATH_CACHE_SIZE = 4096
+
+
+class MessageRouter(CipClass):
+    """The message router object and the dispatcher of every unconnected request of one device."""
+
+    class_id = 0x02
+    revision = 1
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.objects: dict[int, CipClass] = {self.class_id: self}
+        self._paths: dict[bytes, RequestPath | int] = {}
+        self.handlers[Service.MULTIPLE_SERVICE_PACKET] = self.multiple_service_packet
+        self.instances[1] = CipInstance(
+            {
+                1: constant(b""),  # replaced once every object is registered
+                2: constant(UINT.pack(len(self.objects))),
+            }
+        )
+
+    def register(self, obj: CipClass) -> None:
+        self.objects[obj.class_id] = obj
+        ids = sorted(self.objects)
+        object_list = struct.pack(f"<H{len(ids)}H", len(ids), *ids)
+        self.instances[1].attributes[1] = constant(object_list)
+        self.instances[1].attributes[2] = constant(UINT.pack(len(ids)))
+
+    def handle(self, message: bytes) -> bytes:
+        """A whole request in, a whole reply out. Errors are replies, never exceptions."""
+        try:
+            service, path_bytes, data = decode_request(message)
+        except CipDecodeError as error:
+            return encode_reply(message[0] if message else 0, error.status)
+        path = self._paths.get(path_bytes)
+        if path is None:
+            try:
+                path = decode_request_path(path_bytes)
+            except PathError as error:
+                path = error.status
+            if len(self._paths) < _PATH_CACHE_SIZE:
+                self._paths[path_bytes] = path
+        if type(path) is int:
+            return encode_reply(service, path)
+        if service & REPLY_BIT:
+            return encode_reply(service, GeneralStatus.SERVICE_NOT_SUPPORTED)
+        obj = self.objects.get(path.class_id)
+        if obj is None:
+            return encode_reply(service, GeneralStatus.PATH_DESTINATION_UNKNOWN)
+        instance = obj.instance(path.instance_id)
+        if instance is None:
+            return encode_reply(service, GeneralStatus.PATH_DESTINATION_UNKNOWN)
+        handler = obj.handlers.get(service)
+        if handler is None:
+            return encode_reply(service, GeneralStatus.SERVICE_NOT_SUPPORTED)
+        result = handler(instance, path, data)
+        if type(result) is bytes:
+            return result
+        return encode_reply(service, result[0], result[1], result[2])
+
+    def multiple_service_packet(self, instance: CipInstance, path: RequestPath, data: bytes) -> ServiceResult:
+        if path.instance_id != 1:
+            return ServiceResult(GeneralStatus.SERVICE_NOT_SUPPORTED)
+        try:
+            requests = decode_multiple_service_request(data)
+        except CipDecodeError as error:
+            return ServiceResult(error.status)
+        replies = [self.handle(request) for request in requests]
+        failed = any(reply[2] != GeneralStatus.SUCCESS for reply in replies)
+        status = GeneralStatus.EMBEDDED_SERVICE_ERROR if failed else GeneralStatus.SUCCESS
+        return ServiceResult(status, encode_multiple_service(replies))

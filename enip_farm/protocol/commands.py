@@ -1,0 +1,131 @@
+"""Command-specific data of the encapsulation commands (CIP Networks Library Vol. 2, 2-4):
+RegisterSession, SendRRData/SendUnitData, ListIdentity's CIP Identity item, ListServices' item and
+the socket-address item.
+"""
+
+from __future__ import annotations
+
+import socket
+import struct
+from typing import NamedTuple
+
+from enip_farm.protocol.cpf import CpfItem, ItemType, decode_items, encode_items
+from enip_farm.protocol.encapsulation import Command, encode_frame
+
+PROTOCOL_VERSION = 1
+REGISTER_SESSION = struct.Struct("<HH")
+_SEND_DATA_HEADER = struct.Struct("<IH")
+_SOCKADDR = struct.Struct(">HH4s8x")
+_IDENTITY = struct.Struct("<HHHBBHI")
+_LIST_SERVICES = struct.Struct("<HH16s")
+
+#: ListServices capability flags: bit 5 CIP encapsulation over TCP, bit 8 class 0/1 over UDP.
+CAPABILITY_TCP = 0x0020
+CAPABILITY_UDP_CLASS_0_1 = 0x0100
+
+
+class SendData(NamedTuple):
+    """SendRRData / SendUnitData body."""
+
+    interface_handle: int
+    timeout: int
+    items: list[CpfItem]
+
+
+def decode_send_data(data: bytes) -> SendData:
+    """Raises ValueError (CpfError) if the body or its items are malformed."""
+    if len(data) < 6:
+        raise ValueError("send data shorter than interface handle and timeout")
+    handle, timeout = _SEND_DATA_HEADER.unpack_from(data, 0)
+    return SendData(handle, timeout, decode_items(data, 6))
+
+
+def encode_send_data(items: list[tuple[int, bytes]], timeout: int = 0, interface_handle: int = 0) -> bytes:
+    return _SEND_DATA_HEADER.pack(interface_handle, timeout) + encode_items(items)
+
+
+def encode_unconnected_payload(message: bytes, timeout: int = 0) -> bytes:
+    """SendRRData body for an unconnected message: null address item, unconnected data item."""
+    return _SEND_DATA_HEADER.pack(0, timeout) + encode_items(
+        ((ItemType.NULL_ADDRESS, b""), (ItemType.UNCONNECTED_DATA, message))
+    )
+
+
+def encode_send_rr_data(message: bytes, session_handle: int, sender_context: bytes = bytes(8),
+                        timeout: int = 0) -> bytes:
+    """A whole SendRRData frame carrying one unconnected CIP message."""
+    return encode_frame(Command.SEND_RR_DATA, encode_unconnected_payload(message, timeout), session_handle,
+                        sender_context=sender_context)
+
+
+class SocketAddress(NamedTuple):
+    host: str
+    port: int
+    family: int = socket.AF_INET
+
+
+def encode_sockaddr(address: SocketAddress) -> bytes:
+    """sockaddr_in in network byte order, as the ListIdentity and 0x8000/0x8001 items carry it."""
+    return _SOCKADDR.pack(address.family, address.port, socket.inet_aton(address.host))
+
+
+def decode_sockaddr(data: bytes, offset: int = 0) -> SocketAddress:
+    family, port, host = _SOCKADDR.unpack_from(data, offset)
+    return SocketAddress(socket.inet_ntoa(host), port, family)
+
+
+class IdentityItem(NamedTuple):
+    """The CIP Identity item (type 0x0C) of a ListIdentity reply."""
+
+    protocol_version: int
+    socket_address: SocketAddress
+    vendor_id: int
+    device_type: int
+    product_code: int
+    revision_major: int
+    revision_minor: int
+    status: int
+    serial_number: int
+    product_name: str
+    state: int
+
+
+def encode_identity_item(item: IdentityItem) -> bytes:
+    name = item.product_name.encode("latin-1")
+    return (
+        struct.pack("<H", item.protocol_version)
+        + encode_sockaddr(item.socket_address)
+        + _IDENTITY.pack(item.vendor_id, item.device_type, item.product_code, item.revision_major,
+                         item.revision_minor, item.status, item.serial_number)
+        + bytes((len(name),))
+        + name
+        + bytes((item.state,))
+    )
+
+
+def decode_identity_item(data: bytes) -> IdentityItem:
+    (version,) = struct.unpack_from("<H", data, 0)
+    address = decode_sockaddr(data, 2)
+    fields = _IDENTITY.unpack_from(data, 18)
+    offset = 18 + _IDENTITY.size
+    length = data[offset]
+    name = data[offset + 1 : offset + 1 + length].decode("latin-1")
+    state = data[offset + 1 + length]
+    return IdentityItem(version, address, *fields, name, state)
+
+
+class ServiceItem(NamedTuple):
+    """The item (type 0x0100) of a ListServices reply."""
+
+    protocol_version: int
+    capability_flags: int
+    name: str
+
+
+def encode_service_item(item: ServiceItem) -> bytes:
+    return _LIST_SERVICES.pack(item.protocol_version, item.capability_flags, item.name.encode("ascii"))
+
+
+def decode_service_item(data: bytes) -> ServiceItem:
+    version, flags, name = _LIST_SERVICES.unpack_from(data, 0)
+    return ServiceItem(version, flags, name.rstrip(b"\x00").decode("ascii"))

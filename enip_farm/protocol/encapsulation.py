@@ -1,0 +1,130 @@
+"""Encapsulation header, commands, status codes and the TCP stream framer.
+
+CIP Networks Library Vol. 2 (EtherNet/IP adaptation), section 2-3: a 24-byte little-endian header
+(command, length, session handle, status, sender context, options) followed by `length` bytes of
+command-specific data.
+"""
+
+from __future__ import annotations
+
+import struct
+from enum import IntEnum
+from typing import NamedTuple
+
+HEADER = struct.Struct("<HHII8sI")
+HEADER_SIZE = HEADER.size  # 24
+
+#: Largest command-specific data length the farm accepts; longer frames get status 0x0065.
+MAX_DATA_LENGTH = 4096
+
+
+class Command(IntEnum):
+    NOP = 0x0000
+    LIST_SERVICES = 0x0004
+    LIST_IDENTITY = 0x0063
+    LIST_INTERFACES = 0x0064
+    REGISTER_SESSION = 0x0065
+    UNREGISTER_SESSION = 0x0066
+    SEND_RR_DATA = 0x006F
+    SEND_UNIT_DATA = 0x0070
+
+
+class EncapsulationStatus(IntEnum):
+    SUCCESS = 0x0000
+    INVALID_COMMAND = 0x0001
+    INSUFFICIENT_MEMORY = 0x0002
+    INCORRECT_DATA = 0x0003
+    INVALID_SESSION_HANDLE = 0x0064
+    INVALID_LENGTH = 0x0065
+    UNSUPPORTED_PROTOCOL = 0x0069
+
+
+class EncapsulationHeader(NamedTuple):
+    command: int
+    length: int
+    session_handle: int
+    status: int
+    sender_context: bytes
+    options: int
+
+
+class Frame(NamedTuple):
+    """One complete encapsulation message."""
+
+    header: EncapsulationHeader
+    data: bytes
+
+
+class OversizeFrame(NamedTuple):
+    """A header whose length field exceeds what the framer accepts; the stream cannot continue."""
+
+    header: EncapsulationHeader
+
+
+def decode_header(data: bytes, offset: int = 0) -> EncapsulationHeader:
+    return EncapsulationHeader._make(HEADER.unpack_from(data, offset))
+
+
+def encode_frame(
+    command: int,
+    data: bytes = b"",
+    session_handle: int = 0,
+    status: int = 0,
+    sender_context: bytes = bytes(8),
+    options: int = 0,
+) -> bytes:
+    """A whole encapsulation message: header and command-specific data."""
+    return HEADER.pack(command, len(data), session_handle, status, sender_context, options) + data
+
+
+def decode_frame(data: bytes) -> Frame:
+    """Decode one complete message (e.g. a UDP datagram). Raises ValueError if incomplete."""
+    if len(data) < HEADER_SIZE:
+        raise ValueError("shorter than an encapsulation header")
+    header = decode_header(data)
+    if len(data) < HEADER_SIZE + header.length:
+        raise ValueError("shorter than the header's length field")
+    return Frame(header, data[HEADER_SIZE : HEADER_SIZE + header.length])
+
+
+class StreamFramer:
+    """Cuts a TCP byte stream into encapsulation frames.
+
+    Handles a frame split over any number of reads and several frames in one read. A length field
+    over `max_length` yields an OversizeFrame, after which the framer accepts nothing more.
+    """
+
+    __slots__ = ("_buffer", "max_length", "broken")
+
+    def __init__(self, max_length: int = MAX_DATA_LENGTH) -> None:
+        self._buffer = b""
+        self.max_length = max_length
+        self.broken = False
+
+    @property
+    def pending(self) -> int:
+        """Bytes received that do not yet form a whole frame."""
+        return len(self._buffer)
+
+    def feed(self, data: bytes) -> list[Frame | OversizeFrame]:
+        if self.broken:
+            return []
+        buffer = self._buffer + data if self._buffer else data
+        frames: list[Frame | OversizeFrame] = []
+        offset = 0
+        end = len(buffer)
+        unpack_from = HEADER.unpack_from
+        while end - offset >= HEADER_SIZE:
+            header = EncapsulationHeader._make(unpack_from(buffer, offset))
+            if header.length > self.max_length:
+                frames.append(OversizeFrame(header))
+                self.broken = True
+                self._buffer = b""
+                return frames
+            stop = offset + HEADER_SIZE + header.length
+            if stop > end:
+                break
+            frames.append(Frame(header, buffer[offset + HEADER_SIZE : stop]))
+            offset = stop
+        self._buffer = buffer[offset:] if offset < end else b""
+        return frames

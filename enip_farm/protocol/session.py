@@ -1,0 +1,162 @@
+"""Encapsulation session state machine for one TCP connection, and the UDP command handler
+(CIP Networks Library Vol. 2, 2-4 and 2-5). Sans-IO: bytes in, whole reply frames out.
+
+The device behind the connection is reached through the `Target` protocol; this module knows
+sessions, commands and their status codes, and nothing of CIP objects.
+"""
+
+from __future__ import annotations
+
+import struct
+from typing import Protocol
+
+from enip_farm.protocol.commands import PROTOCOL_VERSION, REGISTER_SESSION, decode_send_data
+from enip_farm.protocol.cpf import ItemType
+from enip_farm.protocol.encapsulation import (
+    HEADER,
+    MAX_DATA_LENGTH,
+    Command,
+    EncapsulationHeader,
+    EncapsulationStatus,
+    Frame,
+    StreamFramer,
+    decode_frame,
+)
+
+_SUPPORTED_REGISTER = REGISTER_SESSION.pack(PROTOCOL_VERSION, 0)
+# interface handle 0, timeout 0, 2 items: null address, unconnected data (length follows)
+_RR_PREFIX = struct.pack("<IHHHHH", 0, 0, 2, ItemType.NULL_ADDRESS, 0, ItemType.UNCONNECTED_DATA)
+_UINT = struct.Struct("<H")
+
+
+class Target(Protocol):
+    """What the encapsulation layer needs from a device."""
+
+    def list_identity_data(self) -> bytes: ...
+
+    def list_services_data(self) -> bytes: ...
+
+    def list_interfaces_data(self) -> bytes: ...
+
+    def register_session(self) -> int: ...
+
+    def unregister_session(self, session_handle: int) -> None: ...
+
+    def handle_unconnected(self, message: bytes) -> bytes:
+        """An unconnected CIP request in, its whole reply out."""
+        ...
+
+
+def _reply(header: EncapsulationHeader, data: bytes = b"", session_handle: int | None = None,
+           status: int = EncapsulationStatus.SUCCESS) -> bytes:
+    handle = header.session_handle if session_handle is None else session_handle
+    return HEADER.pack(header.command, len(data), handle, status, header.sender_context, 0) + data
+
+
+class EncapsulationSession:
+    """One TCP connection: frames in, replies out; `closing` says the connection must end."""
+
+    __slots__ = ("target", "framer", "session_handle", "closing", "discarded")
+
+    def __init__(self, target: Target, max_length: int = MAX_DATA_LENGTH) -> None:
+        self.target = target
+        self.framer = StreamFramer(max_length)
+        self.session_handle = 0  # 0: no session registered on this connection
+        self.closing = False
+        self.discarded = 0  # frames with non-zero options, discarded as the spec requires
+
+    def receive(self, data: bytes) -> list[bytes]:
+        replies: list[bytes] = []
+        for frame in self.framer.feed(data):
+            if type(frame) is not Frame:  # OversizeFrame
+                replies.append(_reply(frame.header, status=EncapsulationStatus.INVALID_LENGTH))
+                self.closing = True
+            else:
+                reply = self.handle_frame(frame)
+                if reply is not None:
+                    replies.append(reply)
+            if self.closing:
+                break
+        return replies
+
+    def connection_lost(self) -> None:
+        if self.session_handle:
+            self.target.unregister_session(self.session_handle)
+            self.session_handle = 0
+
+    def handle_frame(self, frame: Frame) -> bytes | None:
+        header, data = frame
+        command = header.command
+        if command == Command.SEND_RR_DATA:  # the hot path first
+            return self._send_rr_data(header, data)
+        if header.options:
+            self.discarded += 1
+            return None
+        if command == Command.NOP:
+            return None
+        if command == Command.REGISTER_SESSION:
+            return self._register_session(header, data)
+        if command == Command.UNREGISTER_SESSION:
+            if header.session_handle and header.session_handle == self.session_handle:
+                self.connection_lost()
+                self.closing = True
+                return None
+            return _reply(header, status=EncapsulationStatus.INVALID_SESSION_HANDLE)
+        if command == Command.LIST_IDENTITY:
+            return _reply(header, self.target.list_identity_data(), 0)
+        if command == Command.LIST_SERVICES:
+            return _reply(header, self.target.list_services_data(), 0)
+        if command == Command.LIST_INTERFACES:
+            return _reply(header, self.target.list_interfaces_data(), 0)
+        if command == Command.SEND_UNIT_DATA and header.session_handle != self.session_handle:
+            return _reply(header, status=EncapsulationStatus.INVALID_SESSION_HANDLE)
+        # SendUnitData needs class-3 connections, which this device does not open yet.
+        return _reply(header, status=EncapsulationStatus.INVALID_COMMAND)
+
+    def _register_session(self, header: EncapsulationHeader, data: bytes) -> bytes:
+        if len(data) != REGISTER_SESSION.size:
+            return _reply(header, _SUPPORTED_REGISTER, 0, EncapsulationStatus.INVALID_LENGTH)
+        version, options = REGISTER_SESSION.unpack(data)
+        if version != PROTOCOL_VERSION or options != 0:
+            return _reply(header, _SUPPORTED_REGISTER, 0, EncapsulationStatus.UNSUPPORTED_PROTOCOL)
+        if self.session_handle:  # one session per TCP connection
+            return _reply(header, _SUPPORTED_REGISTER, self.session_handle, EncapsulationStatus.INVALID_COMMAND)
+        self.session_handle = self.target.register_session()
+        return _reply(header, _SUPPORTED_REGISTER, self.session_handle)
+
+    def _send_rr_data(self, header: EncapsulationHeader, data: bytes) -> bytes | None:
+        if header.options:
+            self.discarded += 1
+            return None
+        if not header.session_handle or header.session_handle != self.session_handle:
+            return _reply(header, status=EncapsulationStatus.INVALID_SESSION_HANDLE)
+        try:
+            items = decode_send_data(data).items
+        except ValueError:
+            return _reply(header, status=EncapsulationStatus.INCORRECT_DATA)
+        if (
+            len(items) != 2
+            or items[0].type_id != ItemType.NULL_ADDRESS
+            or items[0].data
+            or items[1].type_id != ItemType.UNCONNECTED_DATA
+            or not items[1].data
+        ):
+            return _reply(header, status=EncapsulationStatus.INCORRECT_DATA)
+        message = self.target.handle_unconnected(items[1].data)
+        body = _RR_PREFIX + _UINT.pack(len(message)) + message
+        return HEADER.pack(Command.SEND_RR_DATA, len(body), header.session_handle, 0, header.sender_context, 0) + body
+
+
+def handle_datagram(target: Target, datagram: bytes) -> bytes | None:
+    """UDP 44818: ListIdentity and ListServices are answered; anything else gets no reply."""
+    try:
+        header, _ = decode_frame(datagram)
+    except ValueError:
+        return None
+    if header.options:
+        return None
+    if header.command == Command.LIST_IDENTITY:
+        return _reply(header, target.list_identity_data(), 0)
+    if header.command == Command.LIST_SERVICES:
+        return _reply(header, target.list_services_data(), 0)
+    return None
