@@ -1,0 +1,159 @@
+"""Cell configuration: YAML in, validated pydantic models out.
+
+Errors are reported as `ConfigError` with one line per problem naming the file, the device and the
+field, never as a traceback.
+"""
+
+from __future__ import annotations
+
+import re
+from ipaddress import IPv4Address
+from pathlib import Path
+from typing import Any
+
+import yaml
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
+
+from enip_farm.device.catalogue import load_catalogue
+
+_MAC = re.compile(r"^([0-9A-Fa-f]{2}[:-]){5}[0-9A-Fa-f]{2}$")
+
+
+class ConfigError(Exception):
+    """A configuration that cannot be served; the message is meant for the user as it is."""
+
+
+class _Strict(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+
+
+class IdentityConfig(_Strict):
+    """Per-device overrides of the model's identity (from your EDS file, EIO.cfg or a capture)."""
+
+    vendor_id: int | None = Field(None, ge=0, le=0xFFFF)
+    device_type: int | None = Field(None, ge=0, le=0xFFFF)
+    product_code: int | None = Field(None, ge=0, le=0xFFFF)
+    revision: tuple[int, int] | None = None
+    serial_number: int | None = Field(None, ge=0, le=0xFFFFFFFF)
+    product_name: str | None = Field(None, max_length=32)
+
+    @field_validator("revision")
+    @classmethod
+    def _revision_bytes(cls, value: tuple[int, int] | None) -> tuple[int, int] | None:
+        if value is not None and not (1 <= value[0] <= 0x7F and 0 <= value[1] <= 0xFF):
+            raise ValueError("revision is [major 1..127, minor 0..255]")
+        return value
+
+
+class AssemblyConfig(_Strict):
+    """Per-device overrides of assembly instance ids and sizes in bytes."""
+
+    output: int | None = Field(None, ge=1, le=0xFFFF)
+    input: int | None = Field(None, ge=1, le=0xFFFF)
+    configuration: int | None = Field(None, ge=1, le=0xFFFF)
+    output_size: int | None = Field(None, ge=0, le=496)
+    input_size: int | None = Field(None, ge=0, le=496)
+    configuration_size: int | None = Field(None, ge=0, le=496)
+
+
+class DeviceConfig(_Strict):
+    name: str = Field(pattern=r"^[A-Za-z0-9_.-]{1,64}$")
+    address: IPv4Address
+    model: str
+    addons: list[str] = []
+    identity: IdentityConfig = IdentityConfig()
+    assemblies: AssemblyConfig = AssemblyConfig()
+    writable_inputs: bool = Field(False, description="let clients write the input assembly (test rigs)")
+    netmask: IPv4Address = IPv4Address("255.255.255.0")
+    gateway: IPv4Address = IPv4Address("0.0.0.0")
+    mac: str | None = Field(None, description="default: 02:00 followed by the address's four bytes")
+    host_name: str = ""
+
+    @field_validator("model")
+    @classmethod
+    def _known_base(cls, value: str) -> str:
+        catalogue = load_catalogue()
+        if value not in catalogue.bases():
+            raise ValueError(f"unknown base model {value!r}; known: {', '.join(catalogue.bases())}")
+        return value
+
+    @field_validator("addons")
+    @classmethod
+    def _known_addons(cls, value: list[str]) -> list[str]:
+        catalogue = load_catalogue()
+        for addon in value:
+            if addon not in catalogue.addons():
+                raise ValueError(f"unknown add-on {addon!r}; known: {', '.join(catalogue.addons())}")
+        return value
+
+    @field_validator("mac")
+    @classmethod
+    def _mac_format(cls, value: str | None) -> str | None:
+        if value is not None and not _MAC.match(value):
+            raise ValueError("MAC address must look like 02:00:7f:00:0a:01")
+        return value
+
+    @model_validator(mode="after")
+    def _addons_need_assemblies(self) -> DeviceConfig:
+        model = load_catalogue().models[self.model]
+        if self.addons and model.assemblies is None:
+            raise ValueError(f"model {self.model} takes no add-ons")
+        return self
+
+
+class FarmConfig(_Strict):
+    devices: list[DeviceConfig] = Field(min_length=1)
+    discovery: bool = Field(True, description="answer broadcast ListIdentity on 0.0.0.0:44818")
+
+    @model_validator(mode="after")
+    def _unique(self) -> FarmConfig:
+        for field in ("name", "address"):
+            seen: dict[Any, str] = {}
+            for device in self.devices:
+                value = getattr(device, field)
+                if value in seen:
+                    raise ValueError(f"devices {seen[value]!r} and {device.name!r} have the same {field} {value}")
+                seen[value] = device.name
+        return self
+
+
+def _describe(error: dict[str, Any], data: Any) -> str:
+    location = list(error["loc"])
+    where = ""
+    if len(location) >= 2 and location[0] == "devices" and isinstance(location[1], int):
+        index = location[1]
+        name = None
+        if isinstance(data, dict) and isinstance(data.get("devices"), list) and index < len(data["devices"]):
+            entry = data["devices"][index]
+            name = entry.get("name") if isinstance(entry, dict) else None
+        where = f"device {name!r} (devices[{index}])" if name else f"devices[{index}]"
+        location = location[2:]
+    field = ".".join(str(part) for part in location)
+    message = error["msg"].removeprefix("Value error, ")
+    return ", ".join(part for part in (where, field) if part) + f": {message}" if (where or field) else message
+
+
+def parse_config(data: Any, source: str = "<config>") -> FarmConfig:
+    try:
+        return FarmConfig.model_validate(data)
+    except ValidationError as error:
+        lines = [f"{source}: {_describe(e, data)}" for e in error.errors()]
+        raise ConfigError("\n".join(lines)) from None
+
+
+def load_config(path: str | Path) -> FarmConfig:
+    path = Path(path)
+    try:
+        data = yaml.safe_load(path.read_text())
+    except OSError as error:
+        raise ConfigError(f"{path}: cannot read: {error.strerror}") from None
+    except yaml.YAMLError as error:
+        raise ConfigError(f"{path}: not valid YAML: {error}") from None
+    return parse_config(data, str(path))
+
+
+def default_config_path() -> Path:
+    """The default cell shipped in the package (also at configs/default-cell.yaml in the repo)."""
+    from importlib import resources
+
+    return Path(str(resources.files("enip_farm").joinpath("configs/default-cell.yaml")))

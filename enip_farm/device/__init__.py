@@ -1,0 +1,1 @@
+"""Devices built from catalogue profiles (data, not code): identity, assemblies, add-ons."""

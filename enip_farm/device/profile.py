@@ -1,0 +1,125 @@
+"""A device's resolved profile: its catalogue model and add-ons merged with its configuration.
+
+This is where sizes are derived (base I/O first, then each add-on in slot order) and where the
+placeholders that a configuration did not override are remembered as unverified.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from enip_farm.config import DeviceConfig
+from enip_farm.device.catalogue import IoCounts, load_catalogue
+
+
+@dataclass(frozen=True)
+class AssemblySpec:
+    role: str  # "output", "input" or "configuration"
+    instance_id: int
+    size: int
+    settable: bool
+
+
+@dataclass(frozen=True)
+class ModuleSlot:
+    """Where one module's channels sit in the assemblies (byte offsets)."""
+
+    slot: int
+    model: str
+    io: IoCounts
+    input_offset: int
+    output_offset: int
+
+
+@dataclass(frozen=True)
+class DeviceProfile:
+    name: str
+    address: str
+    model: str
+    addons: tuple[str, ...]
+    vendor_id: int
+    device_type: int
+    product_code: int
+    revision: tuple[int, int]
+    serial_number: int
+    product_name: str
+    assemblies: tuple[AssemblySpec, ...]
+    modules: tuple[ModuleSlot, ...]
+    mac: bytes
+    netmask: str
+    gateway: str
+    host_name: str
+    unverified: tuple[str, ...]
+
+    def assembly(self, role: str) -> AssemblySpec | None:
+        return next((a for a in self.assemblies if a.role == role), None)
+
+    @property
+    def input_size(self) -> int:
+        spec = self.assembly("input")
+        return spec.size if spec else 0
+
+    @property
+    def output_size(self) -> int:
+        spec = self.assembly("output")
+        return spec.size if spec else 0
+
+
+def _address_bytes(address: str) -> bytes:
+    return bytes(int(part) for part in address.split("."))
+
+
+def resolve(config: DeviceConfig) -> DeviceProfile:
+    catalogue = load_catalogue()
+    model = catalogue.models[config.model]
+    assert model.identity is not None, f"base model {config.model} has no identity in the catalogue"
+    identity = config.identity
+    overridden = {name for name, value in identity.model_dump().items() if value is not None}
+    unverified = [f"{config.model}.{item}" for item in model.unverified
+                  if item.removeprefix("identity.") not in overridden]
+
+    modules = []
+    input_offset = output_offset = 0
+    for slot, name in enumerate((config.model, *config.addons)):
+        io = catalogue.models[name].io
+        modules.append(ModuleSlot(slot, name, io, input_offset, output_offset))
+        input_offset += io.input_size
+        output_offset += io.output_size
+        if slot:
+            unverified += [f"{name}.{item}" for item in catalogue.models[name].unverified]
+
+    assemblies: list[AssemblySpec] = []
+    overrides = config.assemblies
+    if model.assemblies is not None or overrides.input or overrides.output:
+        ids = model.assemblies
+        sizes = {"output": output_offset, "input": input_offset, "configuration": 0}
+        for role in ("output", "input", "configuration"):
+            instance_id = getattr(overrides, role) or (getattr(ids, role) if ids else None)
+            if instance_id is None:
+                continue
+            size = getattr(overrides, f"{role}_size")
+            settable = role != "input" or config.writable_inputs
+            assemblies.append(AssemblySpec(role, instance_id, sizes[role] if size is None else size, settable))
+
+    address = str(config.address)
+    raw = _address_bytes(address)
+    mac = bytes.fromhex(config.mac.replace(":", "").replace("-", "")) if config.mac else b"\x02\x00" + raw
+    return DeviceProfile(
+        name=config.name,
+        address=address,
+        model=config.model,
+        addons=tuple(config.addons),
+        vendor_id=identity.vendor_id if identity.vendor_id is not None else model.identity.vendor_id,
+        device_type=identity.device_type if identity.device_type is not None else model.identity.device_type,
+        product_code=identity.product_code if identity.product_code is not None else model.identity.product_code,
+        revision=identity.revision or model.identity.revision,
+        serial_number=identity.serial_number if identity.serial_number is not None else int.from_bytes(raw, "big"),
+        product_name=identity.product_name or model.identity.product_name,
+        assemblies=tuple(assemblies),
+        modules=tuple(modules),
+        mac=mac,
+        netmask=str(config.netmask),
+        gateway=str(config.gateway),
+        host_name=config.host_name,
+        unverified=tuple(unverified),
+    )
