@@ -1,0 +1,188 @@
+"""A farm: configuration in, running devices out. Binds every device's TCP and UDP 44818 (and the
+discovery responder), and closes them all again."""
+
+from __future__ import annotations
+
+import asyncio
+import errno
+import resource
+import threading
+from collections.abc import Iterator
+from contextlib import contextmanager
+
+from enip_farm.config import FarmConfig
+from enip_farm.device.device import ENIP_PORT, Device
+from enip_farm.device.profile import resolve
+from enip_farm.server.tcp import EncapsulationProtocol
+from enip_farm.server.udp import DeviceDatagramProtocol, DiscoveryResponder, udp_socket
+
+#: Sockets per device at rest: a TCP listener and a UDP socket; each client connection adds one.
+SOCKETS_PER_DEVICE = 2
+
+
+class BindError(Exception):
+    """A device's address or port cannot be bound; the message says which and what to do."""
+
+
+def new_event_loop() -> asyncio.AbstractEventLoop:
+    """uvloop when installed, else the standard loop."""
+    try:
+        import uvloop
+    except ImportError:
+        return asyncio.new_event_loop()
+    return uvloop.new_event_loop()
+
+
+def raise_open_file_limit() -> int:
+    """Raise the soft RLIMIT_NOFILE to the hard limit; return the limit now in force."""
+    soft, hard = resource.getrlimit(resource.RLIMIT_NOFILE)
+    if soft < hard:
+        try:
+            resource.setrlimit(resource.RLIMIT_NOFILE, (hard, hard))
+            soft = hard
+        except (ValueError, OSError):
+            pass
+    return soft
+
+
+def _bind_message(device: Device, transport: str, error: OSError) -> str:
+    where = f"device {device.name!r}: cannot bind {transport} {device.profile.address}:{ENIP_PORT}"
+    if error.errno == errno.EADDRNOTAVAIL:
+        return (f"{where}: the address is not assigned to any interface of this host. Add it as an alias, "
+                f"e.g. `sudo ip addr add {device.profile.address}/32 dev lo` (every 127.x.y.z address "
+                "works on Linux without this).")
+    if error.errno == errno.EADDRINUSE:
+        return f"{where}: the port is already in use there (another farm or EtherNet/IP stack?)."
+    if error.errno == errno.EMFILE:
+        return (f"{where}: out of file descriptors (limit {resource.getrlimit(resource.RLIMIT_NOFILE)[0]}); "
+                f"each device needs {SOCKETS_PER_DEVICE} plus one per client connection. Raise `ulimit -n`.")
+    return f"{where}: {error.strerror}"
+
+
+class Farm:
+    """The devices of one configuration, served from one event loop."""
+
+    def __init__(self, config: FarmConfig) -> None:
+        self.config = config
+        self.devices: dict[str, Device] = {d.name: Device(resolve(d)) for d in config.devices}
+        self._servers: list[asyncio.AbstractServer] = []
+        self._connections: set[EncapsulationProtocol] = set()
+        self._datagram_transports: list[asyncio.DatagramTransport] = []
+        self._discovery: DiscoveryResponder | None = None
+        self.running = False
+
+    def device(self, name: str) -> Device:
+        return self.devices[name]
+
+    async def start(self) -> None:
+        loop = asyncio.get_running_loop()
+        raise_open_file_limit()
+        endpoints: list[DeviceDatagramProtocol] = []
+        try:
+            for device in self.devices.values():
+                address = device.profile.address
+                try:
+                    server = await loop.create_server(
+                        lambda d=device: EncapsulationProtocol(d, self._connections), host=address, port=ENIP_PORT,
+                        reuse_address=True, backlog=128,
+                    )
+                except OSError as error:
+                    raise BindError(_bind_message(device, "TCP", error)) from None
+                self._servers.append(server)
+                try:
+                    sock = udp_socket(address)
+                except OSError as error:
+                    raise BindError(_bind_message(device, "UDP", error)) from None
+                transport, endpoint = await loop.create_datagram_endpoint(
+                    lambda d=device: DeviceDatagramProtocol(d), sock=sock
+                )
+                self._datagram_transports.append(transport)
+                endpoints.append(endpoint)
+            if self.config.discovery:
+                try:
+                    self._discovery = DiscoveryResponder(loop, endpoints)
+                except OSError as error:
+                    raise BindError(f"discovery responder: cannot bind UDP 0.0.0.0:{ENIP_PORT}: {error.strerror}. "
+                                    "Set `discovery: false` to serve without broadcast ListIdentity.") from None
+        except BaseException:
+            await self.stop()
+            raise
+        self.running = True
+
+    async def stop(self) -> None:
+        if self._discovery is not None:
+            self._discovery.close()
+            self._discovery = None
+        for transport in self._datagram_transports:
+            transport.close()
+        self._datagram_transports.clear()
+        for server in self._servers:
+            server.close()
+        for connection in list(self._connections):
+            if connection.transport is not None:
+                connection.transport.close()
+        for server in self._servers:
+            await server.wait_closed()
+        self._servers.clear()
+        self.running = False
+
+    async def __aenter__(self) -> Farm:
+        await self.start()
+        return self
+
+    async def __aexit__(self, *exc: object) -> None:
+        await self.stop()
+
+    @contextmanager
+    def running_in_thread(self) -> Iterator[Farm]:
+        """Serve from a background thread with its own event loop, for synchronous callers."""
+        thread = FarmThread(self)
+        thread.start_and_wait()
+        try:
+            yield self
+        finally:
+            thread.stop()
+
+
+class FarmThread:
+    """Runs a farm's event loop in a daemon thread; start errors are re-raised in the caller."""
+
+    def __init__(self, farm: Farm) -> None:
+        self.farm = farm
+        self.loop = new_event_loop()
+        self._ready = threading.Event()
+        self._error: BaseException | None = None
+        self._stop: asyncio.Event | None = None
+        self._thread = threading.Thread(target=self._run, name="enip-farm", daemon=True)
+
+    def _run(self) -> None:
+        asyncio.set_event_loop(self.loop)
+        try:
+            self.loop.run_until_complete(self._main())
+        finally:
+            self.loop.close()
+
+    async def _main(self) -> None:
+        self._stop = asyncio.Event()
+        try:
+            await self.farm.start()
+        except BaseException as error:  # reported to the caller of start_and_wait
+            self._error = error
+            self._ready.set()
+            return
+        self._ready.set()
+        await self._stop.wait()
+        await self.farm.stop()
+
+    def start_and_wait(self, timeout: float = 30.0) -> None:
+        self._thread.start()
+        if not self._ready.wait(timeout):
+            raise TimeoutError("farm did not start in time")
+        if self._error is not None:
+            self._thread.join()
+            raise self._error
+
+    def stop(self, timeout: float = 30.0) -> None:
+        if self._thread.is_alive() and self._stop is not None:
+            self.loop.call_soon_threadsafe(self._stop.set)
+        self._thread.join(timeout)

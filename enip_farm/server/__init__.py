@@ -1,0 +1,1 @@
+"""The only asyncio code that touches sockets. It owns no protocol logic."""

@@ -1,0 +1,40 @@
+"""TCP 44818 (CIP Networks Library Vol. 2, 2-2.1): one protocol instance per connection, feeding
+the sans-IO encapsulation session and writing each batch of whole replies with one write."""
+
+from __future__ import annotations
+
+import asyncio
+
+from enip_farm.device.device import Device
+from enip_farm.protocol.session import EncapsulationSession
+
+
+class EncapsulationProtocol(asyncio.Protocol):
+    __slots__ = ("device", "session", "transport", "connections")
+
+    def __init__(self, device: Device, connections: set[EncapsulationProtocol]) -> None:
+        self.device = device
+        self.session = EncapsulationSession(device)
+        self.transport: asyncio.Transport | None = None
+        self.connections = connections  # the farm's open connections, closed at stop
+
+    def connection_made(self, transport: asyncio.BaseTransport) -> None:
+        self.transport = transport  # type: ignore[assignment]
+        self.connections.add(self)
+
+    def data_received(self, data: bytes) -> None:
+        session = self.session
+        replies = session.receive(data)
+        transport = self.transport
+        if replies:
+            transport.write(replies[0] if len(replies) == 1 else b"".join(replies))  # type: ignore[union-attr]
+        if session.closing:
+            transport.close()  # type: ignore[union-attr]
+
+    def eof_received(self) -> bool:
+        return False  # close our side too
+
+    def connection_lost(self, exc: Exception | None) -> None:
+        self.session.connection_lost()
+        self.connections.discard(self)
+        self.transport = None

@@ -1,0 +1,101 @@
+"""UDP 44818 (CIP Networks Library Vol. 2, 2-2.2): a socket per device for unicast ListIdentity
+and ListServices, and one discovery responder on 0.0.0.0:44818 that answers a broadcast
+ListIdentity for every device, each reply sent from that device's own socket and address."""
+
+from __future__ import annotations
+
+import asyncio
+import ipaddress
+import logging
+import socket
+import struct
+
+from enip_farm.device.device import ENIP_PORT, Device
+from enip_farm.protocol.session import handle_datagram
+
+log = logging.getLogger(__name__)
+
+#: Linux's IP_PKTINFO (socket.IP_PKTINFO exists only from Python 3.12).
+IP_PKTINFO = getattr(socket, "IP_PKTINFO", 8)
+_IN_PKTINFO = struct.Struct("=i4s4s")  # ifindex, spec_dst, addr (the datagram's destination)
+_LIMITED_BROADCAST = ipaddress.IPv4Address("255.255.255.255")
+_LOOPBACK = ipaddress.IPv4Network("127.0.0.0/8")
+
+
+def udp_socket(host: str, port: int = ENIP_PORT) -> socket.socket:
+    """A UDP socket with SO_REUSEADDR, so device sockets and a wildcard socket share the port."""
+    sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    try:
+        sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+        sock.setblocking(False)
+        sock.bind((host, port))
+    except OSError:
+        sock.close()
+        raise
+    return sock
+
+
+class DeviceDatagramProtocol(asyncio.DatagramProtocol):
+    def __init__(self, device: Device) -> None:
+        self.device = device
+        self.transport: asyncio.DatagramTransport | None = None
+
+    def connection_made(self, transport: asyncio.BaseTransport) -> None:
+        self.transport = transport  # type: ignore[assignment]
+
+    def datagram_received(self, data: bytes, addr: tuple[str, int]) -> None:
+        self.answer(data, addr)
+
+    def answer(self, data: bytes, addr: tuple[str, int]) -> None:
+        reply = handle_datagram(self.device, data)
+        if reply is not None and self.transport is not None:
+            self.transport.sendto(reply, addr)
+
+    def error_received(self, exc: Exception) -> None:
+        log.debug("%s: UDP error %s", self.device.name, exc)
+
+
+def broadcast_addresses(device: Device) -> frozenset[ipaddress.IPv4Address]:
+    """The destinations a device treats as a broadcast to it."""
+    address = ipaddress.IPv4Address(device.profile.address)
+    network = ipaddress.IPv4Network(f"{address}/{device.profile.netmask}", strict=False)
+    found = {_LIMITED_BROADCAST, network.broadcast_address}
+    if address in _LOOPBACK:
+        found.add(_LOOPBACK.broadcast_address)
+    return frozenset(found)
+
+
+class DiscoveryResponder:
+    """Reads datagrams sent to 0.0.0.0:44818 with their destination address (IP_PKTINFO) and
+    hands each broadcast to the device endpoints it concerns."""
+
+    def __init__(self, loop: asyncio.AbstractEventLoop, endpoints: list[DeviceDatagramProtocol]) -> None:
+        self.loop = loop
+        self.endpoints = [(endpoint, broadcast_addresses(endpoint.device)) for endpoint in endpoints]
+        self.sock = udp_socket("0.0.0.0")
+        self.sock.setsockopt(socket.SOL_SOCKET, socket.SO_BROADCAST, 1)
+        self.sock.setsockopt(socket.IPPROTO_IP, IP_PKTINFO, 1)
+        loop.add_reader(self.sock.fileno(), self._readable)
+
+    def _readable(self) -> None:
+        for _ in range(64):  # bounded batch per wake-up
+            try:
+                data, ancillary, _flags, addr = self.sock.recvmsg(2048, socket.CMSG_SPACE(_IN_PKTINFO.size))
+            except (BlockingIOError, InterruptedError):
+                return
+            except OSError as error:
+                log.debug("discovery: %s", error)
+                return
+            destination = None
+            for level, kind, payload in ancillary:
+                if level == socket.IPPROTO_IP and kind == IP_PKTINFO:
+                    destination = ipaddress.IPv4Address(_IN_PKTINFO.unpack_from(payload)[2])
+            if destination is None:
+                continue
+            for endpoint, broadcasts in self.endpoints:
+                if destination in broadcasts:
+                    endpoint.answer(data, addr)
+
+    def close(self) -> None:
+        self.loop.remove_reader(self.sock.fileno())
+        self.sock.close()
