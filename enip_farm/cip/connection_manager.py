@@ -5,8 +5,8 @@ are not implemented here: they get 0x08."""
 
 from __future__ import annotations
 
-from enip_farm.cip.object import CipClass, CipInstance, ServiceResult
 from enip_farm.cip.message_router import MessageRouter
+from enip_farm.cip.object import CipClass, CipInstance, ServiceResult
 from enip_farm.protocol.cip import CipDecodeError, Service, decode_unconnected_send
 from enip_farm.protocol.epath import PathError, PortSegment, RequestPath, decode_epath
 from enip_farm.protocol.status import ExtendedStatus, GeneralStatus

@@ -3,9 +3,10 @@ request, dispatches it by class id, and answers Multiple Service Packet (0x0A)."
 
 from __future__ import annotations
 
+import logging
 import struct
 
-from enip_farm.cip.object import ServiceResult, UINT, CipClass, CipInstance, constant
+from enip_farm.cip.object import UINT, CipClass, CipInstance, ServiceResult, constant
 from enip_farm.protocol.cip import (
     REPLY_BIT,
     CipDecodeError,
@@ -19,6 +20,7 @@ from enip_farm.protocol.epath import PathError, RequestPath, decode_request_path
 from enip_farm.protocol.status import GeneralStatus
 
 _PATH_CACHE_SIZE = 4096
+log = logging.getLogger(__name__)
 
 
 class MessageRouter(CipClass):
@@ -57,7 +59,7 @@ class MessageRouter(CipClass):
             try:
                 path = decode_request_path(path_bytes)
             except PathError as error:
-                path = error.status
+                path = int(error.status)
             if len(self._paths) < _PATH_CACHE_SIZE:
                 self._paths[path_bytes] = path
         if type(path) is int:
@@ -73,7 +75,11 @@ class MessageRouter(CipClass):
         handler = obj.handlers.get(service)
         if handler is None:
             return encode_reply(service, GeneralStatus.SERVICE_NOT_SUPPORTED)
-        result = handler(instance, path, data)
+        try:
+            result = handler(instance, path, data)
+        except Exception:  # a defect in an object must not cost the client its connection
+            log.exception("class 0x%02X service 0x%02X failed", path.class_id, service)
+            return encode_reply(service, GeneralStatus.VENDOR_SPECIFIC)
         if type(result) is bytes:
             return result
         return encode_reply(service, result[0], result[1], result[2])

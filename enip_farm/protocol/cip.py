@@ -102,7 +102,7 @@ def decode_multiple_service_request(data: bytes) -> list[bytes]:
         raise CipDecodeError(GeneralStatus.NOT_ENOUGH_DATA, "offset table truncated")
     offsets = list(struct.unpack_from(f"<{count}H", data, 2)) + [size]
     requests = []
-    for start, stop in zip(offsets, offsets[1:]):
+    for start, stop in zip(offsets, offsets[1:], strict=False):
         if not table_end <= start < stop <= size:
             raise CipDecodeError(GeneralStatus.INVALID_PARAMETER, "offset out of range")
         requests.append(data[start:stop])

@@ -4,9 +4,12 @@ the sans-IO encapsulation session and writing each batch of whole replies with o
 from __future__ import annotations
 
 import asyncio
+import logging
 
 from enip_farm.device.device import Device
 from enip_farm.protocol.session import EncapsulationSession
+
+log = logging.getLogger(__name__)
 
 
 class EncapsulationProtocol(asyncio.Protocol):
@@ -24,7 +27,12 @@ class EncapsulationProtocol(asyncio.Protocol):
 
     def data_received(self, data: bytes) -> None:
         session = self.session
-        replies = session.receive(data)
+        try:
+            replies = session.receive(data)
+        except Exception:  # last resort: the protocol layers answer errors as values
+            log.exception("%s: closing a connection after an internal error", self.device.name)
+            self.transport.close()  # type: ignore[union-attr]
+            return
         transport = self.transport
         if replies:
             transport.write(replies[0] if len(replies) == 1 else b"".join(replies))  # type: ignore[union-attr]
