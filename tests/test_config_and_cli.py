@@ -1,0 +1,139 @@
+"""Configuration errors (named file, device and field; no traceback), bind failures, and the CLI:
+`serve` prints its table once listening and exits 0 on SIGTERM; `validate`; `models`."""
+
+from __future__ import annotations
+
+import signal
+import subprocess
+import sys
+import textwrap
+from pathlib import Path
+
+import pytest
+
+from enip_farm.config import ConfigError, load_config, parse_config
+from enip_farm.farm import BindError, Farm
+from tests.helpers import RawClient, next_address
+
+CLI = [sys.executable, "-m", "enip_farm"]
+
+
+def _write(tmp_path: Path, text: str) -> Path:
+    path = tmp_path / "cell.yaml"
+    path.write_text(textwrap.dedent(text))
+    return path
+
+
+@pytest.mark.parametrize(
+    ("body", "expected"),
+    [
+        ("devices:\n  - {name: io1, address: 127.0.0.300, model: DSQC1030}\n", "device 'io1' (devices[0]), address"),
+        ("devices:\n  - {name: io1, address: 127.0.0.3, model: DSQC9999}\n", "device 'io1' (devices[0]), model"),
+        ("devices:\n  - {name: io1, address: 127.0.0.3, model: DSQC1030, addons: [DSQC1030]}\n",
+         "addons: unknown add-on 'DSQC1030'"),
+        ("devices:\n  - {name: io1, address: 127.0.0.3, model: DSQC1030, colour: red}\n", "colour"),
+        ("devices:\n  - {name: io1, address: 127.0.0.3, model: DSQC1030, identity: {vendor_id: 70000}}\n",
+         "identity.vendor_id"),
+        ("devices:\n  - {name: a, address: 127.0.0.3, model: DSQC1030}\n"
+         "  - {name: a, address: 127.0.0.4, model: DSQC1030}\n", "same name a"),
+        ("devices:\n  - {name: a, address: 127.0.0.3, model: DSQC1030}\n"
+         "  - {name: b, address: 127.0.0.3, model: DSQC1030}\n", "same address 127.0.0.3"),
+        ("devices: []\n", "devices"),
+        ("devices: [\n", "not valid YAML"),
+    ],
+)
+def test_config_errors_name_file_device_field(tmp_path: Path, body: str, expected: str) -> None:
+    path = _write(tmp_path, body)
+    with pytest.raises(ConfigError) as error:
+        load_config(path)
+    assert str(path) in str(error.value)
+    assert expected in str(error.value)
+    result = subprocess.run([*CLI, "validate", str(path)], capture_output=True, text=True, timeout=60)
+    assert result.returncode == 2
+    assert expected in result.stderr and "Traceback" not in result.stderr
+
+
+def test_invalid_config_refused_before_binding(tmp_path: Path) -> None:
+    address = next_address()
+    path = _write(tmp_path, f"devices:\n  - {{name: ok, address: {address}, model: DSQC1030}}\n"
+                            "  - {name: bad, address: nonsense, model: DSQC1030}\n")
+    result = subprocess.run([*CLI, "serve", "--config", str(path)], capture_output=True, text=True, timeout=60)
+    assert result.returncode == 2 and "device 'bad'" in result.stderr and "Traceback" not in result.stderr
+
+
+def test_unbindable_address_names_device_and_alias(tmp_path: Path) -> None:
+    # 192.0.2.1 (RFC 5737 documentation range) is on no interface: bind fails, no packet is sent.
+    config = parse_config({"devices": [{"name": "first", "address": next_address(), "model": "DSQC1030"},
+                                       {"name": "remote", "address": "192.0.2.1", "model": "DSQC1030"}],
+                           "discovery": False})
+    farm = Farm(config)
+    with pytest.raises(BindError) as error, farm.running_in_thread():
+        pass
+    assert "device 'remote'" in str(error.value) and "ip addr add 192.0.2.1/32 dev lo" in str(error.value)
+    with pytest.raises(OSError):  # the first device's sockets were released again
+        RawClient(config.devices[0].address.exploded, timeout=1)
+    path = _write(tmp_path, "devices:\n  - {name: remote, address: 192.0.2.1, model: DSQC1030}\ndiscovery: false\n")
+    result = subprocess.run([*CLI, "serve", "--config", str(path)], capture_output=True, text=True, timeout=60)
+    assert result.returncode == 1 and "ip addr add" in result.stderr and "Traceback" not in result.stderr
+
+
+def test_serve_prints_table_and_stops_on_sigterm(tmp_path: Path) -> None:
+    a, b = next_address(), next_address()
+    path = _write(tmp_path, f"""\
+        devices:
+          - {{name: left, address: {a}, model: DSQC1030, addons: [DSQC1032]}}
+          - {{name: right, address: {b}, model: DSQC1030}}
+        discovery: false
+        """)
+    process = subprocess.Popen([*CLI, "serve", "--config", str(path)], stdout=subprocess.PIPE,
+                               stderr=subprocess.PIPE, text=True)
+    try:
+        header = process.stdout.readline()  # printed once every device listens
+        rows = [process.stdout.readline(), process.stdout.readline()]
+        assert header.split() == ["NAME", "ADDRESS", "MODEL", "IN", "BYTES", "OUT", "BYTES"]
+        assert rows[0].split() == ["left", a, "DSQC1030+DSQC1032", "10", "10"]
+        with RawClient(b) as c:
+            c.register()
+            assert c.get(4, 100, 3).data == b"\x00\x00"
+        process.send_signal(signal.SIGTERM)
+        assert process.wait(timeout=20) == 0
+    finally:
+        process.kill()
+        process.communicate()
+    with pytest.raises(OSError):
+        RawClient(a, timeout=1)
+
+
+def test_serve_default_cell_sigint(tmp_path: Path) -> None:
+    """`enip-farm serve` with no --config serves the shipped default cell on 127.0.10.x."""
+    process = subprocess.Popen([*CLI, "serve"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        lines = [process.stdout.readline() for _ in range(9)]
+        if process.poll() is not None:
+            error = process.stderr.read()
+            if "already in use" not in error:
+                pytest.fail(error)
+            pytest.skip(f"another farm serves the default cell on this host: {error}")
+        names = [line.split()[0] for line in lines[1:]]
+        assert len(names) == 8 and "io1" in names
+        process.send_signal(signal.SIGINT)
+        assert process.wait(timeout=20) == 0
+    finally:
+        process.kill()
+        process.communicate()
+
+
+def test_models_marks_unverified() -> None:
+    result = subprocess.run([*CLI, "models"], capture_output=True, text=True, timeout=60)
+    assert result.returncode == 0
+    for model in ("DSQC1030", "DSQC1031", "DSQC1032", "DSQC1033", "DSQC1042"):
+        assert model in result.stdout
+    assert "UNVERIFIED: identity.device_type, identity.product_code" in result.stdout
+
+
+def test_shipped_default_cell_is_valid() -> None:
+    repo_copy = Path(__file__).parent.parent / "configs" / "default-cell.yaml"
+    config = load_config(repo_copy)
+    addons = {addon for device in config.devices for addon in device.addons}
+    assert addons == {"DSQC1031", "DSQC1032", "DSQC1033"}
+    assert {device.model for device in config.devices} == {"DSQC1030", "DSQC1042"}
