@@ -40,6 +40,35 @@ def decode_send_data(data: bytes) -> SendData:
     return SendData(handle, timeout, decode_items(data, 6))
 
 
+# interface handle and timeout (6 bytes), then: 2 items, null address of length 0, unconnected data
+_CANONICAL_ITEMS = struct.pack("<HHHH", 2, ItemType.NULL_ADDRESS, 0, ItemType.UNCONNECTED_DATA)
+
+
+def decode_unconnected_message(data: bytes) -> bytes | None:
+    """The CIP message of a SendRRData body, or None if the body is malformed or carries other
+    items than exactly a null address and a non-empty unconnected data item.
+
+    The layout every client sends is recognised by comparing bytes; anything else takes the general
+    item decoder, so both paths accept exactly the same inputs."""
+    if data[6:14] == _CANONICAL_ITEMS and len(data) >= 16:
+        length = data[14] | data[15] << 8
+        if length and length == len(data) - 16:
+            return data[16:]
+    try:
+        items = decode_send_data(data).items
+    except ValueError:
+        return None
+    if (
+        len(items) != 2
+        or items[0].type_id != ItemType.NULL_ADDRESS
+        or items[0].data
+        or items[1].type_id != ItemType.UNCONNECTED_DATA
+        or not items[1].data
+    ):
+        return None
+    return items[1].data
+
+
 def encode_send_data(items: list[tuple[int, bytes]], timeout: int = 0, interface_handle: int = 0) -> bytes:
     return _SEND_DATA_HEADER.pack(interface_handle, timeout) + encode_items(items)
 

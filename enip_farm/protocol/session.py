@@ -10,7 +10,7 @@ from __future__ import annotations
 import struct
 from typing import Protocol
 
-from enip_farm.protocol.commands import PROTOCOL_VERSION, REGISTER_SESSION, decode_send_data
+from enip_farm.protocol.commands import PROTOCOL_VERSION, REGISTER_SESSION, decode_unconnected_message
 from enip_farm.protocol.cpf import ItemType
 from enip_farm.protocol.encapsulation import (
     HEADER,
@@ -27,6 +27,7 @@ _SUPPORTED_REGISTER = REGISTER_SESSION.pack(PROTOCOL_VERSION, 0)
 # interface handle 0, timeout 0, 2 items: null address, unconnected data (length follows)
 _RR_PREFIX = struct.pack("<IHHHHH", 0, 0, 2, ItemType.NULL_ADDRESS, 0, ItemType.UNCONNECTED_DATA)
 _UINT = struct.Struct("<H")
+_SEND_RR_DATA = int(Command.SEND_RR_DATA)
 
 
 class Target(Protocol):
@@ -87,7 +88,7 @@ class EncapsulationSession:
     def handle_frame(self, frame: Frame) -> bytes | None:
         header, data = frame
         command = header.command
-        if command == Command.SEND_RR_DATA:  # the hot path first
+        if command == _SEND_RR_DATA:  # the hot path first
             return self._send_rr_data(header, data)
         if header.options:
             self.discarded += 1
@@ -130,21 +131,12 @@ class EncapsulationSession:
             return None
         if not header.session_handle or header.session_handle != self.session_handle:
             return _reply(header, status=EncapsulationStatus.INVALID_SESSION_HANDLE)
-        try:
-            items = decode_send_data(data).items
-        except ValueError:
+        request = decode_unconnected_message(data)
+        if request is None:
             return _reply(header, status=EncapsulationStatus.INCORRECT_DATA)
-        if (
-            len(items) != 2
-            or items[0].type_id != ItemType.NULL_ADDRESS
-            or items[0].data
-            or items[1].type_id != ItemType.UNCONNECTED_DATA
-            or not items[1].data
-        ):
-            return _reply(header, status=EncapsulationStatus.INCORRECT_DATA)
-        message = self.target.handle_unconnected(items[1].data)
+        message = self.target.handle_unconnected(request)
         body = _RR_PREFIX + _UINT.pack(len(message)) + message
-        return HEADER.pack(Command.SEND_RR_DATA, len(body), header.session_handle, 0, header.sender_context, 0) + body
+        return HEADER.pack(_SEND_RR_DATA, len(body), header.session_handle, 0, header.sender_context, 0) + body
 
 
 def handle_datagram(target: Target, datagram: bytes) -> bytes | None:
