@@ -69,7 +69,9 @@ def test_broadcast_list_identity_answered_by_every_device(make_farm) -> None:
     assert seen == expected
 
 
-def test_pycomm3_discover(make_farm) -> None:
+def test_pycomm3_discover(make_farm, monkeypatch) -> None:
+    # pycomm3 broadcasts from each address its host name resolves to; pin that to loopback
+    monkeypatch.setattr(socket, "gethostname", lambda: "localhost")
     farm = make_farm({"name": "a", "model": "DSQC1030"}, {"name": "b", "model": "DSQC1030"}, discovery=True)
     found = {d["ip_address"] for d in CIPDriver.discover("127.255.255.255")}
     assert {d.profile.address for d in farm.devices.values()} <= found
