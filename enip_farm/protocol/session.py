@@ -87,12 +87,12 @@ class EncapsulationSession:
 
     def handle_frame(self, frame: Frame) -> bytes | None:
         header, data = frame
-        command = header.command
-        if command == _SEND_RR_DATA:  # the hot path first
-            return self._send_rr_data(header, data)
         if header.options:
             self.discarded += 1
             return None
+        command = header.command
+        if command == _SEND_RR_DATA:  # the hot path first
+            return self._send_rr_data(header, data)
         if command == Command.NOP:
             return None
         if command == Command.REGISTER_SESSION:
@@ -125,10 +125,7 @@ class EncapsulationSession:
         self.session_handle = self.target.register_session()
         return _reply(header, _SUPPORTED_REGISTER, self.session_handle)
 
-    def _send_rr_data(self, header: EncapsulationHeader, data: bytes) -> bytes | None:
-        if header.options:
-            self.discarded += 1
-            return None
+    def _send_rr_data(self, header: EncapsulationHeader, data: bytes) -> bytes:
         if not header.session_handle or header.session_handle != self.session_handle:
             return _reply(header, status=EncapsulationStatus.INVALID_SESSION_HANDLE)
         request = decode_unconnected_message(data)
