@@ -127,3 +127,14 @@ def test_send_unit_data_is_refused_without_connections(dsqc1030: str) -> None:
         reply = c.exchange(encode_frame(Command.SEND_UNIT_DATA, encode_send_data([]), 1))
         assert reply.header.status == EncapsulationStatus.INVALID_COMMAND
         _still_usable(c)
+
+
+def test_non_zero_options_are_discarded(dsqc1030: str) -> None:
+    """Vol. 2, 2-3.6: a receiver discards a frame whose options field is not zero."""
+    with RawClient(dsqc1030) as c:
+        c.register()
+        c.send(encode_frame(Command.SEND_RR_DATA, encode_send_data([(ItemType.NULL_ADDRESS, b""),
+                                                                    (ItemType.UNCONNECTED_DATA, GET_OUTPUTS)]),
+                            1, sender_context=b"optioned", options=1))
+        reply = c.exchange(encode_send_rr_data(GET_OUTPUTS, 1, sender_context=CONTEXT))
+        assert reply.header.sender_context == CONTEXT  # the optioned frame got no reply
