@@ -9,7 +9,7 @@ from __future__ import annotations
 import re
 from ipaddress import IPv4Address
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal
 
 import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
@@ -51,9 +51,35 @@ class AssemblyConfig(_Strict):
     output: int | None = Field(None, ge=1, le=0xFFFF)
     input: int | None = Field(None, ge=1, le=0xFFFF)
     configuration: int | None = Field(None, ge=1, le=0xFFFF)
+    input_only: int | None = Field(None, ge=1, le=0xFFFF, description="heartbeat point of input-only connections")
+    listen_only: int | None = Field(None, ge=1, le=0xFFFF, description="heartbeat point of listen-only connections")
     output_size: int | None = Field(None, ge=0, le=496)
     input_size: int | None = Field(None, ge=0, le=496)
     configuration_size: int | None = Field(None, ge=0, le=496)
+
+
+class ImplicitConfig(_Strict):
+    """Class-1 and class-3 connection policy of a device. The DSQC modules' real limits are not
+    published: these defaults are the farm's (unverified for the hardware)."""
+
+    rpi_min_us: int = Field(2_000, ge=100, description="smallest accepted RPI, microseconds")
+    rpi_max_us: int = Field(10_000_000, le=0xFFFFFFFF, description="largest accepted RPI, microseconds")
+    max_class1_connections: int = Field(8, ge=0, le=256)
+    max_class3_connections: int = Field(6, ge=0, le=256)
+    idle_state: Literal["off", "hold"] = Field("off", description="outputs on Idle and on Forward Close")
+    fault_state: Literal["off", "hold"] = Field("off", description="outputs when a connection times out")
+    explicit_output_writes_while_owned: bool = Field(
+        False, description="let Set Attribute Single write an output assembly an exclusive owner holds")
+    multicast_group: IPv4Address | None = Field(None, description="T->O multicast group; default per CIP "
+                                                "allocation (239.192.1.0 + 32 x (host id - 1))")
+    first_watchdog_s: float = Field(10.0, ge=0, description="the watchdog before the first O->T packet "
+                                    "is at least this long (OpENer uses 10 s)")
+
+    @model_validator(mode="after")
+    def _range(self) -> ImplicitConfig:
+        if self.rpi_min_us > self.rpi_max_us:
+            raise ValueError("rpi_min_us is larger than rpi_max_us")
+        return self
 
 
 class DeviceConfig(_Strict):
@@ -68,6 +94,7 @@ class DeviceConfig(_Strict):
     gateway: IPv4Address = IPv4Address("0.0.0.0")
     mac: str | None = Field(None, description="default: 02:00 followed by the address's four bytes")
     host_name: str = ""
+    implicit: ImplicitConfig = ImplicitConfig()
 
     @field_validator("model")
     @classmethod

@@ -13,11 +13,12 @@ from contextlib import contextmanager
 from enip_farm.config import FarmConfig
 from enip_farm.device.device import ENIP_PORT, Device
 from enip_farm.device.profile import resolve
+from enip_farm.server.implicit import IO_PORT, ImplicitIo
 from enip_farm.server.tcp import EncapsulationProtocol
 from enip_farm.server.udp import DeviceDatagramProtocol, DiscoveryResponder, udp_socket
 
-#: Sockets per device at rest: a TCP listener and a UDP socket; each client connection adds one.
-SOCKETS_PER_DEVICE = 2
+#: Sockets per device at rest: a TCP listener, UDP 44818 and UDP 2222; each client connection adds one.
+SOCKETS_PER_DEVICE = 3
 
 
 class BindError(Exception):
@@ -45,8 +46,8 @@ def raise_open_file_limit() -> int:
     return soft
 
 
-def _bind_message(device: Device, transport: str, error: OSError) -> str:
-    where = f"device {device.name!r}: cannot bind {transport} {device.profile.address}:{ENIP_PORT}"
+def _bind_message(device: Device, transport: str, error: OSError, port: int = ENIP_PORT) -> str:
+    where = f"device {device.name!r}: cannot bind {transport} {device.profile.address}:{port}"
     if error.errno == errno.EADDRNOTAVAIL:
         return (f"{where}: the address is not assigned to any interface of this host. Add it as an alias, "
                 f"e.g. `sudo ip addr add {device.profile.address}/32 dev lo` (every 127.x.y.z address "
@@ -69,6 +70,7 @@ class Farm:
         self._connections: set[EncapsulationProtocol] = set()
         self._datagram_transports: list[asyncio.DatagramTransport] = []
         self._discovery: DiscoveryResponder | None = None
+        self._implicit: ImplicitIo | None = None
         self.running = False
 
     def device(self, name: str) -> Device:
@@ -98,6 +100,13 @@ class Farm:
                 )
                 self._datagram_transports.append(transport)
                 endpoints.append(endpoint)
+            self._implicit = ImplicitIo()
+            for device in self.devices.values():
+                try:
+                    await self._implicit.add(device)
+                except OSError as error:
+                    raise BindError(_bind_message(device, "UDP", error, IO_PORT)) from None
+            self._implicit.start()
             if self.config.discovery:
                 try:
                     self._discovery = DiscoveryResponder(loop, endpoints)
@@ -110,6 +119,9 @@ class Farm:
         self.running = True
 
     async def stop(self) -> None:
+        if self._implicit is not None:
+            self._implicit.close()
+            self._implicit = None
         if self._discovery is not None:
             self._discovery.close()
             self._discovery = None

@@ -27,7 +27,8 @@ def client(dsqc1030: str):
         (encode_request(0x0E, encode_request_path(4, 150, 3)), GeneralStatus.PATH_DESTINATION_UNKNOWN),
         (encode_request(0x0E, encode_request_path(1, 2, 1)), GeneralStatus.PATH_DESTINATION_UNKNOWN),
         (encode_request(0x4B, encode_request_path(4, 100, 3)), GeneralStatus.SERVICE_NOT_SUPPORTED),
-        (encode_request(0x54, encode_request_path(6, 1)), GeneralStatus.SERVICE_NOT_SUPPORTED),
+        (encode_request(0x54, encode_request_path(6, 1)), GeneralStatus.NOT_ENOUGH_DATA),  # empty Forward Open
+        (encode_request(0x56, encode_request_path(6, 1)), GeneralStatus.SERVICE_NOT_SUPPORTED),
         (encode_request(0x0E, encode_request_path(4, 100, 9)), GeneralStatus.ATTRIBUTE_NOT_SUPPORTED),
         (encode_request(0x0E, encode_request_path(1, 1, 99)), GeneralStatus.ATTRIBUTE_NOT_SUPPORTED),
         (encode_request(0x10, encode_request_path(4, 100, 4), b"\x02\x00"), GeneralStatus.ATTRIBUTE_NOT_SETTABLE),

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import struct
 
-from enip_farm.protocol.commands import encode_send_data, encode_send_rr_data
+from enip_farm.protocol.commands import encode_connected_payload, encode_send_data, encode_send_rr_data
 from enip_farm.protocol.cpf import ItemType
 from enip_farm.protocol.encapsulation import HEADER, Command, EncapsulationStatus, encode_frame
 from tests.helpers import RawClient
@@ -121,11 +121,16 @@ def test_list_commands_over_tcp(dsqc1030: str) -> None:
         assert interfaces.data == b"\x00\x00"
 
 
-def test_send_unit_data_is_refused_without_connections(dsqc1030: str) -> None:
+def test_send_unit_data_on_unknown_connection_gets_0x0003(dsqc1030: str) -> None:
+    """No silence: a SendUnitData that names no connection of this session gets 0x0003."""
     with RawClient(dsqc1030) as c:
         c.register()
         reply = c.exchange(encode_frame(Command.SEND_UNIT_DATA, encode_send_data([]), 1))
-        assert reply.header.status == EncapsulationStatus.INVALID_COMMAND
+        assert reply.header.status == EncapsulationStatus.INCORRECT_DATA
+        reply = c.exchange(encode_frame(Command.SEND_UNIT_DATA, encode_connected_payload(0x1234, 1, GET_OUTPUTS), 1))
+        assert reply.header.status == EncapsulationStatus.INCORRECT_DATA
+        reply = c.exchange(encode_frame(Command.SEND_UNIT_DATA, encode_connected_payload(0x1234, 1, GET_OUTPUTS), 5))
+        assert reply.header.status == EncapsulationStatus.INVALID_SESSION_HANDLE
         _still_usable(c)
 
 

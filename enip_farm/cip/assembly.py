@@ -10,17 +10,23 @@ from enip_farm.protocol.status import GeneralStatus
 class AssemblyInstance:
     """One assembly's bytes. `settable` says whether clients may write attribute 3."""
 
-    __slots__ = ("instance_id", "data", "settable")
+    __slots__ = ("instance_id", "data", "settable", "owned", "writable_while_owned")
 
-    def __init__(self, instance_id: int, size: int, settable: bool) -> None:
+    def __init__(self, instance_id: int, size: int, settable: bool, writable_while_owned: bool = False) -> None:
         self.instance_id = instance_id
         self.data = bytearray(size)
         self.settable = settable
+        self.owned = False  # an exclusive-owner connection consumes into it
+        self.writable_while_owned = writable_while_owned
 
     def get(self) -> bytes:
         return bytes(self.data)
 
     def set(self, value: bytes) -> int:
+        """Set Attribute Single on attribute 3. While an exclusive owner holds the assembly, explicit
+        writes get 0x10 (device state conflict) unless the device's config allows them."""
+        if self.owned and not self.writable_while_owned:
+            return GeneralStatus.DEVICE_STATE_CONFLICT
         size = len(self.data)
         if len(value) < size:
             return GeneralStatus.NOT_ENOUGH_DATA

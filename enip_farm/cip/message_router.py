@@ -17,6 +17,7 @@ from enip_farm.protocol.cip import (
     encode_reply,
 )
 from enip_farm.protocol.epath import PathError, RequestPath, decode_request_path
+from enip_farm.protocol.session import MessageContext
 from enip_farm.protocol.status import GeneralStatus
 
 _PATH_CACHE_SIZE = 4096
@@ -48,7 +49,7 @@ class MessageRouter(CipClass):
         self.instances[1].attributes[1] = constant(object_list)
         self.instances[1].attributes[2] = constant(UINT.pack(len(ids)))
 
-    def handle(self, message: bytes) -> bytes:
+    def handle(self, message: bytes, context: MessageContext) -> bytes:
         """A whole request in, a whole reply out. Errors are replies, never exceptions."""
         try:
             service, path_bytes, data = decode_request(message)
@@ -76,7 +77,7 @@ class MessageRouter(CipClass):
         if handler is None:
             return encode_reply(service, GeneralStatus.SERVICE_NOT_SUPPORTED)
         try:
-            result = handler(instance, path, data)
+            result = handler(instance, path, data, context)
         except Exception:  # a defect in an object must not cost the client its connection
             log.exception("class 0x%02X service 0x%02X failed", path.class_id, service)
             return encode_reply(service, GeneralStatus.VENDOR_SPECIFIC)
@@ -84,14 +85,15 @@ class MessageRouter(CipClass):
             return result
         return encode_reply(service, result[0], result[1], result[2])
 
-    def multiple_service_packet(self, instance: CipInstance, path: RequestPath, data: bytes) -> ServiceResult:
+    def multiple_service_packet(self, instance: CipInstance, path: RequestPath, data: bytes,
+                                context: MessageContext) -> ServiceResult:
         if path.instance_id != 1:
             return ServiceResult(GeneralStatus.SERVICE_NOT_SUPPORTED)
         try:
             requests = decode_multiple_service_request(data)
         except CipDecodeError as error:
             return ServiceResult(error.status)
-        replies = [self.handle(request) for request in requests]
+        replies = [self.handle(request, context) for request in requests]
         failed = any(reply[2] != GeneralStatus.SUCCESS for reply in replies)
         status = GeneralStatus.EMBEDDED_SERVICE_ERROR if failed else GeneralStatus.SUCCESS
         return ServiceResult(status, encode_multiple_service(replies))

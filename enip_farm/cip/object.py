@@ -10,6 +10,7 @@ from typing import NamedTuple
 
 from enip_farm.protocol.cip import Service
 from enip_farm.protocol.epath import RequestPath
+from enip_farm.protocol.session import MessageContext
 from enip_farm.protocol.status import GeneralStatus
 
 UINT = struct.Struct("<H")
@@ -39,8 +40,8 @@ class CipInstance:
         self.all_ids = tuple(sorted(attributes)) if all_ids is None else all_ids
 
 
-#: A service handler: instance, parsed path, request data -> result, or a whole reply message.
-Handler = Callable[[CipInstance, RequestPath, bytes], "ServiceResult | bytes"]
+#: A service handler: instance, parsed path, request data, context -> result, or a whole reply message.
+Handler = Callable[[CipInstance, RequestPath, bytes, MessageContext], "ServiceResult | bytes"]
 
 NOT_SUPPORTED = ServiceResult(GeneralStatus.SERVICE_NOT_SUPPORTED)
 ATTRIBUTE_NOT_SUPPORTED = ServiceResult(GeneralStatus.ATTRIBUTE_NOT_SUPPORTED)
@@ -98,14 +99,16 @@ class CipClass:
         return self.class_instance if instance_id == 0 else self.instances.get(instance_id)
 
     @staticmethod
-    def get_attribute_single(instance: CipInstance, path: RequestPath, data: bytes) -> ServiceResult:
+    def get_attribute_single(instance: CipInstance, path: RequestPath, data: bytes,
+                             context: MessageContext) -> ServiceResult:
         attribute = instance.attributes.get(path.attribute_id)  # type: ignore[arg-type]
         if attribute is None:
             return ATTRIBUTE_NOT_SUPPORTED
         return ServiceResult(GeneralStatus.SUCCESS, attribute.get())
 
     @staticmethod
-    def set_attribute_single(instance: CipInstance, path: RequestPath, data: bytes) -> ServiceResult:
+    def set_attribute_single(instance: CipInstance, path: RequestPath, data: bytes,
+                             context: MessageContext) -> ServiceResult:
         attribute = instance.attributes.get(path.attribute_id)  # type: ignore[arg-type]
         if attribute is None:
             return ATTRIBUTE_NOT_SUPPORTED
@@ -114,6 +117,7 @@ class CipClass:
         return ServiceResult(attribute.set(data))
 
     @staticmethod
-    def get_attributes_all(instance: CipInstance, path: RequestPath, data: bytes) -> ServiceResult:
+    def get_attributes_all(instance: CipInstance, path: RequestPath, data: bytes,
+                             context: MessageContext) -> ServiceResult:
         return ServiceResult(GeneralStatus.SUCCESS,
                              b"".join(instance.attributes[i].get() for i in instance.all_ids))

@@ -41,6 +41,8 @@ class AssemblyIds(_Strict):
     output: int = Field(ge=1)
     input: int = Field(ge=1)
     configuration: int = Field(ge=1)
+    input_only: int | None = Field(None, ge=1, description="heartbeat connection point, input-only connections")
+    listen_only: int | None = Field(None, ge=1, description="heartbeat connection point, listen-only connections")
 
 
 class Model(_Strict):

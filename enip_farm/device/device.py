@@ -6,12 +6,18 @@ the control API, all read and write these same bytes.
 
 from __future__ import annotations
 
+import random
+import time
+from typing import Protocol
+
 from enip_farm.cip.assembly import AssemblyInstance, AssemblyObject
+from enip_farm.cip.connection import Connection, ConnectionKind
 from enip_farm.cip.connection_manager import ConnectionManager
 from enip_farm.cip.ethernet_link import EthernetLinkObject
 from enip_farm.cip.identity import STATUS_NO_IO_CONNECTIONS, IdentityObject
 from enip_farm.cip.message_router import MessageRouter
 from enip_farm.cip.tcpip_interface import TcpIpInterfaceObject
+from enip_farm.device.events import EventLog
 from enip_farm.device.profile import DeviceProfile
 from enip_farm.protocol.commands import (
     CAPABILITY_TCP,
@@ -22,11 +28,26 @@ from enip_farm.protocol.commands import (
     encode_identity_item,
     encode_service_item,
 )
+from enip_farm.protocol.connection import ConnectionTriad, IoPacket
 from enip_farm.protocol.cpf import ItemType, encode_items
+from enip_farm.protocol.session import MessageContext
 
 ENIP_PORT = 44818
 #: ListIdentity state: 3 = "operational" (Vol. 2, table 2-4.4 refers to the Identity state attribute).
 _STATE_OPERATIONAL = 3
+#: Identity status (Vol. 1, table 5-2.4): bit 0 owned; bits 4-7 extended device status.
+_OWNED = 0x0001
+_IO_RUN = 0x0060  # at least one I/O connection in run mode
+_IO_IDLE = 0x0070  # I/O connections established, all idle
+_HALF = 0x80000000
+
+
+class ConnectionObserver(Protocol):
+    """The server side of connections: produces T->O and supervises timeouts."""
+
+    def opened(self, connection: Connection) -> None: ...
+
+    def closed(self, connection: Connection) -> None: ...
 
 
 class Device:
@@ -34,12 +55,18 @@ class Device:
 
     def __init__(self, profile: DeviceProfile) -> None:
         self.profile = profile
+        writable = profile.implicit.explicit_output_writes_while_owned
         self.assemblies: dict[str, AssemblyInstance] = {
-            spec.role: AssemblyInstance(spec.instance_id, spec.size, spec.settable) for spec in profile.assemblies
+            spec.role: AssemblyInstance(spec.instance_id, spec.size, spec.settable, writable)
+            for spec in profile.assemblies
         }
-        self.status = STATUS_NO_IO_CONNECTIONS
         self._next_session_handle = 1
         self.sessions: set[int] = set()
+        self.events = EventLog(profile.name)
+        self.connections: dict[int, Connection] = {}  # by O->T connection id
+        self._by_triad: dict[ConnectionTriad, Connection] = {}
+        self._next_connection_id = random.getrandbits(32) & 0xFFFF0000
+        self.observer: ConnectionObserver | None = None
         self.router = MessageRouter()
         for obj in (
             IdentityObject(
@@ -52,7 +79,7 @@ class Device:
                 status=lambda: self.status,
             ),
             AssemblyObject(list(self.assemblies.values())),
-            ConnectionManager(self.router),
+            ConnectionManager(self.router, self),
             TcpIpInterfaceObject(address=profile.address, netmask=profile.netmask, gateway=profile.gateway,
                                  host_name=profile.host_name),
             EthernetLinkObject(mac=profile.mac),
@@ -78,6 +105,15 @@ class Device:
     def inputs(self) -> bytes:
         assembly = self.assemblies.get("input")
         return bytes(assembly.data) if assembly else b""
+
+    @property
+    def status(self) -> int:
+        """Identity attribute 5, from the device's I/O connections."""
+        io = [c for c in self.connections.values() if c.is_io]
+        if not io:
+            return STATUS_NO_IO_CONNECTIONS
+        owned = _OWNED if any(c.kind is ConnectionKind.EXCLUSIVE_OWNER for c in io) else 0
+        return owned | (_IO_RUN if any(c.run for c in io) else _IO_IDLE)
 
     def set_inputs(self, data: bytes) -> None:
         """Set the input image as a sensor would (not subject to `writable_inputs`)."""
@@ -112,5 +148,103 @@ class Device:
     def unregister_session(self, session_handle: int) -> None:
         self.sessions.discard(session_handle)
 
-    def handle_unconnected(self, message: bytes) -> bytes:
-        return self.router.handle(message)
+    def handle_unconnected(self, message: bytes, context: MessageContext) -> bytes:
+        return self.router.handle(message, context)
+
+    def handle_connected(self, connection_id: int, sequence_count: int, message: bytes,
+                         context: MessageContext) -> tuple[int, bytes] | None:
+        connection = self.connections.get(connection_id)
+        if connection is None or connection.is_io or connection.owner is not context.owner:
+            return None
+        connection.last_received = time.monotonic()
+        connection.received += 1
+        if connection.last_reply is not None and connection.last_reply[0] == sequence_count:
+            return connection.t_o_id, connection.last_reply[1]  # a duplicate: the same reply, not re-executed
+        reply = self.router.handle(message, context)
+        connection.last_reply = (sequence_count, reply)
+        return connection.t_o_id, reply
+
+    def session_closed(self, owner: object) -> None:
+        for connection in [c for c in self.connections.values() if c.owner is owner]:
+            self.close_connection(connection, "TCP connection closed")
+
+    # -- connections ----------------------------------------------------------------------------
+
+    def new_connection_id(self) -> int:
+        while True:
+            self._next_connection_id = (self._next_connection_id + 1) & 0xFFFFFFFF
+            if self._next_connection_id and self._next_connection_id not in self.connections:
+                return self._next_connection_id
+
+    def find_connection(self, triad: ConnectionTriad) -> Connection | None:
+        return self._by_triad.get(triad)
+
+    def open_connection(self, connection: Connection) -> None:
+        self.connections[connection.o_t_id] = connection
+        self._by_triad[connection.triad] = connection
+        if connection.kind is ConnectionKind.EXCLUSIVE_OWNER:
+            self.assemblies["output"].owned = True
+        self.events.record("connection opened", _describe(connection))
+        if self.observer is not None:
+            self.observer.opened(connection)
+
+    def close_connection(self, connection: Connection, reason: str) -> None:
+        if connection.closed:
+            return
+        connection.closed = True
+        self.connections.pop(connection.o_t_id, None)
+        self._by_triad.pop(connection.triad, None)
+        timed_out = reason == "timeout"
+        if connection.kind is ConnectionKind.EXCLUSIVE_OWNER:
+            output = self.assemblies["output"]
+            output.owned = False
+            policy = self.profile.implicit
+            if (policy.fault_state if timed_out else policy.idle_state) == "off":
+                output.data[:] = bytes(len(output.data))
+        self.events.record("connection timed out" if timed_out else "connection closed",
+                           f"{_describe(connection)}: {reason}")
+        if self.observer is not None:
+            self.observer.closed(connection)
+        if connection.multicast and connection.kind is not ConnectionKind.LISTEN_ONLY and not any(
+                c.multicast and c.t_o_point == connection.t_o_point and c.kind is not ConnectionKind.LISTEN_ONLY
+                for c in self.connections.values()):
+            for listener in [c for c in self.connections.values() if c.kind is ConnectionKind.LISTEN_ONLY
+                             and c.t_o_point == connection.t_o_point]:
+                self.close_connection(listener, "its producing connection closed")
+
+    def consume(self, source_host: str, packet: IoPacket) -> bool:
+        """An O->T packet (Vol. 2, 3-2): True if it belonged to a connection and was taken."""
+        connection = self.connections.get(packet.connection_id)
+        if connection is None or not connection.is_io or source_host != connection.originator_host:
+            return False
+        last = connection.last_sequence
+        if last is not None and (packet.sequence - last) & 0xFFFFFFFF >= _HALF:
+            return False  # older than what was consumed already
+        connection.last_sequence = packet.sequence
+        connection.last_received = time.monotonic()
+        connection.received += 1
+        data = packet.data
+        if not connection.o_t_run_idle_header:  # a heartbeat: no data, run/idle header optional
+            connection.run = not data or bool(data[0] & 1)
+            return True
+        if len(data) < 4:
+            return False
+        output = self.assemblies["output"]
+        connection.run = bool(data[0] & 1)
+        if connection.run:
+            payload = data[4:]
+            if len(payload) != len(output.data):
+                return False
+            output.data[:] = payload
+        elif self.profile.implicit.idle_state == "off":
+            output.data[:] = bytes(len(output.data))
+        return True
+
+    def produced_data(self) -> bytes:
+        """T->O data: the input image, modeless."""
+        return bytes(self.assemblies["input"].data)
+
+
+def _describe(connection: Connection) -> str:
+    return (f"{connection.kind.value} O->T 0x{connection.o_t_id:08X} T->O 0x{connection.t_o_id:08X} "
+            f"from {connection.originator_host}, RPI {connection.o_t_rpi}/{connection.t_o_rpi} us")

@@ -6,9 +6,10 @@ placeholders that a configuration did not override are remembered as unverified.
 
 from __future__ import annotations
 
+import ipaddress
 from dataclasses import dataclass
 
-from enip_farm.config import DeviceConfig
+from enip_farm.config import DeviceConfig, ImplicitConfig
 from enip_farm.device.catalogue import IoCounts, load_catalogue
 
 
@@ -50,6 +51,10 @@ class DeviceProfile:
     gateway: str
     host_name: str
     unverified: tuple[str, ...]
+    implicit: ImplicitConfig
+    input_only_point: int | None
+    listen_only_point: int | None
+    multicast_group: str
 
     def assembly(self, role: str) -> AssemblySpec | None:
         return next((a for a in self.assemblies if a.role == role), None)
@@ -69,14 +74,25 @@ def _address_bytes(address: str) -> bytes:
     return bytes(int(part) for part in address.split("."))
 
 
+#: CIP multicast address allocation (Vol. 2, 3-5.3): base 239.192.1.0, 32 groups per device.
+_MULTICAST_BASE = int(ipaddress.IPv4Address("239.192.1.0"))
+
+
+def default_multicast_group(address: str, netmask: str) -> str:
+    host_id = int(ipaddress.IPv4Address(address)) & ~int(ipaddress.IPv4Address(netmask)) & 0xFFFFFFFF
+    return str(ipaddress.IPv4Address(_MULTICAST_BASE + ((host_id - 1) & 0x3FF) * 32))
+
+
 def resolve(config: DeviceConfig) -> DeviceProfile:
     catalogue = load_catalogue()
     model = catalogue.models[config.model]
     assert model.identity is not None, f"base model {config.model} has no identity in the catalogue"
     identity = config.identity
     overridden = {name for name, value in identity.model_dump().items() if value is not None}
+    overridden |= {f"assemblies.{name}" for name, value in config.assemblies.model_dump().items()
+                   if value is not None}
     unverified = [f"{config.model}.{item}" for item in model.unverified
-                  if item.removeprefix("identity.") not in overridden]
+                  if item.removeprefix("identity.") not in overridden and item not in overridden]
 
     modules = []
     input_offset = output_offset = 0
@@ -122,4 +138,8 @@ def resolve(config: DeviceConfig) -> DeviceProfile:
         gateway=str(config.gateway),
         host_name=config.host_name,
         unverified=tuple(unverified),
+        implicit=config.implicit,
+        input_only_point=overrides.input_only or (model.assemblies.input_only if model.assemblies else None),
+        listen_only_point=overrides.listen_only or (model.assemblies.listen_only if model.assemblies else None),
+        multicast_group=str(config.implicit.multicast_group or default_multicast_group(address, str(config.netmask))),
     )

@@ -44,29 +44,55 @@ def decode_send_data(data: bytes) -> SendData:
 _CANONICAL_ITEMS = struct.pack("<HHHH", 2, ItemType.NULL_ADDRESS, 0, ItemType.UNCONNECTED_DATA)
 
 
-def decode_unconnected_message(data: bytes) -> bytes | None:
-    """The CIP message of a SendRRData body, or None if the body is malformed or carries other
-    items than exactly a null address and a non-empty unconnected data item.
+_SOCKADDR_ITEMS = (ItemType.SOCKADDR_O_T, ItemType.SOCKADDR_T_O)
+_NO_ITEMS: list[CpfItem] = []
+
+
+def decode_unconnected_message(data: bytes) -> tuple[bytes, list[CpfItem]] | None:
+    """The CIP message of a SendRRData body and its socket-address items (0x8000/0x8001, as a
+    Forward Open may carry), or None if the body is malformed or carries other items than a null
+    address, a non-empty unconnected data item and socket-address items of 16 bytes.
 
     The layout every client sends is recognised by comparing bytes; anything else takes the general
     item decoder, so both paths accept exactly the same inputs."""
     if data[6:14] == _CANONICAL_ITEMS and len(data) >= 16:
         length = data[14] | data[15] << 8
         if length and length == len(data) - 16:
-            return data[16:]
+            return data[16:], _NO_ITEMS
     try:
         items = decode_send_data(data).items
     except ValueError:
         return None
     if (
-        len(items) != 2
+        len(items) < 2
         or items[0].type_id != ItemType.NULL_ADDRESS
         or items[0].data
         or items[1].type_id != ItemType.UNCONNECTED_DATA
         or not items[1].data
+        or any(item.type_id not in _SOCKADDR_ITEMS or len(item.data) != 16 for item in items[2:])
     ):
         return None
-    return items[1].data
+    return items[1].data, items[2:]
+
+
+def decode_connected_message(data: bytes) -> tuple[int, int, bytes] | None:
+    """SendUnitData body: (connection id, sequence count, CIP message), or None if malformed."""
+    try:
+        items = decode_send_data(data).items
+    except ValueError:
+        return None
+    if (len(items) != 2 or items[0].type_id != ItemType.CONNECTED_ADDRESS or len(items[0].data) != 4
+            or items[1].type_id != ItemType.CONNECTED_DATA or len(items[1].data) < 3):
+        return None
+    return (int.from_bytes(items[0].data, "little"), int.from_bytes(items[1].data[:2], "little"),
+            items[1].data[2:])
+
+
+def encode_connected_payload(connection_id: int, sequence_count: int, message: bytes) -> bytes:
+    """SendUnitData body: connected address item and connected data item (sequence count first)."""
+    return _SEND_DATA_HEADER.pack(0, 0) + encode_items(
+        ((ItemType.CONNECTED_ADDRESS, struct.pack("<I", connection_id)),
+         (ItemType.CONNECTED_DATA, struct.pack("<H", sequence_count) + message)))
 
 
 def encode_send_data(items: list[tuple[int, bytes]], timeout: int = 0, interface_handle: int = 0) -> bytes:

@@ -10,8 +10,14 @@ from __future__ import annotations
 import struct
 from typing import Protocol
 
-from enip_farm.protocol.commands import PROTOCOL_VERSION, REGISTER_SESSION, decode_unconnected_message
-from enip_farm.protocol.cpf import ItemType
+from enip_farm.protocol.commands import (
+    PROTOCOL_VERSION,
+    REGISTER_SESSION,
+    decode_connected_message,
+    decode_unconnected_message,
+    encode_connected_payload,
+)
+from enip_farm.protocol.cpf import CpfItem, ItemType, encode_items
 from enip_farm.protocol.encapsulation import (
     HEADER,
     MAX_DATA_LENGTH,
@@ -27,7 +33,21 @@ _SUPPORTED_REGISTER = REGISTER_SESSION.pack(PROTOCOL_VERSION, 0)
 # interface handle 0, timeout 0, 2 items: null address, unconnected data (length follows)
 _RR_PREFIX = struct.pack("<IHHHHH", 0, 0, 2, ItemType.NULL_ADDRESS, 0, ItemType.UNCONNECTED_DATA)
 _UINT = struct.Struct("<H")
+_SEND_DATA_HEAD = struct.pack("<IH", 0, 0)  # interface handle, timeout
 _SEND_RR_DATA = int(Command.SEND_RR_DATA)
+
+
+class MessageContext:
+    """Where an explicit request came from, and the CPF items that travel beside it: the
+    socket-address items of a Forward Open in, and those its reply must carry out."""
+
+    __slots__ = ("peer_host", "owner", "items", "reply_items")
+
+    def __init__(self, peer_host: str, owner: object) -> None:
+        self.peer_host = peer_host
+        self.owner = owner  # the session; class-3 connections belong to it
+        self.items: list[CpfItem] = []
+        self.reply_items: list[tuple[int, bytes]] = []
 
 
 class Target(Protocol):
@@ -43,8 +63,18 @@ class Target(Protocol):
 
     def unregister_session(self, session_handle: int) -> None: ...
 
-    def handle_unconnected(self, message: bytes) -> bytes:
+    def handle_unconnected(self, message: bytes, context: MessageContext) -> bytes:
         """An unconnected CIP request in, its whole reply out."""
+        ...
+
+    def handle_connected(self, connection_id: int, sequence_count: int, message: bytes,
+                         context: MessageContext) -> tuple[int, bytes] | None:
+        """A class-3 request on one of this session's connections: (T->O connection id, reply),
+        or None when the connection is not this session's."""
+        ...
+
+    def session_closed(self, owner: object) -> None:
+        """The TCP connection ended: its class-3 connections end with it."""
         ...
 
 
@@ -57,14 +87,15 @@ def _reply(header: EncapsulationHeader, data: bytes = b"", session_handle: int |
 class EncapsulationSession:
     """One TCP connection: frames in, replies out; `closing` says the connection must end."""
 
-    __slots__ = ("target", "framer", "session_handle", "closing", "discarded")
+    __slots__ = ("target", "framer", "session_handle", "closing", "discarded", "context")
 
-    def __init__(self, target: Target, max_length: int = MAX_DATA_LENGTH) -> None:
+    def __init__(self, target: Target, peer_host: str = "0.0.0.0", max_length: int = MAX_DATA_LENGTH) -> None:
         self.target = target
         self.framer = StreamFramer(max_length)
         self.session_handle = 0  # 0: no session registered on this connection
         self.closing = False
         self.discarded = 0  # frames with non-zero options, discarded as the spec requires
+        self.context = MessageContext(peer_host, self)
 
     def receive(self, data: bytes) -> list[bytes]:
         replies: list[bytes] = []
@@ -84,6 +115,7 @@ class EncapsulationSession:
         if self.session_handle:
             self.target.unregister_session(self.session_handle)
             self.session_handle = 0
+            self.target.session_closed(self)
 
     def handle_frame(self, frame: Frame) -> bytes | None:
         header, data = frame
@@ -109,9 +141,8 @@ class EncapsulationSession:
             return _reply(header, self.target.list_services_data(), 0)
         if command == Command.LIST_INTERFACES:
             return _reply(header, self.target.list_interfaces_data(), 0)
-        if command == Command.SEND_UNIT_DATA and header.session_handle != self.session_handle:
-            return _reply(header, status=EncapsulationStatus.INVALID_SESSION_HANDLE)
-        # SendUnitData needs class-3 connections, which this device does not open yet.
+        if command == Command.SEND_UNIT_DATA:
+            return self._send_unit_data(header, data)
         return _reply(header, status=EncapsulationStatus.INVALID_COMMAND)
 
     def _register_session(self, header: EncapsulationHeader, data: bytes) -> bytes:
@@ -128,12 +159,33 @@ class EncapsulationSession:
     def _send_rr_data(self, header: EncapsulationHeader, data: bytes) -> bytes:
         if not header.session_handle or header.session_handle != self.session_handle:
             return _reply(header, status=EncapsulationStatus.INVALID_SESSION_HANDLE)
-        request = decode_unconnected_message(data)
-        if request is None:
+        decoded = decode_unconnected_message(data)
+        if decoded is None:
             return _reply(header, status=EncapsulationStatus.INCORRECT_DATA)
-        message = self.target.handle_unconnected(request)
-        body = _RR_PREFIX + _UINT.pack(len(message)) + message
+        request, items = decoded
+        context = self.context
+        context.items = items
+        message = self.target.handle_unconnected(request, context)
+        if context.reply_items:  # e.g. the T->O socket address of a multicast Forward Open
+            body = _SEND_DATA_HEAD + encode_items([(ItemType.NULL_ADDRESS, b""), (ItemType.UNCONNECTED_DATA, message),
+                                                   *context.reply_items])
+            context.reply_items = []
+        else:
+            body = _RR_PREFIX + _UINT.pack(len(message)) + message
         return HEADER.pack(_SEND_RR_DATA, len(body), header.session_handle, 0, header.sender_context, 0) + body
+
+    def _send_unit_data(self, header: EncapsulationHeader, data: bytes) -> bytes | None:
+        if not header.session_handle or header.session_handle != self.session_handle:
+            return _reply(header, status=EncapsulationStatus.INVALID_SESSION_HANDLE)
+        decoded = decode_connected_message(data)
+        if decoded is None:
+            return _reply(header, status=EncapsulationStatus.INCORRECT_DATA)
+        connection_id, sequence_count, message = decoded
+        answer = self.target.handle_connected(connection_id, sequence_count, message, self.context)
+        if answer is None:  # not a connection of this session: say so rather than stay silent
+            return _reply(header, status=EncapsulationStatus.INCORRECT_DATA)
+        t_o_id, reply = answer
+        return _reply(header, encode_connected_payload(t_o_id, sequence_count, reply))
 
 
 def handle_datagram(target: Target, datagram: bytes) -> bytes | None:

@@ -17,12 +17,14 @@ class EncapsulationProtocol(asyncio.Protocol):
 
     def __init__(self, device: Device, connections: set[EncapsulationProtocol]) -> None:
         self.device = device
-        self.session = EncapsulationSession(device)
+        self.session: EncapsulationSession | None = None
         self.transport: asyncio.Transport | None = None
         self.connections = connections  # the farm's open connections, closed at stop
 
     def connection_made(self, transport: asyncio.BaseTransport) -> None:
         self.transport = transport  # type: ignore[assignment]
+        peer = transport.get_extra_info("peername")
+        self.session = EncapsulationSession(self.device, peer[0] if peer else "0.0.0.0")
         self.connections.add(self)
 
     def data_received(self, data: bytes) -> None:
@@ -43,6 +45,7 @@ class EncapsulationProtocol(asyncio.Protocol):
         return False  # close our side too
 
     def connection_lost(self, exc: Exception | None) -> None:
-        self.session.connection_lost()
+        if self.session is not None:
+            self.session.connection_lost()
         self.connections.discard(self)
         self.transport = None

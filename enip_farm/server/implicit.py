@@ -1,0 +1,235 @@
+"""Class-1 implicit I/O on UDP 2222 (CIP Networks Library Vol. 2, 3-2 and 3-3).
+
+- One socket per device address (SO_REUSEADDR, so a scanner on the same host can still bind
+  0.0.0.0:2222) consumes O->T packets into the device.
+- Each connection has a watchdog on the event loop (timeout = RPI x 2^(2 + multiplier); the first
+  one no shorter than the device's `first_watchdog_s`).
+- One producer thread sends every T->O packet on absolute deadlines (start + n x RPI, no drift).
+  It is a thread because the event loop's timers resolve to 1 ms; a lock wait resolves to
+  nanoseconds. A T->O connection id shared by several multicast connections is produced once.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import heapq
+import itertools
+import logging
+import socket
+import sys
+import threading
+import time
+
+from enip_farm.cip.connection import Connection
+from enip_farm.device.device import Device
+from enip_farm.protocol.connection import decode_io_packet, encode_io_packet
+
+log = logging.getLogger(__name__)
+IO_PORT = 2222
+
+
+def io_socket(host: str, port: int = IO_PORT) -> socket.socket:
+    sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    try:
+        sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+        sock.setsockopt(socket.IPPROTO_IP, socket.IP_MULTICAST_IF, socket.inet_aton(host))
+        sock.setsockopt(socket.IPPROTO_IP, socket.IP_MULTICAST_LOOP, 1)
+        sock.setsockopt(socket.IPPROTO_IP, socket.IP_MULTICAST_TTL, 1)
+        sock.setblocking(False)
+        sock.bind((host, port))
+    except OSError:
+        sock.close()
+        raise
+    return sock
+
+
+class Production:
+    """One T->O stream: a connection id, a destination and a period."""
+
+    __slots__ = ("device", "sock", "connection_id", "address", "period", "start", "count", "sequence",
+                 "users", "stopped", "late", "errors")
+
+    def __init__(self, device: Device, sock: socket.socket, connection: Connection) -> None:
+        self.device = device
+        self.sock = sock
+        self.connection_id = connection.t_o_id
+        self.address = connection.t_o_address
+        self.period = connection.t_o_rpi / 1e6
+        self.start = time.monotonic()
+        self.count = 0  # packets due so far
+        self.sequence = 0
+        self.users = 1  # connections sharing this stream
+        self.stopped = False
+        self.late = 0  # periods skipped because the producer fell a whole period behind
+        self.errors = 0
+
+    def send(self) -> None:
+        self.sequence += 1
+        packet = encode_io_packet(self.connection_id, self.sequence, self.sequence, self.device.produced_data())
+        try:
+            self.sock.sendto(packet, self.address)
+        except OSError as error:
+            self.errors += 1
+            log.debug("%s: T->O send failed: %s", self.device.name, error)
+
+
+class Producer(threading.Thread):
+    """Sends each production at start + n x period."""
+
+    def __init__(self) -> None:
+        super().__init__(name="enip-farm-t-o", daemon=True)
+        self._heap: list[tuple[float, int, Production]] = []
+        self._order = itertools.count()
+        self._condition = threading.Condition()
+        self._stopping = False
+
+    def add(self, production: Production) -> None:
+        with self._condition:
+            heapq.heappush(self._heap, (production.start, next(self._order), production))
+            self._condition.notify()
+
+    def stop(self) -> None:
+        with self._condition:
+            self._stopping = True
+            self._condition.notify()
+        if self.is_alive():
+            self.join(5)
+
+    def run(self) -> None:
+        heap, condition = self._heap, self._condition
+        while True:
+            with condition:
+                while not self._stopping:
+                    if not heap:
+                        condition.wait()
+                        continue
+                    delay = heap[0][0] - time.monotonic()
+                    if delay <= 0:
+                        break
+                    condition.wait(delay)
+                if self._stopping:
+                    return
+                _, _, production = heapq.heappop(heap)
+            if production.stopped:
+                continue
+            production.send()
+            production.count += 1
+            due = production.start + production.count * production.period
+            behind = time.monotonic() - due
+            if behind > production.period:  # skip whole missed periods rather than burst
+                skipped = int(behind / production.period)
+                production.count += skipped
+                production.late += skipped
+                due += skipped * production.period
+            with condition:
+                heapq.heappush(heap, (due, next(self._order), production))
+
+
+class DeviceIo(asyncio.DatagramProtocol):
+    """UDP 2222 of one device, and the server side of its connections (the device's observer)."""
+
+    def __init__(self, device: Device, sock: socket.socket, producer: Producer) -> None:
+        self.device = device
+        self.sock = sock
+        self.producer = producer
+        self.loop = asyncio.get_running_loop()
+        self.transport: asyncio.DatagramTransport | None = None
+        self.productions: dict[int, Production] = {}
+        self.watchdogs: dict[Connection, asyncio.TimerHandle] = {}
+        self.dropped = 0  # datagrams that were no valid O->T packet of a connection of this device
+        device.observer = self
+
+    def connection_made(self, transport: asyncio.BaseTransport) -> None:
+        self.transport = transport  # type: ignore[assignment]
+
+    def datagram_received(self, data: bytes, addr: tuple[str, int]) -> None:
+        packet = decode_io_packet(data)
+        if packet is None or not self.device.consume(addr[0], packet):
+            self.dropped += 1
+
+    def error_received(self, exc: Exception) -> None:
+        log.debug("%s: UDP 2222 error %s", self.device.name, exc)
+
+    # -- ConnectionObserver ---------------------------------------------------------------------
+
+    def opened(self, connection: Connection) -> None:
+        first = connection.timeout if not connection.is_io else max(
+            connection.timeout, self.device.profile.implicit.first_watchdog_s)
+        self._arm(connection, connection.opened_at + first)
+        if not connection.is_io:
+            return
+        production = self.productions.get(connection.t_o_id)
+        if production is not None and not production.stopped:
+            production.users += 1
+            return
+        production = Production(self.device, self.sock, connection)
+        self.productions[connection.t_o_id] = production
+        self.producer.add(production)
+
+    def closed(self, connection: Connection) -> None:
+        handle = self.watchdogs.pop(connection, None)
+        if handle is not None:
+            handle.cancel()
+        production = self.productions.get(connection.t_o_id) if connection.is_io else None
+        if production is not None:
+            production.users -= 1
+            if production.users <= 0:
+                production.stopped = True
+                del self.productions[connection.t_o_id]
+
+    def _arm(self, connection: Connection, deadline: float) -> None:
+        self.watchdogs[connection] = self.loop.call_at(
+            self.loop.time() + (deadline - time.monotonic()), self._watchdog, connection)
+
+    def _watchdog(self, connection: Connection) -> None:
+        self.watchdogs.pop(connection, None)
+        if connection.closed:
+            return
+        if connection.received:
+            deadline = connection.last_received + connection.timeout
+        else:
+            deadline = connection.opened_at + max(connection.timeout, self.device.profile.implicit.first_watchdog_s)
+        if time.monotonic() >= deadline:
+            self.device.close_connection(connection, "timeout")
+        else:
+            self._arm(connection, deadline)
+
+    def close(self) -> None:
+        for handle in self.watchdogs.values():
+            handle.cancel()
+        self.watchdogs.clear()
+        for production in self.productions.values():
+            production.stopped = True
+        self.device.observer = None
+        if self.transport is not None:
+            self.transport.close()
+
+
+class ImplicitIo:
+    """UDP 2222 of every device of a farm, and the one producer thread."""
+
+    def __init__(self) -> None:
+        self.producer = Producer()
+        self.endpoints: list[DeviceIo] = []
+        self._sockets: list[socket.socket] = []
+        if sys.getswitchinterval() > 0.0005:
+            sys.setswitchinterval(0.0005)  # let the producer thread take the GIL promptly
+
+    async def add(self, device: Device) -> None:
+        sock = io_socket(device.profile.address)
+        self._sockets.append(sock)
+        loop = asyncio.get_running_loop()
+        _, endpoint = await loop.create_datagram_endpoint(lambda: DeviceIo(device, sock, self.producer), sock=sock)
+        self.endpoints.append(endpoint)
+
+    def start(self) -> None:
+        self.producer.start()
+
+    def close(self) -> None:
+        self.producer.stop()
+        for endpoint in self.endpoints:
+            endpoint.close()
+        self.endpoints.clear()
+        for sock in self._sockets:
+            sock.close()
+        self._sockets.clear()
