@@ -7,7 +7,8 @@ import os
 import socket
 
 from enip_farm.protocol.cip import MessageRouterReply, decode_reply, encode_request
-from enip_farm.protocol.commands import decode_send_data, encode_send_rr_data
+from enip_farm.protocol.commands import decode_send_data, encode_send_data
+from enip_farm.protocol.cpf import CpfItem, ItemType
 from enip_farm.protocol.encapsulation import Command, Frame, StreamFramer, encode_frame
 from enip_farm.protocol.epath import encode_request_path
 
@@ -72,10 +73,16 @@ class RawClient:
         return self.session_handle
 
     def request(self, message: bytes) -> MessageRouterReply:
-        frame = self.exchange(encode_send_rr_data(message, self.session_handle))
+        return self.request_items(message)[0]
+
+    def request_items(self, message: bytes, extra_items: list[tuple[int, bytes]] = ()) -> tuple[
+            MessageRouterReply, list[CpfItem]]:
+        """A request with optional extra CPF items (e.g. 0x8001); the reply and its extra items."""
+        items = [(ItemType.NULL_ADDRESS, b""), (ItemType.UNCONNECTED_DATA, message), *extra_items]
+        frame = self.exchange(encode_frame(Command.SEND_RR_DATA, encode_send_data(items), self.session_handle))
         assert frame.header.status == 0, frame
-        items = decode_send_data(frame.data).items
-        return decode_reply(items[1].data)
+        reply_items = decode_send_data(frame.data).items
+        return decode_reply(reply_items[1].data), reply_items[2:]
 
     def get(self, class_id: int, instance_id: int, attribute_id: int | None = None, service: int = 0x0E,
             data: bytes = b"") -> MessageRouterReply:
