@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import asyncio
+import gc
 import logging
 import signal
 import sys
@@ -72,6 +73,10 @@ async def _serve(farm: Farm) -> None:
     for sig in (signal.SIGINT, signal.SIGTERM):
         loop.add_signal_handler(sig, stop.set)
     await farm.start()
+    # Move everything built at start into the permanent generation: a full collection then scans
+    # only new objects, instead of stalling the T->O schedule (one ~25 ms stall seen in 60 s).
+    gc.collect()
+    gc.freeze()
     try:
         click.echo(device_table(farm))
         click.echo(f"{len(farm.devices)} devices listening on TCP and UDP 44818. Ctrl-C to stop.", err=True)
