@@ -103,7 +103,7 @@ class Farm:
             self._implicit = ImplicitIo()
             for device in self.devices.values():
                 try:
-                    await self._implicit.add(device)
+                    self._implicit.add(device)
                 except OSError as error:
                     raise BindError(_bind_message(device, "UDP", error, IO_PORT)) from None
             self._implicit.start()

@@ -82,7 +82,7 @@ def test_list_services_reply(session: EncapsulationSession) -> None:
     theirs = cpppo_decode(reply)
     _header_matches(reply, theirs)
     service = theirs.enip.CIP.list_services.CPF.item[0].communications_service
-    assert (service.version, service.capability, service.service_name) == (1, 0x20, "Communications")
+    assert (service.version, service.capability, service.service_name) == (1, 0x120, "Communications")
 
 
 def test_list_interfaces_reply(session: EncapsulationSession) -> None:

@@ -218,6 +218,20 @@ def test_duplicate_ownership_limits_and_close(make_farm) -> None:
         assert _refusal(c, forward_close(triad)) == 0x0107  # already closed
 
 
+def test_forward_open_through_unconnected_send(client: RawClient, device) -> None:
+    from enip_farm.protocol.cip import encode_unconnected_send
+    from enip_farm.protocol.epath import encode_port
+
+    message, triad = forward_open()
+    routed = encode_request(0x52, encode_request_path(6, 1), encode_unconnected_send(message, encode_port(1, 0)))
+    reply = client.request(routed)
+    assert reply.service == 0xD4 and reply.general_status == 0
+    assert device.find_connection(triad) is not None
+    closed = client.request(encode_request(0x52, encode_request_path(6, 1),
+                                           encode_unconnected_send(forward_close(triad), encode_port(1, 0))))
+    assert closed.service == 0xCE and closed.general_status == 0 and not device.connections
+
+
 def test_large_forward_open(client: RawClient, device) -> None:
     message, triad = forward_open(large=True, o_t_size=8, t_o_size=4)
     reply = client.request(message)

@@ -7,6 +7,7 @@ the control API, all read and write these same bytes.
 from __future__ import annotations
 
 import random
+import threading
 import time
 from typing import Protocol
 
@@ -21,6 +22,7 @@ from enip_farm.device.events import EventLog
 from enip_farm.device.profile import DeviceProfile
 from enip_farm.protocol.commands import (
     CAPABILITY_TCP,
+    CAPABILITY_UDP_CLASS_0_1,
     PROTOCOL_VERSION,
     IdentityItem,
     ServiceItem,
@@ -67,6 +69,8 @@ class Device:
         self._by_triad: dict[ConnectionTriad, Connection] = {}
         self._next_connection_id = random.getrandbits(32) & 0xFFFF0000
         self.observer: ConnectionObserver | None = None
+        # connections are opened and closed on the event loop and consumed in the cyclic I/O thread
+        self.lock = threading.Lock()
         self.router = MessageRouter()
         for obj in (
             IdentityObject(
@@ -85,10 +89,8 @@ class Device:
             EthernetLinkObject(mac=profile.mac),
         ):
             self.router.register(obj)
-        self._list_services = encode_items(
-            [(ItemType.LIST_SERVICES, encode_service_item(ServiceItem(PROTOCOL_VERSION, CAPABILITY_TCP,
-                                                                      "Communications")))]
-        )
+        service = ServiceItem(PROTOCOL_VERSION, CAPABILITY_TCP | CAPABILITY_UDP_CLASS_0_1, "Communications")
+        self._list_services = encode_items([(ItemType.LIST_SERVICES, encode_service_item(service))])
 
     @property
     def name(self) -> str:
@@ -180,27 +182,29 @@ class Device:
         return self._by_triad.get(triad)
 
     def open_connection(self, connection: Connection) -> None:
-        self.connections[connection.o_t_id] = connection
-        self._by_triad[connection.triad] = connection
-        if connection.kind is ConnectionKind.EXCLUSIVE_OWNER:
-            self.assemblies["output"].owned = True
+        with self.lock:
+            self.connections[connection.o_t_id] = connection
+            self._by_triad[connection.triad] = connection
+            if connection.kind is ConnectionKind.EXCLUSIVE_OWNER:
+                self.assemblies["output"].owned = True
         self.events.record("connection opened", _describe(connection))
         if self.observer is not None:
             self.observer.opened(connection)
 
     def close_connection(self, connection: Connection, reason: str) -> None:
-        if connection.closed:
-            return
-        connection.closed = True
-        self.connections.pop(connection.o_t_id, None)
-        self._by_triad.pop(connection.triad, None)
         timed_out = reason == "timeout"
-        if connection.kind is ConnectionKind.EXCLUSIVE_OWNER:
-            output = self.assemblies["output"]
-            output.owned = False
-            policy = self.profile.implicit
-            if (policy.fault_state if timed_out else policy.idle_state) == "off":
-                output.data[:] = bytes(len(output.data))
+        with self.lock:
+            if connection.closed:
+                return
+            connection.closed = True
+            self.connections.pop(connection.o_t_id, None)
+            self._by_triad.pop(connection.triad, None)
+            if connection.kind is ConnectionKind.EXCLUSIVE_OWNER:
+                output = self.assemblies["output"]
+                output.owned = False
+                policy = self.profile.implicit
+                if (policy.fault_state if timed_out else policy.idle_state) == "off":
+                    output.data[:] = bytes(len(output.data))
         self.events.record("connection timed out" if timed_out else "connection closed",
                            f"{_describe(connection)}: {reason}")
         if self.observer is not None:
@@ -214,6 +218,10 @@ class Device:
 
     def consume(self, source_host: str, packet: IoPacket) -> bool:
         """An O->T packet (Vol. 2, 3-2): True if it belonged to a connection and was taken."""
+        with self.lock:
+            return self._consume(source_host, packet)
+
+    def _consume(self, source_host: str, packet: IoPacket) -> bool:
         connection = self.connections.get(packet.connection_id)
         if connection is None or not connection.is_io or source_host != connection.originator_host:
             return False

@@ -1,12 +1,17 @@
 """Class-1 implicit I/O on UDP 2222 (CIP Networks Library Vol. 2, 3-2 and 3-3).
 
-- One socket per device address (SO_REUSEADDR, so a scanner on the same host can still bind
-  0.0.0.0:2222) consumes O->T packets into the device.
-- Each connection has a watchdog on the event loop (timeout = RPI x 2^(2 + multiplier); the first
-  one no shorter than the device's `first_watchdog_s`).
-- One producer thread sends every T->O packet on absolute deadlines (start + n x RPI, no drift).
-  It is a thread because the event loop's timers resolve to 1 ms; a lock wait resolves to
-  nanoseconds. A T->O connection id shared by several multicast connections is produced once.
+All cyclic traffic of a farm runs in one I/O thread, apart from the event loop, so that neither
+delays the other:
+- every device address has a UDP 2222 socket (SO_REUSEADDR, so a scanner on the same host can
+  still bind 0.0.0.0:2222); the thread reads O->T packets from all of them through epoll and hands
+  them to their device;
+- the thread sends every T->O packet on absolute deadlines (start + n x RPI, no drift). epoll waits
+  in whole milliseconds, so the thread stops waiting on it a millisecond early and sleeps the rest
+  with time.sleep (which wakes within a few hundred microseconds here; a Condition.wait with a
+  timeout was measured 2.6 ms late at p99). A T->O connection id shared by several multicast
+  connections is produced once.
+Each connection's watchdog runs on the event loop (timeout = RPI x 2^(2 + multiplier); the first
+one no shorter than the device's `first_watchdog_s`).
 """
 
 from __future__ import annotations
@@ -16,8 +21,8 @@ import collections
 import heapq
 import itertools
 import logging
+import select
 import socket
-import sys
 import threading
 import time
 
@@ -27,6 +32,7 @@ from enip_farm.protocol.connection import decode_io_packet, encode_io_packet
 
 log = logging.getLogger(__name__)
 IO_PORT = 2222
+_READS_PER_WAKE = 64  # datagrams read from one socket before looking at the schedule again
 
 
 def io_socket(host: str, port: int = IO_PORT) -> socket.socket:
@@ -56,12 +62,12 @@ class Production:
         self.connection_id = connection.t_o_id
         self.address = connection.t_o_address
         self.period = connection.t_o_rpi / 1e6
-        self.start = time.monotonic()
+        self.start = 0.0  # set when the I/O thread takes it up
         self.count = 0  # packets due so far
         self.sequence = 0
         self.users = 1  # connections sharing this stream
         self.stopped = False
-        self.late = 0  # periods skipped because the producer fell a whole period behind
+        self.late = 0  # periods skipped because the thread fell a whole period behind
         self.errors = 0
 
     def send(self) -> None:
@@ -74,22 +80,24 @@ class Production:
             log.debug("%s: T->O send failed: %s", self.device.name, error)
 
 
-class Producer(threading.Thread):
-    """Sends each production at start + n x period.
+class CyclicIoThread(threading.Thread):
+    """Reads O->T from every device socket and sends each production at start + n x period."""
 
-    It sleeps with time.sleep, which wakes within a few hundred microseconds here, where a
-    Condition.wait with a timeout was measured 2.6 ms late at p99. Sleeps are capped at
-    `_MAX_SLEEP`, so new productions and a stop request are picked up promptly.
-    """
-
-    _MAX_SLEEP = 0.002
+    _MAX_WAIT = 0.002  # new productions and a stop request are taken up at least this often
+    _EPOLL_MARGIN = 0.001  # epoll rounds its timeout up to whole milliseconds
 
     def __init__(self) -> None:
-        super().__init__(name="enip-farm-t-o", daemon=True)
+        super().__init__(name="enip-farm-cyclic-io", daemon=True)
         self._heap: list[tuple[float, int, Production]] = []
         self._order = itertools.count()
         self._pending: collections.deque[Production] = collections.deque()
+        self._epoll = select.epoll()
+        self._readers: dict[int, DeviceIo] = {}
         self._stopping = False
+
+    def register(self, endpoint: DeviceIo) -> None:
+        self._readers[endpoint.sock.fileno()] = endpoint
+        self._epoll.register(endpoint.sock.fileno(), select.EPOLLIN)
 
     def add(self, production: Production) -> None:
         self._pending.append(production)  # deque append and popleft are thread-safe
@@ -98,63 +106,74 @@ class Producer(threading.Thread):
         self._stopping = True
         if self.is_alive():
             self.join(5)
+        self._epoll.close()
 
     def run(self) -> None:
-        heap, pending, order = self._heap, self._pending, self._order
-        monotonic, sleep = time.monotonic, time.sleep
+        heap, pending, order, readers = self._heap, self._pending, self._order, self._readers
+        monotonic, sleep, poll = time.monotonic, time.sleep, self._epoll.poll
         while not self._stopping:
             while pending:
                 production = pending.popleft()
                 production.start = monotonic()
                 heapq.heappush(heap, (production.start, next(order), production))
-            if not heap:
-                sleep(self._MAX_SLEEP)
-                continue
-            delay = heap[0][0] - monotonic()
-            if delay > 0:
-                sleep(min(delay, self._MAX_SLEEP))
-                continue
-            _, _, production = heapq.heappop(heap)
-            if production.stopped:
-                continue
-            production.send()
-            production.count += 1
-            due = production.start + production.count * production.period
-            behind = monotonic() - due
-            if behind > production.period:  # skip whole missed periods rather than burst
-                skipped = int(behind / production.period)
-                production.count += skipped
-                production.late += skipped
-                due += skipped * production.period
-            heapq.heappush(heap, (due, next(order), production))
+            now = monotonic()
+            while heap and heap[0][0] <= now:
+                _, _, production = heapq.heappop(heap)
+                if production.stopped:
+                    continue
+                production.send()
+                production.count += 1
+                due = production.start + production.count * production.period
+                behind = monotonic() - due
+                if behind > production.period:  # skip whole missed periods rather than burst
+                    skipped = int(behind / production.period)
+                    production.count += skipped
+                    production.late += skipped
+                    due += skipped * production.period
+                heapq.heappush(heap, (due, next(order), production))
+            delay = min(heap[0][0] - monotonic(), self._MAX_WAIT) if heap else self._MAX_WAIT
+            if delay > self._EPOLL_MARGIN:
+                events = poll(delay - self._EPOLL_MARGIN)
+            else:
+                events = poll(0)
+                if not events and delay > 0:
+                    sleep(delay)
+            for fd, _ in events:
+                endpoint = readers.get(fd)
+                if endpoint is not None:
+                    endpoint.read()
 
 
-class DeviceIo(asyncio.DatagramProtocol):
+class DeviceIo:
     """UDP 2222 of one device, and the server side of its connections (the device's observer)."""
 
-    def __init__(self, device: Device, sock: socket.socket, producer: Producer) -> None:
+    def __init__(self, device: Device, sock: socket.socket, thread: CyclicIoThread,
+                 loop: asyncio.AbstractEventLoop) -> None:
         self.device = device
         self.sock = sock
-        self.producer = producer
-        self.loop = asyncio.get_running_loop()
-        self.transport: asyncio.DatagramTransport | None = None
+        self.thread = thread
+        self.loop = loop
         self.productions: dict[int, Production] = {}
         self.watchdogs: dict[Connection, asyncio.TimerHandle] = {}
         self.dropped = 0  # datagrams that were no valid O->T packet of a connection of this device
         device.observer = self
 
-    def connection_made(self, transport: asyncio.BaseTransport) -> None:
-        self.transport = transport  # type: ignore[assignment]
+    def read(self) -> None:
+        """In the I/O thread: consume the datagrams waiting on this device's socket."""
+        recvfrom, consume = self.sock.recvfrom, self.device.consume
+        for _ in range(_READS_PER_WAKE):
+            try:
+                data, addr = recvfrom(2048)
+            except (BlockingIOError, InterruptedError):
+                return
+            except OSError as error:
+                log.debug("%s: UDP 2222 error %s", self.device.name, error)
+                return
+            packet = decode_io_packet(data)
+            if packet is None or not consume(addr[0], packet):
+                self.dropped += 1
 
-    def datagram_received(self, data: bytes, addr: tuple[str, int]) -> None:
-        packet = decode_io_packet(data)
-        if packet is None or not self.device.consume(addr[0], packet):
-            self.dropped += 1
-
-    def error_received(self, exc: Exception) -> None:
-        log.debug("%s: UDP 2222 error %s", self.device.name, exc)
-
-    # -- ConnectionObserver ---------------------------------------------------------------------
+    # -- ConnectionObserver (on the event loop) ---------------------------------------------------
 
     def opened(self, connection: Connection) -> None:
         first = connection.timeout if not connection.is_io else max(
@@ -168,7 +187,7 @@ class DeviceIo(asyncio.DatagramProtocol):
             return
         production = Production(self.device, self.sock, connection)
         self.productions[connection.t_o_id] = production
-        self.producer.add(production)
+        self.thread.add(production)
 
     def closed(self, connection: Connection) -> None:
         handle = self.watchdogs.pop(connection, None)
@@ -205,32 +224,28 @@ class DeviceIo(asyncio.DatagramProtocol):
         for production in self.productions.values():
             production.stopped = True
         self.device.observer = None
-        if self.transport is not None:
-            self.transport.close()
 
 
 class ImplicitIo:
-    """UDP 2222 of every device of a farm, and the one producer thread."""
+    """UDP 2222 of every device of a farm, and the cyclic I/O thread."""
 
     def __init__(self) -> None:
-        self.producer = Producer()
+        self.thread = CyclicIoThread()
         self.endpoints: list[DeviceIo] = []
         self._sockets: list[socket.socket] = []
-        if sys.getswitchinterval() > 0.0005:
-            sys.setswitchinterval(0.0005)  # let the producer thread take the GIL promptly
 
-    async def add(self, device: Device) -> None:
+    def add(self, device: Device) -> None:
         sock = io_socket(device.profile.address)
         self._sockets.append(sock)
-        loop = asyncio.get_running_loop()
-        _, endpoint = await loop.create_datagram_endpoint(lambda: DeviceIo(device, sock, self.producer), sock=sock)
+        endpoint = DeviceIo(device, sock, self.thread, asyncio.get_running_loop())
+        self.thread.register(endpoint)
         self.endpoints.append(endpoint)
 
     def start(self) -> None:
-        self.producer.start()
+        self.thread.start()
 
     def close(self) -> None:
-        self.producer.stop()
+        self.thread.stop()
         for endpoint in self.endpoints:
             endpoint.close()
         self.endpoints.clear()
