@@ -197,6 +197,7 @@ def main() -> None:
     parser.add_argument("--connections", type=int, default=200)
     parser.add_argument("--rpi-ms", type=float, default=10.0)
     parser.add_argument("--seconds", type=float, default=60.0)
+    parser.add_argument("--repeat", type=int, default=1, help="runs against the same farm; the median is reported")
     parser.add_argument("--sweep", type=int, default=0, metavar="N",
                         help="instead: N connections at decreasing RPIs, 10 s each")
     parser.add_argument("--farm-cpu", type=int, default=1, help="CPU 0 takes this VM's interrupts")
@@ -212,15 +213,19 @@ def main() -> None:
             for rpi_ms in (10, 5, 4, 3, 2, 1.5, 1, 0.5):
                 results.append(run_load(hosts, int(rpi_ms * 1000), 10.0, farm.pid))
         else:
-            results.append(run_load(hosts, int(args.rpi_ms * 1000), args.seconds, farm.pid))
+            for _ in range(args.repeat):
+                results.append(run_load(hosts, int(args.rpi_ms * 1000), args.seconds, farm.pid))
     finally:
         farm.terminate()
         farm.wait(10)
         os.unlink(config)
     keys = list(results[0])
     print(" ".join(f"{k:>14}" for k in keys))
-    for r in results:
-        print(" ".join(f"{r[k]:14.3f}" if isinstance(r[k], float) else f"{r[k]:14d}" for k in keys))
+    if len(results) > 1 and not args.sweep:
+        results.append({k: statistics.median(r[k] for r in results) for k in keys})
+    for i, r in enumerate(results):
+        label = "median" if args.repeat > 1 and i == len(results) - 1 else ""
+        print(" ".join(f"{r[k]:14.3f}" if isinstance(r[k], float) else f"{r[k]:14d}" for k in keys), label)
 
 
 if __name__ == "__main__":

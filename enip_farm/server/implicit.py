@@ -23,6 +23,7 @@ import itertools
 import logging
 import select
 import socket
+import sys
 import threading
 import time
 
@@ -233,6 +234,8 @@ class ImplicitIo:
         self.thread = CyclicIoThread()
         self.endpoints: list[DeviceIo] = []
         self._sockets: list[socket.socket] = []
+        if sys.getswitchinterval() > 0.0005:
+            sys.setswitchinterval(0.0005)  # bound the I/O thread's wait for the GIL behind loop callbacks
 
     def add(self, device: Device) -> None:
         sock = io_socket(device.profile.address)
