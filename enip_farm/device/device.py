@@ -9,6 +9,7 @@ from __future__ import annotations
 import random
 import threading
 import time
+from collections.abc import Callable
 from typing import Protocol
 
 from enip_farm.cip.assembly import AssemblyInstance, AssemblyObject
@@ -44,6 +45,10 @@ _IO_IDLE = 0x0070  # I/O connections established, all idle
 _HALF = 0x80000000
 
 
+#: A change of an I/O image: (device, "input" or "output", old bytes, new bytes).
+ChangeListener = Callable[["Device", str, bytes, bytes], None]
+
+
 class ConnectionObserver(Protocol):
     """The server side of connections: produces T->O and supervises timeouts."""
 
@@ -69,8 +74,12 @@ class Device:
         self._by_triad: dict[ConnectionTriad, Connection] = {}
         self._next_connection_id = random.getrandbits(32) & 0xFFFF0000
         self.observer: ConnectionObserver | None = None
-        # connections are opened and closed on the event loop and consumed in the cyclic I/O thread
+        # connections are opened and closed on the event loop and consumed in the cyclic I/O thread;
+        # the API writes images from any thread. Listeners are called after the lock is released.
         self.lock = threading.Lock()
+        self.listeners: list[ChangeListener] = []
+        for role, assembly in self.assemblies.items():
+            assembly.on_change = lambda old, role=role: self._changed(role, old)
         self.router = MessageRouter()
         for obj in (
             IdentityObject(
@@ -119,10 +128,22 @@ class Device:
 
     def set_inputs(self, data: bytes) -> None:
         """Set the input image as a sensor would (not subject to `writable_inputs`)."""
-        assembly = self.assemblies["input"]
-        if len(data) != len(assembly.data):
-            raise ValueError(f"{self.name}: input image is {len(assembly.data)} bytes, got {len(data)}")
-        assembly.data[:] = data
+        self.write_image("input", lambda image: _replace(image, data, self.name))
+
+    def write_image(self, role: str, change: Callable[[bytearray], None]) -> None:
+        """Change an image in place under the device lock (read-modify-write: no write is lost when
+        several callers write at once), then tell the listeners."""
+        image = self.assemblies[role].data
+        with self.lock:
+            old = bytes(image)
+            change(image)
+        self._changed(role, old)
+
+    def _changed(self, role: str, old: bytes) -> None:
+        new = bytes(self.assemblies[role].data)
+        if new != old:
+            for listener in self.listeners:
+                listener(self, role, old, new)
 
     # -- encapsulation Target -------------------------------------------------------------------
 
@@ -193,6 +214,7 @@ class Device:
 
     def close_connection(self, connection: Connection, reason: str) -> None:
         timed_out = reason == "timeout"
+        old_outputs = self.outputs
         with self.lock:
             if connection.closed:
                 return
@@ -205,6 +227,8 @@ class Device:
                 policy = self.profile.implicit
                 if (policy.fault_state if timed_out else policy.idle_state) == "off":
                     output.data[:] = bytes(len(output.data))
+        if connection.kind is ConnectionKind.EXCLUSIVE_OWNER:
+            self._changed("output", old_outputs)
         self.events.record("connection timed out" if timed_out else "connection closed",
                            f"{_describe(connection)}: {reason}")
         if self.observer is not None:
@@ -218,8 +242,13 @@ class Device:
 
     def consume(self, source_host: str, packet: IoPacket) -> bool:
         """An O->T packet (Vol. 2, 3-2): True if it belonged to a connection and was taken."""
+        output = self.assemblies.get("output")
+        old = bytes(output.data) if output is not None else b""
         with self.lock:
-            return self._consume(source_host, packet)
+            taken = self._consume(source_host, packet)
+        if output is not None and output.data != old:
+            self._changed("output", old)
+        return taken
 
     def _consume(self, source_host: str, packet: IoPacket) -> bool:
         connection = self.connections.get(packet.connection_id)
@@ -256,3 +285,9 @@ class Device:
 def _describe(connection: Connection) -> str:
     return (f"{connection.kind.value} O->T 0x{connection.o_t_id:08X} T->O 0x{connection.t_o_id:08X} "
             f"from {connection.originator_host}, RPI {connection.o_t_rpi}/{connection.t_o_rpi} us")
+
+
+def _replace(image: bytearray, data: bytes, name: str) -> None:
+    if len(data) != len(image):
+        raise ValueError(f"{name}: image is {len(image)} bytes, got {len(data)}")
+    image[:] = data

@@ -1,0 +1,1 @@
+"""Driving and observing a running farm: signals, device handles, faults, wiring, HTTP API."""
