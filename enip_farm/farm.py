@@ -7,10 +7,12 @@ import asyncio
 import errno
 import resource
 import threading
-from collections.abc import Iterator
+from collections.abc import Coroutine, Iterator
 from contextlib import contextmanager
+from typing import Any, TypeVar
 
 from enip_farm.config import FarmConfig
+from enip_farm.control.faults import Fault, FaultKind
 from enip_farm.device.device import ENIP_PORT, Device
 from enip_farm.device.profile import resolve
 from enip_farm.server.implicit import IO_PORT, ImplicitIo
@@ -19,6 +21,9 @@ from enip_farm.server.udp import DeviceDatagramProtocol, DiscoveryResponder, udp
 
 #: Sockets per device at rest: a TCP listener, UDP 44818 and UDP 2222; each client connection adds one.
 SOCKETS_PER_DEVICE = 3
+
+
+T = TypeVar("T")
 
 
 class BindError(Exception):
@@ -66,31 +71,40 @@ class Farm:
     def __init__(self, config: FarmConfig) -> None:
         self.config = config
         self.devices: dict[str, Device] = {d.name: Device(resolve(d)) for d in config.devices}
-        self._servers: list[asyncio.AbstractServer] = []
+        self._servers: dict[str, asyncio.AbstractServer] = {}
         self._connections: set[EncapsulationProtocol] = set()
         self._datagram_transports: list[asyncio.DatagramTransport] = []
         self._discovery: DiscoveryResponder | None = None
         self._implicit: ImplicitIo | None = None
+        self._fault_timers: dict[tuple[str, FaultKind], asyncio.TimerHandle] = {}
+        self.loop: asyncio.AbstractEventLoop | None = None
         self.running = False
 
     def device(self, name: str) -> Device:
         return self.devices[name]
 
-    async def start(self) -> None:
+    async def _listen(self, device: Device) -> None:
         loop = asyncio.get_running_loop()
+        try:
+            self._servers[device.name] = await loop.create_server(
+                lambda: EncapsulationProtocol(device, self._connections), host=device.profile.address,
+                port=ENIP_PORT, reuse_address=True, backlog=128,
+            )
+        except OSError as error:
+            raise BindError(_bind_message(device, "TCP", error)) from None
+
+    def _close_connections(self, device: Device, kind: FaultKind = FaultKind.CLOSE) -> None:
+        for connection in [c for c in self._connections if c.device is device]:
+            connection.kill(kind)
+
+    async def start(self) -> None:
+        loop = self.loop = asyncio.get_running_loop()
         raise_open_file_limit()
         endpoints: list[DeviceDatagramProtocol] = []
         try:
             for device in self.devices.values():
                 address = device.profile.address
-                try:
-                    server = await loop.create_server(
-                        lambda d=device: EncapsulationProtocol(d, self._connections), host=address, port=ENIP_PORT,
-                        reuse_address=True, backlog=128,
-                    )
-                except OSError as error:
-                    raise BindError(_bind_message(device, "TCP", error)) from None
-                self._servers.append(server)
+                await self._listen(device)
                 try:
                     sock = udp_socket(address)
                 except OSError as error:
@@ -128,15 +142,59 @@ class Farm:
         for transport in self._datagram_transports:
             transport.close()
         self._datagram_transports.clear()
-        for server in self._servers:
+        for timer in self._fault_timers.values():
+            timer.cancel()
+        self._fault_timers.clear()
+        for server in self._servers.values():
             server.close()
         for connection in list(self._connections):
             if connection.transport is not None:
                 connection.transport.close()
-        for server in self._servers:
+        for server in self._servers.values():
             await server.wait_closed()
         self._servers.clear()
         self.running = False
+
+    # -- faults (control/faults.py) ---------------------------------------------------------------
+
+    async def inject_fault(self, name: str, fault: Fault) -> None:
+        """Switch a fault on for one device, on the farm's loop; `fault.duration_s` ends it by itself."""
+        device = self.devices[name]
+        self._cancel_timer(name, fault.kind)
+        device.faults.set(fault)
+        device.events.record("fault injected", fault.describe())
+        if fault.kind in (FaultKind.CLOSE, FaultKind.RESET, FaultKind.OFFLINE):
+            self._close_connections(device, FaultKind.RESET if fault.kind is FaultKind.RESET else FaultKind.CLOSE)
+        if fault.kind is FaultKind.OFFLINE and name in self._servers:
+            server = self._servers.pop(name)
+            server.close()
+        if fault.duration_s is not None:
+            loop = asyncio.get_running_loop()
+            self._fault_timers[name, fault.kind] = loop.call_later(
+                fault.duration_s, lambda: loop.create_task(self.clear_faults(name, fault.kind)))
+
+    async def clear_faults(self, name: str, kind: FaultKind | None = None) -> list[FaultKind]:
+        """Switch one fault (or all) off; normal behaviour returns without a restart."""
+        device = self.devices[name]
+        cleared = device.faults.clear(kind)
+        for k in cleared:
+            self._cancel_timer(name, k)
+        if FaultKind.OFFLINE in cleared and self.running and name not in self._servers:
+            await self._listen(device)
+        if cleared:
+            device.events.record("fault cleared", ", ".join(k.value for k in cleared))
+        return cleared
+
+    def _cancel_timer(self, name: str, kind: FaultKind) -> None:
+        timer = self._fault_timers.pop((name, kind), None)
+        if timer is not None:
+            timer.cancel()
+
+    def call(self, coroutine: Coroutine[Any, Any, T], timeout: float = 30.0) -> T:
+        """Run a farm coroutine from another thread (the farm runs in a background thread)."""
+        if self.loop is None:
+            raise RuntimeError("the farm is not running")
+        return asyncio.run_coroutine_threadsafe(coroutine, self.loop).result(timeout)
 
     async def __aenter__(self) -> Farm:
         await self.start()

@@ -143,7 +143,7 @@ class ConnectionManager(CipClass):
     def _check_key(self, key: ElectronicKey) -> None:
         p = self.device.profile
         if ((key.vendor_id and key.vendor_id != p.vendor_id)
-                or (key.product_code and key.product_code != p.product_code)):
+                or (key.product_code and key.product_code != self.device.product_code)):
             raise Refusal(X.VENDOR_OR_PRODUCT_MISMATCH)
         if key.device_type and key.device_type != p.device_type:
             raise Refusal(X.DEVICE_TYPE_MISMATCH)

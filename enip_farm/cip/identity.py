@@ -16,14 +16,14 @@ class IdentityObject(CipClass):
     class_id = 0x01
     revision = 1
 
-    def __init__(self, *, vendor_id: int, device_type: int, product_code: int, revision: tuple[int, int],
+    def __init__(self, *, vendor_id: int, device_type: int, product_code: Callable[[], int], revision: tuple[int, int],
                  serial_number: int, product_name: str, status: Callable[[], int]) -> None:
         super().__init__()
         self.instances[1] = CipInstance(
             {
                 1: constant(UINT.pack(vendor_id)),
                 2: constant(UINT.pack(device_type)),
-                3: constant(UINT.pack(product_code)),
+                3: Attribute(lambda: UINT.pack(product_code())),
                 4: constant(struct.pack("<BB", *revision)),
                 5: Attribute(lambda: UINT.pack(status())),
                 6: constant(UDINT.pack(serial_number)),

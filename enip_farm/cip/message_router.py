@@ -5,6 +5,8 @@ from __future__ import annotations
 
 import logging
 import struct
+from collections import Counter
+from collections.abc import Callable
 
 from enip_farm.cip.object import UINT, CipClass, CipInstance, ServiceResult, constant
 from enip_farm.protocol.cip import (
@@ -33,6 +35,9 @@ class MessageRouter(CipClass):
     def __init__(self) -> None:
         super().__init__()
         self.objects: dict[int, CipClass] = {self.class_id: self}
+        self.forced_status: dict[int, int] = {}  # fault injection: service -> general status
+        self.request_counts: Counter[tuple[int, int]] = Counter()  # (service, general status)
+        self.on_request: Callable[[int, bytes, int], None] | None = None  # service, path, status
         self._paths: dict[bytes, RequestPath | int] = {}
         self.handlers[Service.MULTIPLE_SERVICE_PACKET] = self.multiple_service_packet
         self.instances[1] = CipInstance(
@@ -50,7 +55,16 @@ class MessageRouter(CipClass):
         self.instances[1].attributes[2] = constant(UINT.pack(len(ids)))
 
     def handle(self, message: bytes, context: MessageContext) -> bytes:
-        """A whole request in, a whole reply out. Errors are replies, never exceptions."""
+        """A whole request in, a whole reply out. Errors are replies, never exceptions. Each reply is
+        counted by service and status, and reported to `on_request` (the event log)."""
+        reply = self._handle(message, context)
+        service, status = message[0] if message else 0, reply[2]
+        self.request_counts[service, status] += 1
+        if self.on_request is not None:
+            self.on_request(service, message[2 : 2 + 2 * message[1]] if len(message) > 1 else b"", status)
+        return reply
+
+    def _handle(self, message: bytes, context: MessageContext) -> bytes:
         try:
             service, path_bytes, data = decode_request(message)
         except CipDecodeError as error:
@@ -65,6 +79,8 @@ class MessageRouter(CipClass):
                 self._paths[path_bytes] = path
         if type(path) is int:
             return encode_reply(service, path)
+        if self.forced_status and service in self.forced_status:
+            return encode_reply(service, self.forced_status[service])
         if service & REPLY_BIT:
             return encode_reply(service, GeneralStatus.SERVICE_NOT_SUPPORTED)
         obj = self.objects.get(path.class_id)

@@ -9,6 +9,7 @@ from __future__ import annotations
 import random
 import threading
 import time
+from collections import Counter
 from collections.abc import Callable
 from typing import Protocol
 
@@ -19,6 +20,8 @@ from enip_farm.cip.ethernet_link import EthernetLinkObject
 from enip_farm.cip.identity import STATUS_NO_IO_CONNECTIONS, IdentityObject
 from enip_farm.cip.message_router import MessageRouter
 from enip_farm.cip.tcpip_interface import TcpIpInterfaceObject
+from enip_farm.control.faults import DeviceFaults
+from enip_farm.control.metrics import LatencyHistogram
 from enip_farm.device.events import EventLog
 from enip_farm.device.profile import DeviceProfile
 from enip_farm.protocol.commands import (
@@ -67,6 +70,9 @@ class Device:
             spec.role: AssemblyInstance(spec.instance_id, spec.size, spec.settable, writable)
             for spec in profile.assemblies
         }
+        self.faults = DeviceFaults()
+        self.counters: Counter[str] = Counter()
+        self.latency = LatencyHistogram()
         self._next_session_handle = 1
         self.sessions: set[int] = set()
         self.events = EventLog(profile.name)
@@ -81,11 +87,14 @@ class Device:
         for role, assembly in self.assemblies.items():
             assembly.on_change = lambda old, role=role: self._changed(role, old)
         self.router = MessageRouter()
+        self.router.forced_status = self.faults.forced_status
+        self.router.on_request = lambda service, path, status: self.events.record(
+            "request", (service, path, status))
         for obj in (
             IdentityObject(
                 vendor_id=profile.vendor_id,
                 device_type=profile.device_type,
-                product_code=profile.product_code,
+                product_code=lambda: self.product_code,
                 revision=profile.revision,
                 serial_number=profile.serial_number,
                 product_name=profile.product_name,
@@ -116,6 +125,12 @@ class Device:
     def inputs(self) -> bytes:
         assembly = self.assemblies.get("input")
         return bytes(assembly.data) if assembly else b""
+
+    @property
+    def product_code(self) -> int:
+        """The product code the device shows; an `identity` fault changes it so keys stop matching."""
+        code = self.profile.product_code
+        return (code + 1) & 0xFFFF if self.faults.identity_changed else code
 
     @property
     def status(self) -> int:
@@ -150,7 +165,7 @@ class Device:
     def identity_item(self) -> IdentityItem:
         p = self.profile
         return IdentityItem(PROTOCOL_VERSION, SocketAddress(p.address, ENIP_PORT), p.vendor_id, p.device_type,
-                            p.product_code, p.revision[0], p.revision[1], self.status, p.serial_number,
+                            self.product_code, p.revision[0], p.revision[1], self.status, p.serial_number,
                             p.product_name, _STATE_OPERATIONAL)
 
     def list_identity_data(self) -> bytes:
@@ -163,6 +178,7 @@ class Device:
         return encode_items([])
 
     def register_session(self) -> int:
+        self.counters["sessions"] += 1
         handle = self._next_session_handle
         self._next_session_handle = handle + 1 if handle < 0xFFFFFFFF else 1
         self.sessions.add(handle)
@@ -251,6 +267,8 @@ class Device:
         return taken
 
     def _consume(self, source_host: str, packet: IoPacket) -> bool:
+        if self.faults.io_stopped:
+            return False
         connection = self.connections.get(packet.connection_id)
         if connection is None or not connection.is_io or source_host != connection.originator_host:
             return False
@@ -260,6 +278,7 @@ class Device:
         connection.last_sequence = packet.sequence
         connection.last_received = time.monotonic()
         connection.received += 1
+        self.counters["o_t_packets"] += 1
         data = packet.data
         if not connection.o_t_run_idle_header:  # a heartbeat: no data, run/idle header optional
             connection.run = not data or bool(data[0] & 1)

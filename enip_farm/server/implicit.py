@@ -72,10 +72,13 @@ class Production:
         self.errors = 0
 
     def send(self) -> None:
+        if self.device.faults.io_stopped:
+            return
         self.sequence += 1
         packet = encode_io_packet(self.connection_id, self.sequence, self.sequence, self.device.produced_data())
         try:
             self.sock.sendto(packet, self.address)
+            self.device.counters["t_o_packets"] += 1
         except OSError as error:
             self.errors += 1
             log.debug("%s: T->O send failed: %s", self.device.name, error)

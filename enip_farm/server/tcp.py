@@ -1,45 +1,91 @@
 """TCP 44818 (CIP Networks Library Vol. 2, 2-2.1): one protocol instance per connection, feeding
-the sans-IO encapsulation session and writing each batch of whole replies with one write."""
+the sans-IO encapsulation session and writing each batch of whole replies with one write.
+Injected faults (control/faults.py) delay or drop replies, and close or reset connections."""
 
 from __future__ import annotations
 
 import asyncio
 import logging
+import socket
+import struct
+import time
 
+from enip_farm.control.faults import FaultKind
 from enip_farm.device.device import Device
 from enip_farm.protocol.session import EncapsulationSession
 
 log = logging.getLogger(__name__)
+_LINGER_RESET = struct.pack("ii", 1, 0)  # SO_LINGER on, 0 s: close sends RST
 
 
 class EncapsulationProtocol(asyncio.Protocol):
-    __slots__ = ("device", "session", "transport", "connections")
+    __slots__ = ("device", "session", "transport", "connections", "_not_before")
 
     def __init__(self, device: Device, connections: set[EncapsulationProtocol]) -> None:
         self.device = device
         self.session: EncapsulationSession | None = None
         self.transport: asyncio.Transport | None = None
         self.connections = connections  # the farm's open connections, closed at stop
+        self._not_before = 0.0  # delayed replies keep their order
 
     def connection_made(self, transport: asyncio.BaseTransport) -> None:
         self.transport = transport  # type: ignore[assignment]
         peer = transport.get_extra_info("peername")
         self.session = EncapsulationSession(self.device, peer[0] if peer else "0.0.0.0")
         self.connections.add(self)
+        self.device.counters["tcp_connections"] += 1
+        self.device.events.record("tcp connected", f"{peer[0]}:{peer[1]}" if peer else "")
+        kind = self.device.faults.connection_fault
+        if kind is not None:
+            self.kill(kind)
+
+    def kill(self, kind: FaultKind) -> None:
+        """Close (FIN) or reset (RST) this connection, as an injected fault asks."""
+        transport = self.transport
+        if transport is None:
+            return
+        if kind is FaultKind.RESET:
+            sock = transport.get_extra_info("socket")
+            if sock is not None:
+                sock.setsockopt(socket.SOL_SOCKET, socket.SO_LINGER, _LINGER_RESET)
+            transport.abort()
+        else:
+            transport.close()
 
     def data_received(self, data: bytes) -> None:
         session = self.session
+        started = time.perf_counter()
         try:
-            replies = session.receive(data)
+            replies = session.receive(data)  # type: ignore[union-attr]
         except Exception:  # last resort: the protocol layers answer errors as values
             log.exception("%s: closing a connection after an internal error", self.device.name)
             self.transport.close()  # type: ignore[union-attr]
             return
         transport = self.transport
+        faults = self.device.faults
         if replies:
-            transport.write(replies[0] if len(replies) == 1 else b"".join(replies))  # type: ignore[union-attr]
-        if session.closing:
+            out = replies[0] if len(replies) == 1 else b"".join(replies)
+            fault = faults.reply_fault if faults.active else None
+            if fault is None:
+                transport.write(out)  # type: ignore[union-attr]
+                self.device.latency.observe(time.perf_counter() - started)
+            elif fault.kind is FaultKind.DELAY:
+                loop = asyncio.get_running_loop()
+                when = max(loop.time() + fault.reply_delay(), self._not_before)
+                self._not_before = when
+                loop.call_at(when, self._write_late, out, session.closing)  # type: ignore[union-attr]
+                return
+            else:
+                self.device.counters["replies_dropped"] += len(replies)
+        if session.closing:  # type: ignore[union-attr]
             transport.close()  # type: ignore[union-attr]
+
+    def _write_late(self, out: bytes, close: bool) -> None:
+        if self.transport is None or self.transport.is_closing():
+            return
+        self.transport.write(out)
+        if close:
+            self.transport.close()
 
     def eof_received(self) -> bool:
         return False  # close our side too
@@ -48,4 +94,5 @@ class EncapsulationProtocol(asyncio.Protocol):
         if self.session is not None:
             self.session.connection_lost()
         self.connections.discard(self)
+        self.device.events.record("tcp closed", "")
         self.transport = None

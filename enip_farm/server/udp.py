@@ -47,6 +47,8 @@ class DeviceDatagramProtocol(asyncio.DatagramProtocol):
         self.answer(data, addr)
 
     def answer(self, data: bytes, addr: tuple[str, int]) -> None:
+        if self.device.faults.offline:
+            return
         reply = handle_datagram(self.device, data)
         if reply is not None and self.transport is not None:
             self.transport.sendto(reply, addr)

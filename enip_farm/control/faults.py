@@ -1,0 +1,106 @@
+"""Fault injection per device: what a misbehaving module does, switched on and off at run time.
+
+| kind | effect |
+|---|---|
+| delay | replies on TCP are held back `delay_ms` (or a random time up to `max_delay_ms`), in order |
+| drop | requests are processed but their replies are not sent |
+| close | TCP connections are closed (FIN), existing and new ones |
+| reset | TCP connections are reset (RST), existing and new ones |
+| offline | like a module without power: TCP refused, UDP unanswered, no T->O, O->T ignored |
+| status | requests of one CIP service get a chosen general status |
+| stop-io | T->O production stops and O->T is ignored, so a scanner's connection times out |
+| identity | the product code changes, so electronic keys stop matching |
+
+A fault lasts until cleared, or for `duration_s`. Clearing restores normal behaviour at once.
+"""
+
+from __future__ import annotations
+
+import random
+import time
+from dataclasses import asdict, dataclass, field
+from enum import Enum
+
+
+class FaultKind(str, Enum):
+    DELAY = "delay"
+    DROP = "drop"
+    CLOSE = "close"
+    RESET = "reset"
+    OFFLINE = "offline"
+    STATUS = "status"
+    STOP_IO = "stop-io"
+    IDENTITY = "identity"
+
+
+@dataclass
+class Fault:
+    kind: FaultKind
+    delay_ms: float = 0.0
+    max_delay_ms: float | None = None  # with it, each reply waits a random time in [delay_ms, max_delay_ms]
+    service: int | None = None  # STATUS: the CIP service to answer
+    status: int | None = None  # STATUS: the general status to answer it with
+    duration_s: float | None = None
+    started: float = field(default_factory=time.monotonic)
+
+    def __post_init__(self) -> None:
+        self.kind = FaultKind(self.kind)
+        if self.kind is FaultKind.STATUS and (self.service is None or self.status is None):
+            raise ValueError("a status fault needs a service and a status")
+        if self.kind is FaultKind.DELAY and self.delay_ms <= 0 and not self.max_delay_ms:
+            raise ValueError("a delay fault needs delay_ms (and optionally max_delay_ms)")
+
+    def reply_delay(self) -> float:
+        """Seconds to hold one reply back."""
+        if self.max_delay_ms is not None and self.max_delay_ms > self.delay_ms:
+            return random.uniform(self.delay_ms, self.max_delay_ms) / 1000
+        return self.delay_ms / 1000
+
+    def describe(self) -> dict:
+        out = {k: v for k, v in asdict(self).items() if v is not None and k != "started"}
+        out["kind"] = self.kind.value
+        out["age_s"] = round(time.monotonic() - self.started, 3)
+        return out
+
+
+class DeviceFaults:
+    """The active faults of one device, with flags the hot paths read without a lookup."""
+
+    def __init__(self) -> None:
+        self.active: dict[FaultKind, Fault] = {}
+        self.forced_status: dict[int, int] = {}  # service -> general status, read by the message router
+        self.offline = False
+        self.io_stopped = False
+        self.identity_changed = False
+
+    def set(self, fault: Fault) -> None:
+        self.active[fault.kind] = fault
+        self._update()
+
+    def clear(self, kind: FaultKind | None = None) -> list[FaultKind]:
+        kinds = list(self.active) if kind is None else [kind] if kind in self.active else []
+        for k in kinds:
+            del self.active[k]
+        self._update()
+        return kinds
+
+    def _update(self) -> None:
+        status = self.active.get(FaultKind.STATUS)
+        self.forced_status.clear()
+        if status is not None:
+            self.forced_status[status.service] = status.status  # type: ignore[index]
+        self.offline = FaultKind.OFFLINE in self.active
+        self.io_stopped = self.offline or FaultKind.STOP_IO in self.active
+        self.identity_changed = FaultKind.IDENTITY in self.active
+
+    @property
+    def reply_fault(self) -> Fault | None:
+        """The fault that changes how TCP replies go out, if any (drop wins over delay)."""
+        return self.active.get(FaultKind.DROP) or self.active.get(FaultKind.DELAY)
+
+    @property
+    def connection_fault(self) -> FaultKind | None:
+        for kind in (FaultKind.RESET, FaultKind.CLOSE):
+            if kind in self.active:
+                return kind
+        return None

@@ -1,0 +1,64 @@
+"""Per-device counters and a latency histogram, and their Prometheus exposition."""
+
+from __future__ import annotations
+
+import bisect
+from collections.abc import Iterable, Iterator
+
+from prometheus_client.core import CounterMetricFamily, GaugeMetricFamily, HistogramMetricFamily
+from prometheus_client.registry import Collector
+
+#: Upper bounds (seconds) of the request latency histogram: decode to write, inside the farm.
+LATENCY_BUCKETS = (0.00001, 0.00002, 0.00005, 0.0001, 0.0002, 0.0005, 0.001, 0.005, 0.02, 0.1)
+
+
+class LatencyHistogram:
+    __slots__ = ("counts", "total", "sum")
+
+    def __init__(self) -> None:
+        self.counts = [0] * (len(LATENCY_BUCKETS) + 1)
+        self.total = 0
+        self.sum = 0.0
+
+    def observe(self, seconds: float) -> None:
+        self.counts[bisect.bisect_left(LATENCY_BUCKETS, seconds)] += 1
+        self.total += 1
+        self.sum += seconds
+
+    def buckets(self) -> list[tuple[str, int]]:
+        out, running = [], 0
+        for bound, count in zip((*map(str, LATENCY_BUCKETS), "+Inf"), self.counts, strict=True):
+            running += count
+            out.append((bound, running))
+        return out
+
+
+class FarmCollector(Collector):
+    """Reads the devices' counters at scrape time; nothing is counted twice."""
+
+    def __init__(self, devices: Iterable) -> None:
+        self.devices = list(devices)
+
+    def collect(self) -> Iterator:
+        requests = CounterMetricFamily("enip_farm_requests", "Explicit requests by CIP service and general status",
+                                       labels=["device", "service", "status"])
+        connections = CounterMetricFamily("enip_farm_tcp_connections", "TCP connections accepted", labels=["device"])
+        open_io = GaugeMetricFamily("enip_farm_io_connections", "Open CIP connections by kind",
+                                    labels=["device", "kind"])
+        packets = CounterMetricFamily("enip_farm_class1_packets", "Class-1 packets", labels=["device", "direction"])
+        latency = HistogramMetricFamily("enip_farm_request_seconds", "Time from request bytes to reply write",
+                                        labels=["device"])
+        for device in self.devices:
+            name = device.name
+            for (service, status), count in sorted(device.router.request_counts.items()):
+                requests.add_metric([name, f"0x{service:02X}", f"0x{status:02X}"], count)
+            connections.add_metric([name], device.counters["tcp_connections"])
+            kinds: dict[str, int] = {}
+            for connection in list(device.connections.values()):
+                kinds[connection.kind.value] = kinds.get(connection.kind.value, 0) + 1
+            for kind, count in kinds.items():
+                open_io.add_metric([name, kind], count)
+            packets.add_metric([name, "o_t"], device.counters["o_t_packets"])
+            packets.add_metric([name, "t_o"], device.counters["t_o_packets"])
+            latency.add_metric([name], device.latency.buckets(), device.latency.sum)
+        yield from (requests, connections, open_io, packets, latency)
