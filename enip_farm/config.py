@@ -128,9 +128,36 @@ class DeviceConfig(_Strict):
         return self
 
 
+class WireConfig(_Strict):
+    """Outputs of one device wired to inputs of another, e.g. harness.DO1-16 -> robot1.DI1-16."""
+
+    model_config = ConfigDict(extra="forbid", populate_by_name=True)
+    source: str = Field(alias="from", description="DEVICE.DOn[-m] or DEVICE.AOn[-m]")
+    target: str = Field(alias="to", description="DEVICE.DIn[-m] or DEVICE.AIn[-m]")
+
+
+class RuleConfig(_Strict):
+    """When a bit rises or falls, set another bit (optionally after a delay)."""
+
+    when: str = Field(description="DEVICE.SIGNAL, one bit")
+    edge: Literal["rises", "falls"] = "rises"
+    set: str = Field(description="DEVICE.SIGNAL, one bit")
+    value: Literal[0, 1] = 1
+    delay_ms: float = Field(0.0, ge=0)
+
+
 class FarmConfig(_Strict):
     devices: list[DeviceConfig] = Field(min_length=1)
     discovery: bool = Field(True, description="answer broadcast ListIdentity on 0.0.0.0:44818")
+    wires: list[WireConfig] = []
+    rules: list[RuleConfig] = []
+
+    @model_validator(mode="after")
+    def _wiring(self) -> FarmConfig:
+        from enip_farm.control.wiring import check_wiring  # needs resolved profiles
+
+        check_wiring(self)
+        return self
 
     @model_validator(mode="after")
     def _unique(self) -> FarmConfig:

@@ -13,6 +13,8 @@ from typing import Any, TypeVar
 
 from enip_farm.config import FarmConfig
 from enip_farm.control.faults import Fault, FaultKind
+from enip_farm.control.handle import DeviceHandle
+from enip_farm.control.wiring import Wiring
 from enip_farm.device.device import ENIP_PORT, Device
 from enip_farm.device.profile import resolve
 from enip_farm.server.implicit import IO_PORT, ImplicitIo
@@ -71,6 +73,8 @@ class Farm:
     def __init__(self, config: FarmConfig) -> None:
         self.config = config
         self.devices: dict[str, Device] = {d.name: Device(resolve(d)) for d in config.devices}
+        self.handles: dict[str, DeviceHandle] = {name: DeviceHandle(self, d) for name, d in self.devices.items()}
+        self.wiring = Wiring(self)
         self._servers: dict[str, asyncio.AbstractServer] = {}
         self._connections: set[EncapsulationProtocol] = set()
         self._datagram_transports: list[asyncio.DatagramTransport] = []
@@ -82,6 +86,10 @@ class Farm:
 
     def device(self, name: str) -> Device:
         return self.devices[name]
+
+    def __getitem__(self, name: str) -> DeviceHandle:
+        """The Python API of one device: farm["io1"].set(DI3=1), farm["io1"].get("DO5"), ..."""
+        return self.handles[name]
 
     async def _listen(self, device: Device) -> None:
         loop = asyncio.get_running_loop()
@@ -190,11 +198,21 @@ class Farm:
         if timer is not None:
             timer.cancel()
 
-    def call(self, coroutine: Coroutine[Any, Any, T], timeout: float = 30.0) -> T:
-        """Run a farm coroutine from another thread (the farm runs in a background thread)."""
-        if self.loop is None:
+    def run(self, coroutine: Coroutine[Any, Any, T], timeout: float = 30.0) -> T:
+        """Run a farm coroutine from another thread (e.g. a synchronous test while the farm runs in
+        its background thread). On the farm's own loop, await the coroutine instead."""
+        loop = self.loop
+        if loop is None or not self.running:
+            coroutine.close()
             raise RuntimeError("the farm is not running")
-        return asyncio.run_coroutine_threadsafe(coroutine, self.loop).result(timeout)
+        try:
+            running = asyncio.get_running_loop()
+        except RuntimeError:
+            running = None
+        if running is loop:
+            coroutine.close()
+            raise RuntimeError("on the farm's event loop: await the coroutine instead of Farm.run")
+        return asyncio.run_coroutine_threadsafe(coroutine, loop).result(timeout)
 
     async def __aenter__(self) -> Farm:
         await self.start()

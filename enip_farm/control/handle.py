@@ -1,0 +1,117 @@
+"""The Python API of one running device: its I/O as bytes, as RobotWare-style signals (DI1.., DO1..,
+AI1.., AO1..), waiting for a condition, counters, events, faults and an output-change hook.
+Thread-safe: images are written under the device lock, so concurrent callers lose no write."""
+
+from __future__ import annotations
+
+import threading
+import time
+from collections.abc import Callable
+from typing import TYPE_CHECKING, Any
+
+from enip_farm.control.faults import Fault, FaultKind
+from enip_farm.control.signals import SignalMap, parse_signal
+from enip_farm.device.device import Device
+from enip_farm.device.events import Event
+
+if TYPE_CHECKING:
+    from enip_farm.farm import Farm
+
+
+class DeviceHandle:
+    def __init__(self, farm: Farm, device: Device) -> None:
+        self.farm = farm
+        self.device = device
+        self.signals = SignalMap(device.profile)
+        self._changed = threading.Condition()
+        device.listeners.append(self._notify)
+
+    def _notify(self, device: Device, role: str, old: bytes, new: bytes) -> None:
+        with self._changed:
+            self._changed.notify_all()
+
+    # -- identity and images ----------------------------------------------------------------------
+
+    @property
+    def name(self) -> str:
+        return self.device.name
+
+    @property
+    def address(self) -> str:
+        return self.device.profile.address
+
+    @property
+    def inputs(self) -> bytes:
+        return self.device.inputs
+
+    @property
+    def outputs(self) -> bytes:
+        return self.device.outputs
+
+    def set_inputs(self, data: bytes) -> None:
+        self.device.set_inputs(data)
+
+    # -- signals ------------------------------------------------------------------------------------
+
+    def get(self, name: str) -> int | list[int]:
+        """One signal's value (DI3 -> 0/1, AI2 -> INT), or a list for a range (DI1-8)."""
+        signal = parse_signal(name)
+        image = self.device.inputs if signal.role == "input" else self.device.outputs
+        values = self.signals.read(signal, image)
+        return values[0] if signal.count == 1 else values
+
+    def set(self, values: dict[str, int | list[int]] | None = None, **signals: int | list[int]) -> None:
+        """Set signals as a sensor (inputs) or a forcing test (outputs) would: set(DI3=1, AI1=1200)
+        or set({"DI1-4": [1, 0, 1, 1]}). All signals of one image change in one locked step."""
+        pending: dict[str, list] = {"input": [], "output": []}
+        for name, value in {**(values or {}), **signals}.items():
+            signal = parse_signal(name)
+            self.signals.check(signal)
+            pending[signal.role].append((signal, value if isinstance(value, list) else [value] * signal.count))
+        for role, changes in pending.items():
+            if changes:
+                self.device.write_image(role, lambda image, changes=changes: [
+                    self.signals.write(signal, image, list(vals)) for signal, vals in changes])
+
+    def wait_for(self, predicate: Callable[[DeviceHandle], bool], timeout: float = 5.0) -> None:
+        """Block until predicate(handle) is true; raise TimeoutError after `timeout` seconds."""
+        deadline = time.monotonic() + timeout
+        with self._changed:
+            while not predicate(self):
+                remaining = deadline - time.monotonic()
+                if remaining <= 0:
+                    raise TimeoutError(f"{self.name}: condition not met within {timeout} s")
+                self._changed.wait(min(remaining, 0.01))  # other state (connections) is polled
+
+    # -- observation --------------------------------------------------------------------------------
+
+    @property
+    def counters(self) -> dict[str, Any]:
+        out: dict[str, Any] = dict(self.device.counters)
+        out["requests"] = {f"0x{s:02X}/0x{st:02X}": n for (s, st), n in self.device.router.request_counts.items()}
+        out["open_connections"] = len(self.device.connections)
+        return out
+
+    def events(self, kind: str | None = None) -> list[Event]:
+        return list(self.device.events) if kind is None else self.device.events.of_kind(kind)
+
+    def on_output_change(self, callback: Callable[[DeviceHandle, bytes, bytes], None]) -> None:
+        """callback(handle, old, new) after every change of the output image, in the thread that
+        changed it (the farm's event loop or its cyclic I/O thread): keep it short."""
+        def listener(device: Device, role: str, old: bytes, new: bytes) -> None:
+            if role == "output":
+                callback(self, old, new)
+        self.device.listeners.append(listener)
+
+    # -- faults -------------------------------------------------------------------------------------
+
+    def inject(self, kind: FaultKind | str, duration_s: float | None = None, **params: Any) -> None:
+        """Inject a fault now (see control/faults.py), for `duration_s` or until cleared."""
+        self.farm.run(self.farm.inject_fault(self.name, Fault(FaultKind(kind), duration_s=duration_s, **params)))
+
+    def clear_faults(self, kind: FaultKind | str | None = None) -> None:
+        self.farm.run(self.farm.clear_faults(self.name, FaultKind(kind) if kind else None))
+
+    @property
+    def faults(self) -> list[dict]:
+        return [fault.describe() for fault in self.device.faults.active.values()]
