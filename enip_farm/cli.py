@@ -51,11 +51,20 @@ def main() -> None:
               help="cell configuration (YAML); default: the shipped default cell")
 @click.option("--log-level", default="warning", show_default=True,
               type=click.Choice(["debug", "info", "warning", "error"]))
-def serve(config_path: Path | None, log_level: str) -> None:
+@click.option("--http", "http", default=None, metavar="[HOST:]PORT",
+              help="serve the HTTP API (localhost unless a host is given; other hosts need --token)")
+@click.option("--token", envvar="ENIP_FARM_TOKEN", default=None, help="bearer token for the HTTP API")
+def serve(config_path: Path | None, log_level: str, http: str | None, token: str | None) -> None:
     """Serve every device of a cell until Ctrl-C or SIGTERM."""
     logging.basicConfig(level=log_level.upper(), format="%(asctime)s %(levelname)s %(name)s: %(message)s")
     config = _load(config_path)
-    farm = Farm(config)
+    address = None
+    if http:
+        host, _, port = http.rpartition(":")
+        if not port.isdigit():
+            raise click.BadParameter("expected [HOST:]PORT", param_hint="--http")
+        address = (host or "127.0.0.1", int(port))
+    farm = Farm(config, http=address, token=token)
     loop = new_event_loop()
     asyncio.set_event_loop(loop)
     try:
@@ -80,6 +89,8 @@ async def _serve(farm: Farm) -> None:
     try:
         click.echo(device_table(farm))
         click.echo(f"{len(farm.devices)} devices listening on TCP and UDP 44818. Ctrl-C to stop.", err=True)
+        if farm.http is not None:
+            click.echo(f"HTTP API on http://{farm._http_address[0]}:{farm.http.port}", err=True)
         await stop.wait()
     finally:
         await farm.stop()
@@ -111,3 +122,95 @@ def models() -> None:
     click.echo(_table(rows, ["MODEL", "KIND", "I/O", "IDENTITY", "PLACEHOLDERS"]))
     click.echo("\nUNVERIFIED values are placeholders: ABB does not publish them. Override them per device "
                "(identity:, assemblies:) from your EDS file, EIO.cfg or a capture.")
+
+
+# -- the HTTP API's client -----------------------------------------------------------------------
+
+_api_option = click.option("--api", envvar="ENIP_FARM_API", default="http://127.0.0.1:8044", show_default=True,
+                           help="the farm's HTTP API (or ENIP_FARM_API)")
+_token_option = click.option("--token", envvar="ENIP_FARM_TOKEN", default=None,
+                             help="bearer token (or ENIP_FARM_TOKEN)")
+
+
+def _request(method: str, api: str, path: str, token: str | None, **kwargs: object) -> object:
+    import httpx
+
+    headers = {"Authorization": f"Bearer {token}"} if token else {}
+    try:
+        response = httpx.request(method, api.rstrip("/") + path, headers=headers, timeout=10, **kwargs)
+    except httpx.HTTPError as error:
+        click.echo(f"cannot reach the farm at {api}: {error}", err=True)
+        sys.exit(1)
+    if response.status_code >= 400:
+        detail = response.json().get("detail") if "json" in response.headers.get("content-type", "") else response.text
+        click.echo(f"{method} {path}: {response.status_code} {detail}", err=True)
+        sys.exit(1)
+    return response.json()
+
+
+def _print_io(io: dict) -> None:
+    click.echo(f"inputs  {io['inputs']}\noutputs {io['outputs']}")
+    for kind, values in io["signals"].items():
+        click.echo(f"{kind:7} " + " ".join(f"{kind}{i}={v}" for i, v in enumerate(values, 1)))
+
+
+@main.group()
+def io() -> None:
+    """Read and write a running farm's I/O."""
+
+
+@io.command("get")
+@click.argument("device")
+@_api_option
+@_token_option
+def io_get(device: str, api: str, token: str | None) -> None:
+    """Show a device's images and signals."""
+    _print_io(_request("GET", api, f"/devices/{device}/io", token))  # type: ignore[arg-type]
+
+
+@io.command("set")
+@click.argument("device")
+@click.argument("assignments", nargs=-1, required=True, metavar="SIGNAL=VALUE...")
+@_api_option
+@_token_option
+def io_set(device: str, assignments: tuple[str, ...], api: str, token: str | None) -> None:
+    """Set signals, e.g. `enip-farm io set io1 DI3=1 AI1=1200`."""
+    signals: dict[str, int] = {}
+    for assignment in assignments:
+        name, _, value = assignment.partition("=")
+        try:
+            signals[name] = int(value, 0)
+        except ValueError:
+            raise click.BadParameter(f"{assignment!r}: expected SIGNAL=VALUE") from None
+    _print_io(_request("PUT", api, f"/devices/{device}/io", token, json={"signals": signals}))  # type: ignore[arg-type]
+
+
+@main.command()
+@click.argument("first")
+@click.argument("second", required=False)
+@click.argument("third", required=False)
+@click.option("--delay-ms", type=float, default=0.0, help="delay: how long to hold each reply")
+@click.option("--max-delay-ms", type=float, default=None, help="delay: random up to this")
+@click.option("--service", type=lambda v: int(v, 0), default=None, help="status: the CIP service, e.g. 0x0E")
+@click.option("--status", type=lambda v: int(v, 0), default=None, help="status: the general status, e.g. 0x08")
+@click.option("--duration", "duration_s", type=float, default=None, help="seconds until the fault ends by itself")
+@_api_option
+@_token_option
+def fault(first: str, second: str | None, third: str | None, delay_ms: float, max_delay_ms: float | None,
+          service: int | None, status: int | None, duration_s: float | None, api: str, token: str | None) -> None:
+    """Inject a fault: `fault DEVICE KIND [options]`, or end them: `fault clear DEVICE [KIND]`.
+
+    KIND: delay, drop, close, reset, offline, status, stop-io, identity."""
+    if first == "clear":
+        if second is None:
+            raise click.UsageError("fault clear DEVICE [KIND]")
+        query = f"?kind={third}" if third else ""
+        cleared = _request("DELETE", api, f"/devices/{second}/faults{query}", token)
+        click.echo(f"{second}: cleared {', '.join(cleared['cleared']) or 'nothing'}")  # type: ignore[index]
+        return
+    if second is None:
+        raise click.UsageError("fault DEVICE KIND [options]")
+    body = {"kind": second, "delay_ms": delay_ms, "max_delay_ms": max_delay_ms, "service": service,
+            "status": status, "duration_s": duration_s}
+    active = _request("POST", api, f"/devices/{first}/faults", token, json=body)
+    click.echo(f"{first}: active faults: " + ", ".join(f["kind"] for f in active))  # type: ignore[union-attr]

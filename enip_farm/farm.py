@@ -14,6 +14,7 @@ from typing import Any, TypeVar
 from enip_farm.config import FarmConfig
 from enip_farm.control.faults import Fault, FaultKind
 from enip_farm.control.handle import DeviceHandle
+from enip_farm.control.http import HttpApi
 from enip_farm.control.wiring import Wiring
 from enip_farm.device.device import ENIP_PORT, Device
 from enip_farm.device.profile import resolve
@@ -70,8 +71,12 @@ def _bind_message(device: Device, transport: str, error: OSError, port: int = EN
 class Farm:
     """The devices of one configuration, served from one event loop."""
 
-    def __init__(self, config: FarmConfig) -> None:
+    def __init__(self, config: FarmConfig, http: tuple[str, int] | None = None, token: str | None = None) -> None:
+        """`http`: serve the HTTP API on (host, port); port 0 picks a free one (see `http_port`)."""
         self.config = config
+        self._http_address = http
+        self._http_token = token
+        self.http: HttpApi | None = None
         self.devices: dict[str, Device] = {d.name: Device(resolve(d)) for d in config.devices}
         self.handles: dict[str, DeviceHandle] = {name: DeviceHandle(self, d) for name, d in self.devices.items()}
         self.wiring = Wiring(self)
@@ -129,6 +134,13 @@ class Farm:
                 except OSError as error:
                     raise BindError(_bind_message(device, "UDP", error, IO_PORT)) from None
             self._implicit.start()
+            if self._http_address is not None:
+                host, port = self._http_address
+                try:
+                    self.http = HttpApi(self, host, port, self._http_token)
+                    await self.http.start()
+                except (OSError, ValueError, SystemExit) as error:
+                    raise BindError(f"HTTP API on {host}:{port}: {error}") from None
             if self.config.discovery:
                 try:
                     self._discovery = DiscoveryResponder(loop, endpoints)
@@ -141,6 +153,9 @@ class Farm:
         self.running = True
 
     async def stop(self) -> None:
+        if self.http is not None:
+            await self.http.stop()
+            self.http = None
         if self._implicit is not None:
             self._implicit.close()
             self._implicit = None
