@@ -1,34 +1,26 @@
-"""Farm fixtures: devices on fresh 127.x addresses, served from a background thread."""
+"""The project's tests use the pytest plugin's `enip_farm` fixture (enip_farm/pytest_plugin.py)."""
 
 from __future__ import annotations
 
-from collections.abc import Callable, Iterator
-from contextlib import ExitStack
+from collections.abc import Callable
 from typing import Any
 
 import pytest
 
-from enip_farm.config import parse_config
 from enip_farm.farm import Farm
-from tests.helpers import next_address
 
 
 @pytest.fixture
-def make_farm() -> Iterator[Callable[..., Farm]]:
-    """Start a farm of the given device dicts (address filled in when absent); stopped at teardown."""
-    with ExitStack() as stack:
+def make_farm(enip_farm: Callable[..., Farm]) -> Callable[..., Farm]:
+    """Several device dicts at once: make_farm({"name": "a", "model": "DSQC1030"}, ..., discovery=True)."""
 
-        def factory(*devices: dict[str, Any], discovery: bool = False) -> Farm:
-            entries = [{"address": next_address(), **device} for device in devices]
-            farm = Farm(parse_config({"devices": entries, "discovery": discovery}))
-            stack.enter_context(farm.running_in_thread())
-            return farm
+    def factory(*devices: dict[str, Any], discovery: bool = False) -> Farm:
+        return enip_farm({"devices": list(devices)}, discovery=discovery)
 
-        yield factory
+    return factory
 
 
 @pytest.fixture
-def dsqc1030(make_farm: Callable[..., Farm]) -> str:
+def dsqc1030(enip_farm: Callable[..., Farm]) -> str:
     """The address of one fresh DSQC1030."""
-    farm = make_farm({"name": "io1", "model": "DSQC1030"})
-    return farm.device("io1").profile.address
+    return enip_farm(name="io1", model="DSQC1030")["io1"].address

@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-import itertools
-import os
 import socket
 
 from enip_farm.protocol.cip import MessageRouterReply, decode_reply, encode_request
@@ -11,16 +9,10 @@ from enip_farm.protocol.commands import decode_send_data, encode_send_data
 from enip_farm.protocol.cpf import CpfItem, ItemType
 from enip_farm.protocol.encapsulation import Command, Frame, StreamFramer, encode_frame
 from enip_farm.protocol.epath import encode_request_path
+from enip_farm.pytest_plugin import free_address
 
 ENIP_PORT = 44818
-# Each test process takes its own 127.N.x.y block, so parallel runs on one host do not collide.
-_BLOCK = 64 + os.getpid() % 150
-_hosts = itertools.count(1)
-
-
-def next_address() -> str:
-    n = next(_hosts)
-    return f"127.{_BLOCK}.{n // 250}.{n % 250 + 1}"
+next_address = free_address  # one allocator for the plugin and the tests
 
 
 class RawClient:

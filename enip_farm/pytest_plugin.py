@@ -1,0 +1,75 @@
+"""pytest plugin, registered through the `pytest11` entry point: the `enip_farm` fixture.
+
+    def test_sensor_reaches_controller(enip_farm):
+        farm = enip_farm(name="io1", model="DSQC1030")
+        farm["io1"].set(DI3=1)
+        ...
+
+`enip_farm(...)` takes a config file path, a config dict, or one device's fields as keyword
+arguments. Devices go on fresh 127.x addresses (each test process takes its own block, so parallel
+tests never collide) unless `keep_addresses=True`. The farm serves from a background thread, so
+synchronous clients (pycomm3) and async tests alike can talk to it; at teardown every socket and
+the thread are gone.
+"""
+
+from __future__ import annotations
+
+import itertools
+import os
+from collections.abc import Callable, Iterator
+from contextlib import ExitStack
+from pathlib import Path
+from typing import Any
+
+import pytest
+import yaml
+
+from enip_farm.config import parse_config
+from enip_farm.farm import BindError, Farm
+
+_BLOCK = 64 + os.getpid() % 150  # second octet of this process's addresses
+_hosts = itertools.count(1)
+
+
+def free_address() -> str:
+    """A 127.x address no other farm of this test process has used."""
+    n = next(_hosts)
+    return f"127.{_BLOCK}.{n // 250 % 250}.{n % 250 + 1}"
+
+
+def _config_dict(source: str | Path | dict[str, Any] | None, device: dict[str, Any]) -> dict[str, Any]:
+    if source is None:
+        if not device:
+            raise TypeError("enip_farm() needs a config file, a config dict, or a device's fields")
+        return {"devices": [device]}
+    if isinstance(source, dict):
+        return dict(source)
+    return yaml.safe_load(Path(source).read_text())
+
+
+def start_farm(stack: ExitStack, source: str | Path | dict[str, Any] | None = None, *, keep_addresses: bool = False,
+               discovery: bool = False, http: bool = False, **device: Any) -> Farm:
+    data = _config_dict(source, device)
+    data.setdefault("discovery", discovery)
+    for attempt in range(5):
+        devices = [dict(entry) for entry in data["devices"]]
+        if not keep_addresses:
+            for entry in devices:
+                entry["address"] = free_address()
+        farm = Farm(parse_config({**data, "devices": devices}, str(source or "<enip_farm>")),
+                    http=("127.0.0.1", 0) if http else None)
+        try:
+            stack.enter_context(farm.running_in_thread())
+            return farm
+        except BindError as error:  # another process already holds one of these addresses
+            if keep_addresses or "already in use" not in str(error) or attempt == 4:
+                raise
+    raise AssertionError("unreachable")
+
+
+@pytest.fixture
+def enip_farm() -> Iterator[Callable[..., Farm]]:
+    """A factory: enip_farm("cell.yaml"), enip_farm({"devices": [...]}), enip_farm(name="io1",
+    model="DSQC1030", addons=["DSQC1031"]); options keep_addresses, discovery, http."""
+    with ExitStack() as stack:
+        yield lambda *args, **kwargs: start_farm(stack, *args, **kwargs)
