@@ -88,8 +88,7 @@ class Device:
             assembly.on_change = lambda old, role=role: self._changed(role, old)
         self.router = MessageRouter()
         self.router.forced_status = self.faults.forced_status
-        self.router.on_request = lambda service, path, status: self.events.record(
-            "request", (service, path, status))
+        self.router.on_request = self.events.request
         for obj in (
             IdentityObject(
                 vendor_id=profile.vendor_id,

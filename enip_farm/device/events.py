@@ -32,22 +32,39 @@ class Event(NamedTuple):
 
 
 class EventLog:
-    """A bounded log; the oldest events fall off the end."""
+    """A bounded log; the oldest events fall off the end. Entries are stored as plain tuples and
+    become Events (with a wall-clock time) only when read or streamed: recording a request costs
+    well under a microsecond."""
 
     def __init__(self, device: str, size: int = 10000) -> None:
         self.device = device
-        self._events: deque[Event] = deque(maxlen=size)
+        self._entries: deque[tuple[float, str, Any]] = deque(maxlen=size)
+        self._wall_offset = time.time() - time.monotonic()
         self.subscribers: list[Callable[[Event], None]] = []
 
-    def record(self, kind: str, detail: Any = "") -> Event:
-        event = Event(time.monotonic(), time.time(), self.device, kind, detail)
-        self._events.append(event)
-        for subscriber in self.subscribers:
-            subscriber(event)
-        return event
+    def record(self, kind: str, detail: Any = "") -> None:
+        entry = (time.monotonic(), kind, detail)
+        self._entries.append(entry)
+        if self.subscribers:
+            event = self._event(entry)
+            for subscriber in self.subscribers:
+                subscriber(event)
+
+    def request(self, service: int, path: bytes, status: int) -> None:
+        """One explicit request: the message router calls this for every reply."""
+        entry = (time.monotonic(), "request", (service, path, status))
+        self._entries.append(entry)
+        if self.subscribers:
+            event = self._event(entry)
+            for subscriber in self.subscribers:
+                subscriber(event)
+
+    def _event(self, entry: tuple[float, str, Any]) -> Event:
+        monotonic, kind, detail = entry
+        return Event(monotonic, monotonic + self._wall_offset, self.device, kind, detail)
 
     def __iter__(self) -> Iterator[Event]:
-        return iter(list(self._events))
+        return iter([self._event(entry) for entry in list(self._entries)])
 
     def of_kind(self, kind: str) -> list[Event]:
-        return [event for event in list(self._events) if event.kind == kind]
+        return [self._event(entry) for entry in list(self._entries) if entry[1] == kind]
