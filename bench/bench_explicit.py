@@ -9,7 +9,7 @@ both pay the same cross-CPU wake-up. Measured per server, in one run:
   - server CPU per request (utime + stime from /proc over the throughput phases)
 Every loop is bounded in count and in time. Traffic goes to 127.0.0.0/8 only.
 
-    python bench/bench_explicit.py [--requests 20000] [--server-cpu 0] [--client-cpu 1]
+    python bench/bench_explicit.py [--requests 20000] [--server-cpu 1] [--client-cpu 0]
 """
 
 from __future__ import annotations
