@@ -415,3 +415,27 @@ def test_udp_list_identity_still_answers_after_faults_clear(enip_farm) -> None:
         udp.settimeout(2)
         udp.sendto(encode_frame(Command.LIST_IDENTITY), (io.address, 44818))
         assert decode_frame(udp.recv(1024)).header.command == Command.LIST_IDENTITY
+
+
+@pytest.mark.anyio
+async def test_plugin_from_an_async_test(enip_farm) -> None:
+    """The same fixture from an async test: an asyncio client, and an awaitable wait."""
+    import asyncio
+
+    from enip_farm.protocol.commands import encode_send_rr_data
+
+    io = enip_farm(name="io", model="DSQC1030")["io"]
+    reader, writer = await asyncio.open_connection(io.address, 44818)
+    writer.write(encode_frame(Command.REGISTER_SESSION, b"\x01\x00\x00\x00"))
+    handle = int.from_bytes((await reader.readexactly(28))[4:8], "little")
+    writer.write(encode_send_rr_data(bytes.fromhex("10 03 20 04 24 64 30 03 20 00"), handle))
+    assert (await reader.readexactly(44))[-4:] == b"\x90\x00\x00\x00"
+    await io.until(lambda d: d.get("DO6") == 1, timeout=2)
+    writer.close()
+    await writer.wait_closed()
+    assert [e.kind for e in io.events() if e.kind.startswith("session")][:1] == ["session registered"]
+
+
+@pytest.fixture
+def anyio_backend() -> str:
+    return "asyncio"

@@ -4,6 +4,7 @@ Thread-safe: images are written under the device lock, so concurrent callers los
 
 from __future__ import annotations
 
+import asyncio
 import threading
 import time
 from collections.abc import Callable
@@ -82,6 +83,10 @@ class DeviceHandle:
                 if remaining <= 0:
                     raise TimeoutError(f"{self.name}: condition not met within {timeout} s")
                 self._changed.wait(min(remaining, 0.01))  # other state (connections) is polled
+
+    async def until(self, predicate: Callable[[DeviceHandle], bool], timeout: float = 5.0) -> None:
+        """wait_for for async tests: waits in a worker thread, so the test's own loop keeps running."""
+        await asyncio.to_thread(self.wait_for, predicate, timeout)
 
     # -- observation --------------------------------------------------------------------------------
 

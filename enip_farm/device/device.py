@@ -181,10 +181,12 @@ class Device:
         handle = self._next_session_handle
         self._next_session_handle = handle + 1 if handle < 0xFFFFFFFF else 1
         self.sessions.add(handle)
+        self.events.record("session registered", f"handle {handle}")
         return handle
 
     def unregister_session(self, session_handle: int) -> None:
         self.sessions.discard(session_handle)
+        self.events.record("session ended", f"handle {session_handle}")
 
     def handle_unconnected(self, message: bytes, context: MessageContext) -> bytes:
         return self.router.handle(message, context)
