@@ -268,26 +268,33 @@ def probe(config_path: Path | None, shard_spec: str | None, timeout: float) -> N
 
     from enip_farm.protocol.encapsulation import Command, decode_frame, encode_frame
 
-    wanted = {str(d.address) for d in _select(_load(config_path), shard_spec).devices}
+    wanted = [str(d.address) for d in _select(_load(config_path), shard_spec).devices]
     answered: set[str] = set()
-    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as sock:
-        for address in wanted:
-            sock.sendto(encode_frame(Command.LIST_IDENTITY), (address, 44818))
-        deadline = time.monotonic() + timeout
-        while answered != wanted and (remaining := deadline - time.monotonic()) > 0:
+
+    def collect(sock: socket.socket, until: float, expected: int) -> None:
+        while len(answered) < expected and (remaining := until - time.monotonic()) > 0:
             sock.settimeout(remaining)
             try:
                 data, (host, _) = sock.recvfrom(2048)
-            except (TimeoutError, OSError):
-                break
+            except OSError:  # timeout
+                return
             try:
                 if decode_frame(data).header.command == Command.LIST_IDENTITY:
                     answered.add(host)
             except ValueError:
                 continue
+
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as sock:
+        deadline = time.monotonic() + timeout
+        # a few at a time: a burst of replies would overflow one socket's receive buffer
+        for start in range(0, len(wanted), 64):
+            for address in wanted[start : start + 64]:
+                sock.sendto(encode_frame(Command.LIST_IDENTITY), (address, 44818))
+            collect(sock, min(deadline, time.monotonic() + 0.5), min(start + 64, len(wanted)))
+        collect(sock, deadline, len(wanted))
     click.echo(f"{len(answered)}/{len(wanted)} devices answered ListIdentity")
-    if answered != wanted:
-        missing = sorted(wanted - answered)
+    if len(answered) != len(wanted):
+        missing = sorted(set(wanted) - answered)
         click.echo("silent: " + ", ".join(missing[:20]) + (" ..." if len(missing) > 20 else ""), err=True)
         sys.exit(1)
 

@@ -87,7 +87,8 @@ class Production:
 class CyclicIoThread(threading.Thread):
     """Reads O->T from every device socket and sends each production at start + n x period."""
 
-    _MAX_WAIT = 0.002  # new productions and a stop request are taken up at least this often
+    _MAX_WAIT = 0.002  # with productions scheduled: new ones and a stop request are taken up this often
+    _IDLE_WAIT = 0.02  # with none: O->T is still read at once (epoll); only a new production waits
     _EPOLL_MARGIN = 0.001  # epoll rounds its timeout up to whole milliseconds
 
     def __init__(self) -> None:
@@ -135,7 +136,7 @@ class CyclicIoThread(threading.Thread):
                     production.late += skipped
                     due += skipped * production.period
                 heapq.heappush(heap, (due, next(order), production))
-            delay = min(heap[0][0] - monotonic(), self._MAX_WAIT) if heap else self._MAX_WAIT
+            delay = min(heap[0][0] - monotonic(), self._MAX_WAIT) if heap else self._IDLE_WAIT
             if delay > self._EPOLL_MARGIN:
                 events = poll(delay - self._EPOLL_MARGIN)
             else:
