@@ -1,0 +1,130 @@
+"""pcap and pcapng in and out (with dpkt): packets as (addresses, ports, TCP flags, payload),
+Ethernet/IPv4/TCP/UDP frames built with correct checksums, and TCP streams reassembled per
+direction."""
+
+from __future__ import annotations
+
+import socket
+from collections.abc import Iterator
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import dpkt
+
+PCAPNG_MAGIC = b"\x0a\x0d\x0d\x0a"
+
+
+@dataclass(frozen=True)
+class Packet:
+    time: float
+    src: str
+    sport: int
+    dst: str
+    dport: int
+    proto: str  # "tcp" or "udp"
+    flags: int  # TCP flags (0 for UDP)
+    seq: int
+    payload: bytes
+
+
+def _ip_of(link_type: int, buf: bytes) -> dpkt.ip.IP | None:
+    if link_type == dpkt.pcap.DLT_EN10MB:
+        frame = dpkt.ethernet.Ethernet(buf)
+        return frame.data if isinstance(frame.data, dpkt.ip.IP) else None
+    if link_type in (dpkt.pcap.DLT_RAW, 101, 228):  # raw IP, LINKTYPE_RAW, IPv4
+        return dpkt.ip.IP(buf)
+    if link_type == dpkt.pcap.DLT_LINUX_SLL:
+        frame = dpkt.sll.SLL(buf)
+        return frame.data if isinstance(frame.data, dpkt.ip.IP) else None
+    if link_type in (dpkt.pcap.DLT_NULL, dpkt.pcap.DLT_LOOP):
+        frame = dpkt.loopback.Loopback(buf)
+        return frame.data if isinstance(frame.data, dpkt.ip.IP) else None
+    return None
+
+
+def read_packets(path: str | Path) -> Iterator[Packet]:
+    """IPv4 TCP and UDP packets of a pcap or pcapng file, in capture order."""
+    with open(path, "rb") as handle:
+        magic = handle.read(4)
+        handle.seek(0)
+        reader = dpkt.pcapng.Reader(handle) if magic == PCAPNG_MAGIC else dpkt.pcap.Reader(handle)
+        link_type = reader.datalink()
+        for timestamp, buf in reader:
+            try:
+                ip = _ip_of(link_type, buf)
+            except (dpkt.UnpackError, ValueError):
+                continue
+            if ip is None:
+                continue
+            src, dst = socket.inet_ntoa(ip.src), socket.inet_ntoa(ip.dst)
+            if isinstance(ip.data, dpkt.tcp.TCP):
+                tcp = ip.data
+                yield Packet(timestamp, src, tcp.sport, dst, tcp.dport, "tcp", tcp.flags, tcp.seq, bytes(tcp.data))
+            elif isinstance(ip.data, dpkt.udp.UDP):
+                udp = ip.data
+                yield Packet(timestamp, src, udp.sport, dst, udp.dport, "udp", 0, 0, bytes(udp.data))
+
+
+def mac_of(address: str) -> bytes:
+    """A locally administered MAC derived from an IPv4 address (02:00 + the four bytes)."""
+    return b"\x02\x00" + socket.inet_aton(address)
+
+
+def ethernet_frame(src: str, dst: str, transport: dpkt.Packet, proto: int, ip_id: int = 0, ttl: int = 64,
+                   tos: int = 0, src_mac: bytes | None = None, dst_mac: bytes | None = None) -> bytes:
+    ip = dpkt.ip.IP(src=socket.inet_aton(src), dst=socket.inet_aton(dst), p=proto, ttl=ttl, id=ip_id, tos=tos,
+                    data=transport)
+    ip.len = len(ip)  # dpkt fills the checksums when packing
+    ethernet = dpkt.ethernet.Ethernet(src=src_mac or mac_of(src), dst=dst_mac or mac_of(dst),
+                                      type=dpkt.ethernet.ETH_TYPE_IP, data=ip)
+    return bytes(ethernet)
+
+
+@dataclass
+class TcpStream:
+    """One TCP connection: the client's and the server's bytes, each reassembled in capture order
+    (retransmitted segments dropped), and the addresses."""
+
+    client: tuple[str, int]
+    server: tuple[str, int]
+    to_server: bytearray = field(default_factory=bytearray)
+    to_client: bytearray = field(default_factory=bytearray)
+    _seen: set = field(default_factory=set)
+
+    def add(self, packet: Packet) -> None:
+        if not packet.payload or packet.flags & dpkt.tcp.TH_SYN:  # bytes on a SYN are padding, not data
+            return
+        key = (packet.src, packet.sport, packet.seq, packet.payload)
+        if key in self._seen:  # a retransmission
+            return
+        self._seen.add(key)
+        if (packet.src, packet.sport) == self.client:
+            self.to_server += packet.payload
+        else:
+            self.to_client += packet.payload
+
+
+def tcp_streams(packets: list[Packet], port: int) -> list[TcpStream]:
+    """TCP connections to `port`, in the order they started."""
+    streams: dict[tuple, TcpStream] = {}
+    for packet in packets:
+        if packet.proto != "tcp" or port not in (packet.sport, packet.dport):
+            continue
+        if packet.dport == port:
+            client, server = (packet.src, packet.sport), (packet.dst, packet.dport)
+        else:
+            client, server = (packet.dst, packet.dport), (packet.src, packet.sport)
+        key = (client, server)
+        stream = streams.get(key)
+        if stream is None or (packet.flags & dpkt.tcp.TH_SYN and not packet.flags & dpkt.tcp.TH_ACK
+                              and (stream.to_server or stream.to_client)):
+            stream = streams[key] = TcpStream(client, server) if stream is None else _restart(streams, key)
+        stream.add(packet)
+    return list(dict.fromkeys(streams.values()))
+
+
+def _restart(streams: dict, key: tuple) -> TcpStream:
+    """A new connection on a 4-tuple seen before: keep the old one under a fresh key."""
+    old = streams.pop(key)
+    streams[(key, id(old))] = old
+    return TcpStream(*key)
