@@ -311,3 +311,59 @@ def compose(config_path: Path, shards: int, subnet: str, container_range: str) -
     from enip_farm.compose import compose_file
 
     click.echo(compose_file(_load(config_path), config_path.name, shards, subnet, container_range), nl=False)
+
+
+# -- captures ------------------------------------------------------------------------------------
+
+
+@main.command()
+@click.argument("capture", type=click.Path(exists=True, dir_okay=False, path_type=Path))
+@click.option("--config", "config_path", type=click.Path(path_type=Path), default=None,
+              help="start this cell in-process and replay against it (default: the default cell)")
+@click.option("--device", default=None, help="the farm device that answers for the captured device")
+@click.option("--address", default=None, help="replay against a farm already running at this address")
+@click.option("--map", "mapping", multiple=True, metavar="CAPTURED_IP=DEVICE",
+              help="for a capture of several devices: which farm device answers for which address")
+def golden(capture: Path, config_path: Path | None, device: str | None, address: str | None,
+           mapping: tuple[str, ...]) -> None:
+    """Replay a capture's requests against the farm and compare every reply field by field.
+    One line per exchange, a summary, exit status 0 only when all pass."""
+    from contextlib import nullcontext
+
+    from enip_farm.capture.exchanges import load_exchanges
+    from enip_farm.capture.golden import replay
+
+    groups = load_exchanges(capture)
+    captured = sorted({e.device for group in groups for e in group})
+    if not captured:
+        click.echo(f"{capture}: no EtherNet/IP exchanges on port 44818", err=True)
+        sys.exit(1)
+    farm = None if address else Farm(_load(config_path))
+    names: dict[str, str] = {}
+    for item in mapping:
+        ip, _, name = item.partition("=")
+        names[ip] = name
+    if not address and not names:
+        if device is None and len(captured) > 1:
+            raise click.UsageError(f"the capture holds {len(captured)} devices ({', '.join(captured)}): use --map")
+        for ip in captured:
+            names[ip] = device or next(iter(farm.devices))  # type: ignore[union-attr]
+
+    def target(ip: str) -> str:
+        if address:
+            return address
+        if ip not in names or names[ip] not in farm.devices:  # type: ignore[union-attr]
+            raise click.UsageError(f"no farm device for captured address {ip}: use --map {ip}=NAME")
+        return farm.devices[names[ip]].profile.address  # type: ignore[union-attr]
+
+    try:
+        with farm.running_in_thread() if farm else nullcontext():
+            results = replay(groups, target)
+    except BindError as error:
+        click.echo(str(error), err=True)
+        sys.exit(1)
+    for result in results:
+        click.echo(result.line())
+    failed = sum(not r.passed for r in results)
+    click.echo(f"{len(results)} exchanges: {len(results) - failed} passed, {failed} failed")
+    sys.exit(1 if failed else 0)

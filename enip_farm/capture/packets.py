@@ -80,7 +80,7 @@ def ethernet_frame(src: str, dst: str, transport: dpkt.Packet, proto: int, ip_id
     return bytes(ethernet)
 
 
-@dataclass
+@dataclass(eq=False)
 class TcpStream:
     """One TCP connection: the client's and the server's bytes, each reassembled in capture order
     (retransmitted segments dropped), and the addresses."""
@@ -107,6 +107,7 @@ class TcpStream:
 def tcp_streams(packets: list[Packet], port: int) -> list[TcpStream]:
     """TCP connections to `port`, in the order they started."""
     streams: dict[tuple, TcpStream] = {}
+    order: list[TcpStream] = []
     for packet in packets:
         if packet.proto != "tcp" or port not in (packet.sport, packet.dport):
             continue
@@ -116,15 +117,9 @@ def tcp_streams(packets: list[Packet], port: int) -> list[TcpStream]:
             client, server = (packet.dst, packet.dport), (packet.src, packet.sport)
         key = (client, server)
         stream = streams.get(key)
-        if stream is None or (packet.flags & dpkt.tcp.TH_SYN and not packet.flags & dpkt.tcp.TH_ACK
-                              and (stream.to_server or stream.to_client)):
-            stream = streams[key] = TcpStream(client, server) if stream is None else _restart(streams, key)
+        new_connection = packet.flags & dpkt.tcp.TH_SYN and not packet.flags & dpkt.tcp.TH_ACK
+        if stream is None or (new_connection and (stream.to_server or stream.to_client)):
+            stream = streams[key] = TcpStream(client, server)  # a reused 4-tuple starts a new stream
+            order.append(stream)
         stream.add(packet)
-    return list(dict.fromkeys(streams.values()))
-
-
-def _restart(streams: dict, key: tuple) -> TcpStream:
-    """A new connection on a 4-tuple seen before: keep the old one under a fresh key."""
-    old = streams.pop(key)
-    streams[(key, id(old))] = old
-    return TcpStream(*key)
+    return order
