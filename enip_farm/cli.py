@@ -80,8 +80,10 @@ def main() -> None:
               help="processes, each serving a slice of the devices (worker i's HTTP API on PORT + i)")
 @click.option("--shard", "shard_spec", default=None, metavar="I/N",
               help="serve only slice I of N (N farms started from one config, e.g. one per host)")
+@click.option("--record", type=click.Path(dir_okay=False, path_type=Path), default=None,
+              help="write every TCP and UDP exchange to this pcap file")
 def serve(config_path: Path | None, log_level: str, http: str | None, token: str | None, workers: int,
-          shard_spec: str | None) -> None:
+          shard_spec: str | None, record: Path | None) -> None:
     """Serve every device of a cell until Ctrl-C or SIGTERM."""
     logging.basicConfig(level=log_level.upper(), format="%(asctime)s %(levelname)s %(name)s: %(message)s")
     config = _select(_load(config_path), shard_spec)
@@ -92,10 +94,12 @@ def serve(config_path: Path | None, log_level: str, http: str | None, token: str
             raise click.BadParameter("expected [HOST:]PORT", param_hint="--http")
         address = (host or "127.0.0.1", int(port))
     if workers > 1:
+        if record:
+            raise click.UsageError("--record writes one file: use it with --workers 1")
         from enip_farm.workers import serve_workers
 
         sys.exit(serve_workers(config, workers, address, token))
-    farm = Farm(config, http=address, token=token)
+    farm = Farm(config, http=address, token=token, record=record)
     loop = new_event_loop()
     asyncio.set_event_loop(loop)
     try:

@@ -9,8 +9,10 @@ import resource
 import threading
 from collections.abc import Coroutine, Iterator
 from contextlib import contextmanager
+from pathlib import Path
 from typing import Any, TypeVar
 
+from enip_farm.capture.recorder import Recorder
 from enip_farm.config import FarmConfig
 from enip_farm.control.faults import Fault, FaultKind
 from enip_farm.control.handle import DeviceHandle
@@ -71,14 +73,19 @@ def _bind_message(device: Device, transport: str, error: OSError, port: int = EN
 class Farm:
     """The devices of one configuration, served from one event loop."""
 
-    def __init__(self, config: FarmConfig, http: tuple[str, int] | None = None, token: str | None = None) -> None:
-        """`http`: serve the HTTP API on (host, port); port 0 picks a free one (see `http_port`)."""
+    def __init__(self, config: FarmConfig, http: tuple[str, int] | None = None, token: str | None = None,
+                 record: str | Path | None = None) -> None:
+        """`http`: serve the HTTP API on (host, port), port 0 picks a free one (see `http.port`);
+        `record`: write the farm's traffic to this pcap file."""
         self.config = config
+        self.recorder = Recorder(record) if record else None
         self._http_address = http
         self._http_token = token
         self.http: HttpApi | None = None
         self.devices: dict[str, Device] = {d.name: Device(resolve(d)) for d in config.devices}
         self.handles: dict[str, DeviceHandle] = {name: DeviceHandle(self, d) for name, d in self.devices.items()}
+        for device in self.devices.values():
+            device.recorder = self.recorder
         self.wiring = Wiring(self)
         self._servers: dict[str, asyncio.AbstractServer] = {}
         self._connections: set[EncapsulationProtocol] = set()
@@ -176,6 +183,8 @@ class Farm:
         for server in self._servers.values():
             await server.wait_closed()
         self._servers.clear()
+        if self.recorder is not None:
+            self.recorder.close()
         self.running = False
 
     # -- faults (control/faults.py) ---------------------------------------------------------------

@@ -13,6 +13,7 @@ from collections import Counter
 from collections.abc import Callable
 from typing import Protocol
 
+from enip_farm.capture.recorder import Recorder
 from enip_farm.cip.assembly import AssemblyInstance, AssemblyObject
 from enip_farm.cip.connection import Connection, ConnectionKind
 from enip_farm.cip.connection_manager import ConnectionManager
@@ -71,6 +72,7 @@ class Device:
             for spec in profile.assemblies
         }
         self.faults = DeviceFaults()
+        self.recorder: Recorder | None = None  # serve --record
         self.counters: Counter[str] = Counter()
         self.latency = LatencyHistogram()
         self._next_session_handle = 1

@@ -79,6 +79,8 @@ class Production:
         try:
             self.sock.sendto(packet, self.address)
             self.device.counters["t_o_packets"] += 1
+            if self.device.recorder is not None:
+                self.device.recorder.udp((self.device.profile.address, IO_PORT), self.address, packet)
         except OSError as error:
             self.errors += 1
             log.debug("%s: T->O send failed: %s", self.device.name, error)
@@ -174,6 +176,8 @@ class DeviceIo:
             except OSError as error:
                 log.debug("%s: UDP 2222 error %s", self.device.name, error)
                 return
+            if self.device.recorder is not None:
+                self.device.recorder.udp(addr, (self.device.profile.address, IO_PORT), data)
             packet = decode_io_packet(data)
             if packet is None or not consume(addr[0], packet):
                 self.dropped += 1

@@ -19,7 +19,7 @@ _LINGER_RESET = struct.pack("ii", 1, 0)  # SO_LINGER on, 0 s: close sends RST
 
 
 class EncapsulationProtocol(asyncio.Protocol):
-    __slots__ = ("device", "session", "transport", "connections", "_not_before")
+    __slots__ = ("device", "session", "transport", "connections", "_not_before", "_peer", "_closed_by_us")
 
     def __init__(self, device: Device, connections: set[EncapsulationProtocol]) -> None:
         self.device = device
@@ -27,11 +27,16 @@ class EncapsulationProtocol(asyncio.Protocol):
         self.transport: asyncio.Transport | None = None
         self.connections = connections  # the farm's open connections, closed at stop
         self._not_before = 0.0  # delayed replies keep their order
+        self._peer: tuple[str, int] | None = None
+        self._closed_by_us = False
 
     def connection_made(self, transport: asyncio.BaseTransport) -> None:
         self.transport = transport  # type: ignore[assignment]
-        peer = transport.get_extra_info("peername")
+        peer = self._peer = transport.get_extra_info("peername")
         self.session = EncapsulationSession(self.device, peer[0] if peer else "0.0.0.0")
+        recorder = self.device.recorder
+        if recorder is not None and peer:
+            recorder.tcp_opened(self, peer[:2], transport.get_extra_info("sockname")[:2])
         self.connections.add(self)
         self.device.counters["tcp_connections"] += 1
         self.device.events.record("tcp connected", f"{peer[0]}:{peer[1]}" if peer else "")
@@ -55,6 +60,9 @@ class EncapsulationProtocol(asyncio.Protocol):
     def data_received(self, data: bytes) -> None:
         session = self.session
         started = time.perf_counter()
+        recorder = self.device.recorder
+        if recorder is not None:
+            recorder.tcp_data(self, True, data)
         try:
             replies = session.receive(data)  # type: ignore[union-attr]
         except Exception:  # last resort: the protocol layers answer errors as values
@@ -69,6 +77,8 @@ class EncapsulationProtocol(asyncio.Protocol):
             if fault is None:
                 transport.write(out)  # type: ignore[union-attr]
                 self.device.latency.observe(time.perf_counter() - started)
+                if recorder is not None:
+                    recorder.tcp_data(self, False, out)
             elif fault.kind is FaultKind.DELAY:
                 loop = asyncio.get_running_loop()
                 when = max(loop.time() + fault.reply_delay(), self._not_before)
@@ -78,13 +88,17 @@ class EncapsulationProtocol(asyncio.Protocol):
             else:
                 self.device.counters["replies_dropped"] += len(replies)
         if session.closing:  # type: ignore[union-attr]
+            self._closed_by_us = True
             transport.close()  # type: ignore[union-attr]
 
     def _write_late(self, out: bytes, close: bool) -> None:
         if self.transport is None or self.transport.is_closing():
             return
         self.transport.write(out)
+        if self.device.recorder is not None:
+            self.device.recorder.tcp_data(self, False, out)
         if close:
+            self._closed_by_us = True
             self.transport.close()
 
     def eof_received(self) -> bool:
@@ -95,4 +109,6 @@ class EncapsulationProtocol(asyncio.Protocol):
             self.session.connection_lost()
         self.connections.discard(self)
         self.device.events.record("tcp closed", "")
+        if self.device.recorder is not None:
+            self.device.recorder.tcp_closed(self, by_client=not self._closed_by_us)
         self.transport = None

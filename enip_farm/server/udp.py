@@ -44,6 +44,9 @@ class DeviceDatagramProtocol(asyncio.DatagramProtocol):
         self.transport = transport  # type: ignore[assignment]
 
     def datagram_received(self, data: bytes, addr: tuple[str, int]) -> None:
+        recorder = self.device.recorder
+        if recorder is not None:
+            recorder.udp(addr, (self.device.profile.address, ENIP_PORT), data)
         self.answer(data, addr)
 
     def answer(self, data: bytes, addr: tuple[str, int]) -> None:
@@ -52,6 +55,8 @@ class DeviceDatagramProtocol(asyncio.DatagramProtocol):
         reply = handle_datagram(self.device, data)
         if reply is not None and self.transport is not None:
             self.transport.sendto(reply, addr)
+            if self.device.recorder is not None:
+                self.device.recorder.udp((self.device.profile.address, ENIP_PORT), addr, reply)
 
     def error_received(self, exc: Exception) -> None:
         log.debug("%s: UDP error %s", self.device.name, exc)
@@ -94,7 +99,11 @@ class DiscoveryResponder:
                     destination = ipaddress.IPv4Address(_IN_PKTINFO.unpack_from(payload)[2])
             if destination is None:
                 continue
+            recorded = False
             for endpoint, broadcasts in self.endpoints:
+                if not recorded and destination in broadcasts and endpoint.device.recorder is not None:
+                    endpoint.device.recorder.udp(addr, (str(destination), ENIP_PORT), data)  # the broadcast, once
+                    recorded = True
                 if destination in broadcasts:
                     endpoint.answer(data, addr)
 

@@ -1,0 +1,97 @@
+"""`enip-farm serve --record FILE.pcap`: the farm's traffic as a pcap that Wireshark opens.
+
+Each TCP connection is written as a stream of its own: a three-way handshake when it opens, every
+received and sent byte as segments (at most 1460 bytes) whose sequence and acknowledgement numbers
+follow the bytes, and a FIN exchange when it closes, with the real client and device addresses
+and ports. UDP datagrams (44818 and 2222) are written as themselves. Frames are Ethernet/IPv4 with
+MACs derived from the addresses and correct checksums. Each packet is flushed as it is written,
+so a farm that is killed leaves a readable file. Thread-safe (the cyclic I/O thread records too).
+"""
+
+from __future__ import annotations
+
+import random
+import threading
+import time
+from pathlib import Path
+
+import dpkt
+
+from enip_farm.capture.packets import ethernet_frame
+
+MSS = 1460
+_ACK, _PSH, _SYN, _FIN = dpkt.tcp.TH_ACK, dpkt.tcp.TH_PUSH, dpkt.tcp.TH_SYN, dpkt.tcp.TH_FIN
+
+
+class _TcpState:
+    __slots__ = ("client", "server", "client_seq", "server_seq")
+
+    def __init__(self, client: tuple[str, int], server: tuple[str, int]) -> None:
+        self.client, self.server = client, server
+        self.client_seq = random.getrandbits(32)
+        self.server_seq = random.getrandbits(32)
+
+
+class Recorder:
+    def __init__(self, path: str | Path) -> None:
+        self.path = Path(path)
+        self._file = open(self.path, "wb")  # noqa: SIM115 (closed in close())
+        self._writer = dpkt.pcap.Writer(self._file, linktype=dpkt.pcap.DLT_EN10MB)
+        self._file.flush()
+        self._lock = threading.Lock()
+        self._tcp: dict[object, _TcpState] = {}
+        self._ip_id = 0
+
+    def _write(self, src: str, dst: str, transport: dpkt.Packet, proto: int) -> None:
+        self._ip_id = (self._ip_id + 1) & 0xFFFF
+        self._writer.writepkt(ethernet_frame(src, dst, transport, proto, self._ip_id), ts=time.time())
+        self._file.flush()
+
+    def _segment(self, state: _TcpState, from_client: bool, flags: int, payload: bytes = b"") -> None:
+        src, dst = (state.client, state.server) if from_client else (state.server, state.client)
+        seq, ack = (state.client_seq, state.server_seq) if from_client else (state.server_seq, state.client_seq)
+        tcp = dpkt.tcp.TCP(sport=src[1], dport=dst[1], seq=seq, ack=ack if flags & _ACK else 0, flags=flags,
+                           win=65535, data=payload)
+        self._write(src[0], dst[0], tcp, dpkt.ip.IP_PROTO_TCP)
+        advance = len(payload) + (1 if flags & (_SYN | _FIN) else 0)
+        if from_client:
+            state.client_seq = (state.client_seq + advance) & 0xFFFFFFFF
+        else:
+            state.server_seq = (state.server_seq + advance) & 0xFFFFFFFF
+
+    def tcp_opened(self, key: object, client: tuple[str, int], server: tuple[str, int]) -> None:
+        with self._lock:
+            state = self._tcp[key] = _TcpState(client, server)
+            self._segment(state, True, _SYN)
+            self._segment(state, False, _SYN | _ACK)
+            self._segment(state, True, _ACK)
+
+    def tcp_data(self, key: object, from_client: bool, data: bytes) -> None:
+        with self._lock:
+            state = self._tcp.get(key)
+            if state is None:
+                return
+            for start in range(0, len(data), MSS):
+                self._segment(state, from_client, _PSH | _ACK, data[start : start + MSS])
+
+    def tcp_closed(self, key: object, by_client: bool) -> None:
+        with self._lock:
+            state = self._tcp.pop(key, None)
+            if state is None:
+                return
+            self._segment(state, by_client, _FIN | _ACK)
+            self._segment(state, not by_client, _FIN | _ACK)
+            self._segment(state, by_client, _ACK)
+
+    def udp(self, src: tuple[str, int], dst: tuple[str, int], data: bytes) -> None:
+        with self._lock:
+            self._write(src[0], dst[0], dpkt.udp.UDP(sport=src[1], dport=dst[1], data=data), dpkt.ip.IP_PROTO_UDP)
+
+    def close(self) -> None:
+        with self._lock:
+            for key in list(self._tcp):
+                state = self._tcp.pop(key)
+                self._segment(state, False, _FIN | _ACK)
+                self._segment(state, True, _FIN | _ACK)
+                self._segment(state, False, _ACK)
+            self._file.close()
