@@ -371,3 +371,23 @@ def golden(capture: Path, config_path: Path | None, device: str | None, address:
     failed = sum(not r.passed for r in results)
     click.echo(f"{len(results)} exchanges: {len(results) - failed} passed, {failed} failed")
     sys.exit(1 if failed else 0)
+
+
+@main.command()
+@click.argument("capture", type=click.Path(exists=True, dir_okay=False, path_type=Path))
+@click.option("-o", "--output", type=click.Path(dir_okay=False, path_type=Path), required=True)
+@click.option("--name", default=None, help="the model's name (default: the learned product name)")
+def learn(capture: Path, output: Path, name: str | None) -> None:
+    """Write a device profile learned from a capture of a real device. Name it as a device's
+    model in a cell config (`model: PROFILE.yaml`); values the capture does not determine are
+    listed under `unverified`."""
+    import yaml
+
+    from enip_farm.capture.learn import learn as learn_profile
+
+    profile = learn_profile(capture, name)
+    ((model_name, model),) = profile["models"].items()
+    output.write_text(f"# enip-farm profile learned from {capture.name}; unverified values are placeholders.\n"
+                      + yaml.safe_dump(profile, sort_keys=False))
+    click.echo(f"{output}: model {model_name}, {len(model['replay'])} replay entries, "
+               f"unverified: {', '.join(model['unverified']) or 'nothing'}")

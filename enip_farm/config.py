@@ -12,9 +12,9 @@ from pathlib import Path
 from typing import Any, Literal
 
 import yaml
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, ValidationInfo, field_validator, model_validator
 
-from enip_farm.device.catalogue import load_catalogue
+from enip_farm.device.catalogue import load_catalogue, load_profile
 
 _MAC = re.compile(r"^([0-9A-Fa-f]{2}[:-]){5}[0-9A-Fa-f]{2}$")
 
@@ -100,7 +100,16 @@ class DeviceConfig(_Strict):
 
     @field_validator("model")
     @classmethod
-    def _known_base(cls, value: str) -> str:
+    def _known_base(cls, value: str, info: ValidationInfo) -> str:
+        if value.endswith((".yaml", ".yml")):  # a profile file, e.g. from `enip-farm learn`
+            base = Path((info.context or {}).get("base_dir", "."))
+            path = Path(value) if Path(value).is_absolute() else base / value
+            try:
+                return load_profile(path)
+            except OSError as error:
+                raise ValueError(f"profile {path}: {error.strerror}") from None
+            except (yaml.YAMLError, ValidationError) as error:
+                raise ValueError(f"profile {path} is not a valid profile: {error}") from None
         catalogue = load_catalogue()
         if value not in catalogue.bases():
             raise ValueError(f"unknown base model {value!r}; known: {', '.join(catalogue.bases())}")
@@ -205,9 +214,10 @@ def _describe(error: dict[str, Any], data: Any) -> str:
     return ", ".join(part for part in (where, field) if part) + f": {message}" if (where or field) else message
 
 
-def parse_config(data: Any, source: str = "<config>") -> FarmConfig:
+def parse_config(data: Any, source: str = "<config>", base_dir: str | Path = ".") -> FarmConfig:
+    """`base_dir`: where profile files named by a device's model are looked up."""
     try:
-        return FarmConfig.model_validate(data)
+        return FarmConfig.model_validate(data, context={"base_dir": str(base_dir)})
     except ValidationError as error:
         lines = [f"{source}: {_describe(e, data)}" for e in error.errors()]
         raise ConfigError("\n".join(lines)) from None
@@ -221,7 +231,7 @@ def load_config(path: str | Path) -> FarmConfig:
         raise ConfigError(f"{path}: cannot read: {error.strerror}") from None
     except yaml.YAMLError as error:
         raise ConfigError(f"{path}: not valid YAML: {error}") from None
-    return parse_config(data, str(path))
+    return parse_config(data, str(path), path.parent)
 
 
 def default_config_path() -> Path:

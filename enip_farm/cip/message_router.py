@@ -23,6 +23,8 @@ from enip_farm.protocol.session import MessageContext
 from enip_farm.protocol.status import GeneralStatus
 
 _PATH_CACHE_SIZE = 4096
+#: Replies by which the model says it does not implement a request: unknown object, service, attribute.
+_NOT_IMPLEMENTED = (0x05, 0x08, 0x14)
 log = logging.getLogger(__name__)
 
 
@@ -38,6 +40,7 @@ class MessageRouter(CipClass):
         self.forced_status: dict[int, int] = {}  # fault injection: service -> general status
         self.request_counts: Counter[tuple[int, int]] = Counter()  # (service, general status)
         self.on_request: Callable[[int, bytes, int], None] | None = None  # service, path, status
+        self.replay: dict[tuple[int, bytes, bytes], bytes] = {}  # a learned profile's replay table
         self._paths: dict[bytes, RequestPath | int] = {}
         self.handlers[Service.MULTIPLE_SERVICE_PACKET] = self.multiple_service_packet
         self.instances[1] = CipInstance(
@@ -58,6 +61,11 @@ class MessageRouter(CipClass):
         """A whole request in, a whole reply out. Errors are replies, never exceptions. Each reply is
         counted by service and status, and reported to `on_request` (the event log)."""
         reply = self._handle(message, context)
+        if self.replay and reply[2] in _NOT_IMPLEMENTED:  # the model first, then the replay table
+            request = decode_request(message) if len(message) >= 2 else None
+            recorded = self.replay.get((request.service, request.path, request.data)) if request else None
+            if recorded is not None:
+                reply = recorded
         service, status = message[0] if message else 0, reply[2]
         self.request_counts[service, status] += 1
         if self.on_request is not None:

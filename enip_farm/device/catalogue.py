@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from functools import lru_cache
 from importlib import resources
+from pathlib import Path
 from typing import Literal
 
 import yaml
@@ -30,6 +31,7 @@ class IoCounts(_Strict):
 
 
 class IdentityDefaults(_Strict):
+    serial_number: int | None = Field(None, ge=0, le=0xFFFFFFFF, description="learned profiles only")
     vendor_id: int = Field(ge=0, le=0xFFFF)
     device_type: int = Field(ge=0, le=0xFFFF)
     product_code: int = Field(ge=0, le=0xFFFF)
@@ -45,13 +47,31 @@ class AssemblyIds(_Strict):
     listen_only: int | None = Field(None, ge=1, description="heartbeat connection point, listen-only connections")
 
 
+class AssemblySizes(_Strict):
+    output: int = Field(0, ge=0, le=496)
+    input: int = Field(0, ge=0, le=496)
+    configuration: int = Field(0, ge=0, le=496)
+
+
+class ReplayEntry(_Strict):
+    """A request the object model does not implement, and the reply a capture showed for it;
+    matched on service, path and request data exactly (hex)."""
+
+    service: int
+    path: str
+    data: str = ""
+    reply: str
+
+
 class Model(_Strict):
     kind: Literal["base", "addon"]
     description: str
     identity: IdentityDefaults | None = None
     assemblies: AssemblyIds | None = None
+    sizes: AssemblySizes | None = Field(None, description="explicit sizes (learned profiles); else from io")
     io: IoCounts = IoCounts()
     unverified: list[str] = []
+    replay: list[ReplayEntry] = []
 
 
 class Catalogue(_Strict):
@@ -65,6 +85,26 @@ class Catalogue(_Strict):
 
 
 @lru_cache(maxsize=1)
-def load_catalogue() -> Catalogue:
+def _shipped() -> Catalogue:
     text = resources.files("enip_farm.device").joinpath("catalogue.yaml").read_text()
     return Catalogue.model_validate(yaml.safe_load(text))
+
+
+_profiles: dict[str, Model] = {}  # models from profile files (enip-farm learn), by name
+
+
+def load_catalogue() -> Catalogue:
+    """The shipped catalogue plus every profile file a configuration has named."""
+    if not _profiles:
+        return _shipped()
+    return Catalogue(models={**_shipped().models, **_profiles})
+
+
+def load_profile(path: str | Path) -> str:
+    """Add the models of a profile file (the catalogue's format) and return its base model's name."""
+    catalogue = Catalogue.model_validate(yaml.safe_load(Path(path).read_text()))
+    bases = [name for name, model in catalogue.models.items() if model.kind == "base"]
+    if len(bases) != 1:
+        raise ValueError(f"{path}: a profile file holds one base model, found {len(bases)}")
+    _profiles.update(catalogue.models)
+    return bases[0]

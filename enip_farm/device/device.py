@@ -91,6 +91,7 @@ class Device:
         self.router = MessageRouter()
         self.router.forced_status = self.faults.forced_status
         self.router.on_request = self.events.request
+        self.router.replay = {(service, path, data): reply for service, path, data, reply in profile.replay}
         for obj in (
             IdentityObject(
                 vendor_id=profile.vendor_id,

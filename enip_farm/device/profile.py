@@ -55,6 +55,7 @@ class DeviceProfile:
     input_only_point: int | None
     listen_only_point: int | None
     multicast_group: str
+    replay: tuple = ()  # (service, path, data, reply) of a learned profile
 
     def assembly(self, role: str) -> AssemblySpec | None:
         return next((a for a in self.assemblies if a.role == role), None)
@@ -109,6 +110,8 @@ def resolve(config: DeviceConfig) -> DeviceProfile:
     if model.assemblies is not None or overrides.input or overrides.output:
         ids = model.assemblies
         sizes = {"output": output_offset, "input": input_offset, "configuration": 0}
+        if model.sizes is not None:
+            sizes = model.sizes.model_dump()
         for role in ("output", "input", "configuration"):
             instance_id = getattr(overrides, role) or (getattr(ids, role) if ids else None)
             if instance_id is None:
@@ -129,7 +132,8 @@ def resolve(config: DeviceConfig) -> DeviceProfile:
         device_type=identity.device_type if identity.device_type is not None else model.identity.device_type,
         product_code=identity.product_code if identity.product_code is not None else model.identity.product_code,
         revision=identity.revision or model.identity.revision,
-        serial_number=identity.serial_number if identity.serial_number is not None else int.from_bytes(raw, "big"),
+        serial_number=identity.serial_number if identity.serial_number is not None else (
+            model.identity.serial_number if model.identity.serial_number is not None else int.from_bytes(raw, "big")),
         product_name=identity.product_name or model.identity.product_name,
         assemblies=tuple(assemblies),
         modules=tuple(modules),
@@ -142,4 +146,6 @@ def resolve(config: DeviceConfig) -> DeviceProfile:
         input_only_point=overrides.input_only or (model.assemblies.input_only if model.assemblies else None),
         listen_only_point=overrides.listen_only or (model.assemblies.listen_only if model.assemblies else None),
         multicast_group=str(config.implicit.multicast_group or default_multicast_group(address, str(config.netmask))),
+        replay=tuple((e.service, bytes.fromhex(e.path), bytes.fromhex(e.data), bytes.fromhex(e.reply))
+                     for e in model.replay),
     )
