@@ -8,12 +8,15 @@ RegisterSession's body; ListIdentity's identity item field by field; anything el
 The mask, where captured and live values legitimately differ:
 - `session_handle`: compared after mapping the captured handle to the live one (the farm numbers
   its own sessions; a capture may start mid-session).
-- ListIdentity `socket_address`: not compared when the captured device is replayed against a farm
-  device on another address.
+- the device's own address: when the captured device is answered by a farm device on another
+  address, ListIdentity's `socket_address` is not compared, and the captured address inside CIP
+  reply data (e.g. TCP/IP Interface attribute 5, as a UDINT or in network order) is replaced by the
+  farm device's before comparing.
 """
 
 from __future__ import annotations
 
+import socket
 from typing import Any
 
 from enip_farm.protocol.cip import CipDecodeError, decode_reply
@@ -28,9 +31,16 @@ def _hex(value: Any) -> Any:
     return value.hex(" ") if isinstance(value, bytes | bytearray) else value
 
 
+def _address_forms(address: str) -> list[bytes]:
+    network = socket.inet_aton(address)
+    return [network[::-1], network]  # UDINT (little-endian) as the TCP/IP object sends it, network order
+
+
 def compare_replies(captured: Frame, live: Frame, session_map: dict[int, int],
-                    address_mapped: bool = False) -> list[Difference]:
+                    addresses: tuple[str, str] | None = None) -> list[Difference]:
+    """`addresses`: (captured device address, farm device address) when they differ."""
     diffs: list[Difference] = []
+    address_mapped = addresses is not None
 
     def check(name: str, a: Any, b: Any) -> None:
         if a != b:
@@ -46,7 +56,11 @@ def compare_replies(captured: Frame, live: Frame, session_map: dict[int, int],
     if ch.command != lh.command or ch.status or lh.status:
         return diffs
     if ch.command in (Command.SEND_RR_DATA, Command.SEND_UNIT_DATA):
-        _compare_send_data(captured.data, live.data, check)
+        captured_data = captured.data
+        if addresses is not None:
+            for old, new in zip(_address_forms(addresses[0]), _address_forms(addresses[1]), strict=True):
+                captured_data = captured_data.replace(old, new)
+        _compare_send_data(captured_data, live.data, check)
     elif ch.command == Command.LIST_IDENTITY:
         _compare_identity(captured.data, live.data, check, address_mapped)
     else:

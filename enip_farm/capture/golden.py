@@ -64,7 +64,7 @@ class _Connection:
         self.sock.close()
 
 
-def replay_stream(exchanges: list[Exchange], host: str, address_mapped: bool) -> list[Result]:
+def replay_stream(exchanges: list[Exchange], host: str) -> list[Result]:
     results: list[Result] = []
     connection = _Connection(host)
     session_map: dict[int, int] = {}
@@ -89,13 +89,18 @@ def replay_stream(exchanges: list[Exchange], host: str, address_mapped: bool) ->
                 continue
             if request.header.command == Command.REGISTER_SESSION and exchange.reply.header.status == 0:
                 session_map[exchange.reply.header.session_handle] = live.header.session_handle
-            results.append(Result(exchange, compare_replies(exchange.reply, live, session_map, address_mapped)))
+            results.append(Result(exchange, compare_replies(exchange.reply, live, session_map,
+                                                            _moved(exchange.device, host))))
     finally:
         connection.close()
     return results
 
 
-def replay_datagram(exchange: Exchange, host: str, address_mapped: bool) -> Result:
+def _moved(captured: str, host: str) -> tuple[str, str] | None:
+    return (captured, host) if captured != host else None
+
+
+def replay_datagram(exchange: Exchange, host: str) -> Result:
     with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as sock:
         sock.settimeout(TIMEOUT if exchange.reply is not None else 0.2)
         sock.sendto(exchange.raw_request, (host, 44818))
@@ -105,7 +110,7 @@ def replay_datagram(exchange: Exchange, host: str, address_mapped: bool) -> Resu
             return Result(exchange, [], "the farm sent no reply" if exchange.reply is not None else "")
     if exchange.reply is None:
         return Result(exchange, [], "the farm answered where the capture has no answer")
-    return Result(exchange, compare_replies(exchange.reply, decode_frame(data), {}, address_mapped))
+    return Result(exchange, compare_replies(exchange.reply, decode_frame(data), {}, _moved(exchange.device, host)))
 
 
 def replay(groups: list[list[Exchange]], target: Callable[[str], str]) -> list[Result]:
@@ -115,10 +120,8 @@ def replay(groups: list[list[Exchange]], target: Callable[[str], str]) -> list[R
         if not group:
             continue
         if group[0].transport == "tcp":
-            host = target(group[0].device)
-            results += replay_stream(group, host, host != group[0].device)
+            results += replay_stream(group, target(group[0].device))
         else:
             for exchange in group:
-                host = target(exchange.device)
-                results.append(replay_datagram(exchange, host, host != exchange.device))
+                results.append(replay_datagram(exchange, target(exchange.device)))
     return results

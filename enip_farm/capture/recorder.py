@@ -84,8 +84,10 @@ class Recorder:
             self._segment(state, by_client, _ACK)
 
     def udp(self, src: tuple[str, int], dst: tuple[str, int], data: bytes) -> None:
+        datagram = dpkt.udp.UDP(sport=src[1], dport=dst[1], data=data)
+        datagram.ulen = len(datagram)  # dpkt leaves the length field at 8 otherwise
         with self._lock:
-            self._write(src[0], dst[0], dpkt.udp.UDP(sport=src[1], dport=dst[1], data=data), dpkt.ip.IP_PROTO_UDP)
+            self._write(src[0], dst[0], datagram, dpkt.ip.IP_PROTO_UDP)
 
     def close(self) -> None:
         with self._lock:

@@ -7,6 +7,7 @@ placeholders that a configuration did not override are remembered as unverified.
 from __future__ import annotations
 
 import ipaddress
+import zlib
 from dataclasses import dataclass
 
 from enip_farm.config import DeviceConfig, ImplicitConfig
@@ -133,7 +134,7 @@ def resolve(config: DeviceConfig) -> DeviceProfile:
         product_code=identity.product_code if identity.product_code is not None else model.identity.product_code,
         revision=identity.revision or model.identity.revision,
         serial_number=identity.serial_number if identity.serial_number is not None else (
-            model.identity.serial_number if model.identity.serial_number is not None else int.from_bytes(raw, "big")),
+            model.identity.serial_number if model.identity.serial_number is not None else zlib.crc32(raw)),
         product_name=identity.product_name or model.identity.product_name,
         assemblies=tuple(assemblies),
         modules=tuple(modules),
