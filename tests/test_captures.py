@@ -197,3 +197,26 @@ def test_learn_identity_assemblies_and_replay_table(tmp_path: Path) -> None:
     result = _golden(str(capture), "--config", str(config), "--device", "d")
     assert result.returncode == 0, result.stdout + result.stderr
     assert "udp #1 LIST_IDENTITY" in result.stdout
+
+
+def test_a_killed_farm_leaves_a_readable_recording(tmp_path: Path) -> None:
+    import signal
+
+    address = free_address()
+    config = _config(tmp_path, [{"name": "io1", "address": address, "model": "DSQC1030"}])
+    recording = tmp_path / "killed.pcap"
+    server = subprocess.Popen([*CLI, "serve", "--config", str(config), "--record", str(recording)],
+                              stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        server.stdout.readline()
+        with RawClient(address) as client:
+            client.register()
+            assert client.get(4, 100, 3).general_status == 0
+            server.send_signal(signal.SIGKILL)  # no chance to close the file
+            server.wait(timeout=20)
+    finally:
+        server.kill()
+        server.communicate()
+    (stream,) = load_exchanges(recording)
+    assert [e.request.header.command for e in stream] == [Command.REGISTER_SESSION, Command.SEND_RR_DATA]
+    assert all(e.reply is not None for e in stream)
