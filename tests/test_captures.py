@@ -220,3 +220,14 @@ def test_a_killed_farm_leaves_a_readable_recording(tmp_path: Path) -> None:
     (stream,) = load_exchanges(recording)
     assert [e.request.header.command for e in stream] == [Command.REGISTER_SESSION, Command.SEND_RR_DATA]
     assert all(e.reply is not None for e in stream)
+
+
+@pytest.mark.skipif(shutil.which("editcap") is None, reason="editcap (Debian, with tshark) is not installed")
+def test_golden_reads_pcapng_and_replays_against_a_running_farm(tmp_path: Path, enip_farm) -> None:
+    pcapng = tmp_path / "seed.pcapng"
+    subprocess.run(["editcap", "-F", "pcapng", str(SEED), str(pcapng)], check=True, capture_output=True, timeout=60)
+    assert pcapng.read_bytes()[:4] == b"\x0a\x0d\x0d\x0a"
+    address = enip_farm(name="io1", model="DSQC1030")["io1"].address  # a farm already running
+    result = _golden(str(pcapng), "--address", address)
+    assert result.returncode == 0, result.stdout + result.stderr
+    assert "4 exchanges: 4 passed, 0 failed" in result.stdout
