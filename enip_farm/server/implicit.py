@@ -30,6 +30,7 @@ import time
 from enip_farm.cip.connection import Connection
 from enip_farm.device.device import Device
 from enip_farm.protocol.connection import decode_io_packet, encode_io_packet
+from enip_farm.server.udp import udp_socket
 
 log = logging.getLogger(__name__)
 IO_PORT = 2222
@@ -37,17 +38,11 @@ _READS_PER_WAKE = 64  # datagrams read from one socket before looking at the sch
 
 
 def io_socket(host: str, port: int = IO_PORT) -> socket.socket:
-    sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-    try:
-        sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
-        sock.setsockopt(socket.IPPROTO_IP, socket.IP_MULTICAST_IF, socket.inet_aton(host))
-        sock.setsockopt(socket.IPPROTO_IP, socket.IP_MULTICAST_LOOP, 1)
-        sock.setsockopt(socket.IPPROTO_IP, socket.IP_MULTICAST_TTL, 1)
-        sock.setblocking(False)
-        sock.bind((host, port))
-    except OSError:
-        sock.close()
-        raise
+    """UDP 2222 of one device: SO_REUSEADDR, and multicast sent from the device's own address."""
+    sock = udp_socket(host, port)
+    sock.setsockopt(socket.IPPROTO_IP, socket.IP_MULTICAST_IF, socket.inet_aton(host))
+    sock.setsockopt(socket.IPPROTO_IP, socket.IP_MULTICAST_LOOP, 1)
+    sock.setsockopt(socket.IPPROTO_IP, socket.IP_MULTICAST_TTL, 1)
     return sock
 
 
