@@ -122,7 +122,7 @@ async def _serve(farm: Farm) -> None:
         click.echo(device_table(farm))
         click.echo(f"{len(farm.devices)} devices listening on TCP and UDP 44818. Ctrl-C to stop.", err=True)
         if farm.http is not None:
-            click.echo(f"HTTP API on http://{farm._http_address[0]}:{farm.http.port}", err=True)
+            click.echo(f"HTTP API on {farm.http.url}", err=True)
         await stop.wait()
     finally:
         await farm.stop()

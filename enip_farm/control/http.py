@@ -209,6 +209,7 @@ class HttpApi:
         if host not in LOCALHOST and not token:
             raise ValueError(f"the HTTP API on {host} needs a token (--token or ENIP_FARM_TOKEN); "
                              "only localhost is served without one")
+        self.host = host
         self.app = create_app(farm, token)
         self.server = _EmbeddedServer(uvicorn.Config(self.app, host=host, port=port, log_level="warning",
                                                      lifespan="off", access_log=False))
@@ -226,6 +227,10 @@ class HttpApi:
     def port(self) -> int:
         sockets = self.server.servers[0].sockets if self.server.servers else []
         return sockets[0].getsockname()[1] if sockets else 0
+
+    @property
+    def url(self) -> str:
+        return f"http://{self.host}:{self.port}"
 
     async def stop(self) -> None:
         self.server.should_exit = True
