@@ -14,11 +14,11 @@ from typing import Any, TypeVar
 
 from enip_farm.capture.recorder import Recorder
 from enip_farm.config import FarmConfig
-from enip_farm.control.faults import Fault, FaultKind
 from enip_farm.control.handle import DeviceHandle
 from enip_farm.control.http import HttpApi
 from enip_farm.control.wiring import Wiring
 from enip_farm.device.device import ENIP_PORT, Device
+from enip_farm.device.faults import Fault, FaultKind
 from enip_farm.device.profile import resolve
 from enip_farm.server.implicit import IO_PORT, ImplicitIo
 from enip_farm.server.tcp import EncapsulationProtocol
@@ -187,7 +187,7 @@ class Farm:
             self.recorder.close()
         self.running = False
 
-    # -- faults (control/faults.py) ---------------------------------------------------------------
+    # -- faults (device/faults.py) ---------------------------------------------------------------
 
     async def inject_fault(self, name: str, fault: Fault) -> None:
         """Switch a fault on for one device, on the farm's loop; `fault.duration_s` ends it by itself."""

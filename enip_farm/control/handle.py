@@ -10,10 +10,10 @@ import time
 from collections.abc import Callable
 from typing import TYPE_CHECKING, Any
 
-from enip_farm.control.faults import Fault, FaultKind
 from enip_farm.control.signals import SignalMap, parse_signal
 from enip_farm.device.device import Device
 from enip_farm.device.events import Event
+from enip_farm.device.faults import Fault, FaultKind
 
 if TYPE_CHECKING:
     from enip_farm.farm import Farm
@@ -111,7 +111,7 @@ class DeviceHandle:
     # -- faults -------------------------------------------------------------------------------------
 
     def inject(self, kind: FaultKind | str, duration_s: float | None = None, **params: Any) -> None:
-        """Inject a fault now (see control/faults.py), for `duration_s` or until cleared."""
+        """Inject a fault now (see device/faults.py), for `duration_s` or until cleared."""
         self.farm.run(self.farm.inject_fault(self.name, Fault(FaultKind(kind), duration_s=duration_s, **params)))
 
     def clear_faults(self, kind: FaultKind | str | None = None) -> None:

@@ -22,10 +22,10 @@ from prometheus_client import CollectorRegistry, generate_latest
 from prometheus_client.exposition import CONTENT_TYPE_LATEST
 from pydantic import BaseModel, Field
 
-from enip_farm.control.faults import Fault, FaultKind
 from enip_farm.control.metrics import FarmCollector
 from enip_farm.control.signals import SignalError
 from enip_farm.device.events import Event
+from enip_farm.device.faults import Fault, FaultKind
 
 if TYPE_CHECKING:
     from enip_farm.farm import Farm

@@ -13,7 +13,6 @@ from collections import Counter
 from collections.abc import Callable
 from typing import Protocol
 
-from enip_farm.capture.recorder import Recorder
 from enip_farm.cip.assembly import AssemblyInstance, AssemblyObject
 from enip_farm.cip.connection import Connection, ConnectionKind
 from enip_farm.cip.connection_manager import ConnectionManager
@@ -21,10 +20,11 @@ from enip_farm.cip.ethernet_link import EthernetLinkObject
 from enip_farm.cip.identity import STATUS_NO_IO_CONNECTIONS, IdentityObject
 from enip_farm.cip.message_router import MessageRouter
 from enip_farm.cip.tcpip_interface import TcpIpInterfaceObject
-from enip_farm.control.faults import DeviceFaults
-from enip_farm.control.metrics import LatencyHistogram
 from enip_farm.device.events import EventLog
+from enip_farm.device.faults import DeviceFaults
+from enip_farm.device.latency import LatencyHistogram
 from enip_farm.device.profile import DeviceProfile
+from enip_farm.device.tap import TrafficTap
 from enip_farm.protocol.commands import (
     CAPABILITY_TCP,
     CAPABILITY_UDP_CLASS_0_1,
@@ -72,7 +72,7 @@ class Device:
             for spec in profile.assemblies
         }
         self.faults = DeviceFaults()
-        self.recorder: Recorder | None = None  # serve --record
+        self.recorder: TrafficTap | None = None  # serve --record
         self.counters: Counter[str] = Counter()
         self.latency = LatencyHistogram()
         self._next_session_handle = 1

@@ -1,6 +1,6 @@
 """TCP 44818 (CIP Networks Library Vol. 2, 2-2.1): one protocol instance per connection, feeding
 the sans-IO encapsulation session and writing each batch of whole replies with one write.
-Injected faults (control/faults.py) delay or drop replies, and close or reset connections."""
+Injected faults (device/faults.py) delay or drop replies, and close or reset connections."""
 
 from __future__ import annotations
 
@@ -10,8 +10,8 @@ import socket
 import struct
 import time
 
-from enip_farm.control.faults import FaultKind
 from enip_farm.device.device import Device
+from enip_farm.device.faults import FaultKind
 from enip_farm.protocol.session import EncapsulationSession
 
 log = logging.getLogger(__name__)
