@@ -194,7 +194,7 @@ class Farm:
         device = self.devices[name]
         self._cancel_timer(name, fault.kind)
         device.faults.set(fault)
-        device.events.record("fault injected", fault.describe())
+        device.record("fault injected", fault.describe())
         if fault.kind in (FaultKind.CLOSE, FaultKind.RESET, FaultKind.OFFLINE):
             self._close_connections(device, FaultKind.RESET if fault.kind is FaultKind.RESET else FaultKind.CLOSE)
         if fault.kind is FaultKind.OFFLINE and name in self._servers:
@@ -214,7 +214,7 @@ class Farm:
         if FaultKind.OFFLINE in cleared and self.running and name not in self._servers:
             await self._listen(device)
         if cleared:
-            device.events.record("fault cleared", ", ".join(k.value for k in cleared))
+            device.record("fault cleared", ", ".join(k.value for k in cleared))
         return cleared
 
     def _cancel_timer(self, name: str, kind: FaultKind) -> None:

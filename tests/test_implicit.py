@@ -118,23 +118,27 @@ def test_ethernetip_scanner_exchanges_io(device) -> None:
 
 @pytest.mark.parametrize(("fault_state", "expected"), [("off", b"\x00\x00"), ("hold", b"\x10\x00")])
 def test_silent_scanner_times_out_into_fault_state(make_farm, fault_state: str, expected: bytes) -> None:
-    farm = make_farm({"name": "io1", "model": "DSQC1030",
-                      "implicit": {"first_watchdog_s": 0, "fault_state": fault_state}})
+    """The scanner feeds its connection, then goes silent: the farm closes it no sooner than the
+    timeout after the last valid packet and no later than 2 RPI after that (the farm's own event
+    timestamps), with the outputs at the fault state. The first watchdog (10 s by default) must not
+    count once packets have arrived."""
+    farm = make_farm({"name": "io1", "model": "DSQC1030", "implicit": {"fault_state": fault_state}})
     device = farm.device("io1")
     enip, conn, _, outputs = _scanner(device.profile.address)
+    rpi = 0.050
     try:
-        assert conn.sendFwdOpenReq(101, 100, 1, torpi=10, otrpi=10, multiplier=1,
+        assert conn.sendFwdOpenReq(101, 100, 1, torpi=50, otrpi=50, multiplier=0,
                                    originator_udp_port=enip.originator_udp_port) == 0
         (connection,) = device.connections.values()
-        assert connection.timeout == pytest.approx(0.010 * 8)  # RPI x 2^(2 + 1)
+        assert connection.timeout == pytest.approx(rpi * 4)  # RPI x 2^(2 + 0)
         outputs[4] = True
         conn.produce()
-        assert wait_for(lambda: device.outputs == b"\x10\x00")
+        assert wait_for(lambda: device.outputs == b"\x10\x00" and connection.received >= 5)
         conn.stopProduce()  # the scanner goes silent
         assert wait_for(lambda: device.events.of_kind("connection timed out"), timeout=5)
         (event,) = device.events.of_kind("connection timed out")
-        silent_for = event.monotonic - connection.last_received
-        assert connection.timeout - 0.002 <= silent_for <= connection.timeout + 1.0
+        silent_for = event.monotonic - connection.last_received / 1e9
+        assert connection.timeout <= silent_for <= connection.timeout + 2 * rpi
         assert device.outputs == expected
         assert not device.connections and device.status == 0x0030
     finally:
@@ -147,6 +151,8 @@ def test_silent_scanner_times_out_into_fault_state(make_farm, fault_state: str, 
 
 def _refusal(client: RawClient, message: bytes) -> int:
     reply = client.request(message)
+    if reply.additional_status and reply.additional_status[0] in (0x0127, 0x0128):
+        assert len(reply.additional_status) == 2, reply  # with the size the target expects
     assert reply.service == message[0] | 0x80
     assert reply.general_status == 0x01, reply
     assert len(reply.data) == 10  # connection serial, vendor, originator serial, remaining path size, reserved
@@ -165,6 +171,7 @@ KEY = ElectronicKey(75, 7, 1030, 1, 1, False)
         ({"o_t_size": 6}, 0x0127),
         ({"t_o_size": 5}, 0x0128),
         ({"t_o_size": 3, "variable": True}, 0x0128),
+        ({"o_t_size": 505, "t_o_size": 505, "variable": True}, 0x0127),  # EEIP's default sizes
         ({"path": bytes.fromhex("20 04 24 01 2C 65 2C 65")}, 0x012A),
         ({"path": bytes.fromhex("20 04 24 01 2C 64 2C 64")}, 0x012B),
         ({"path": bytes.fromhex("20 04 24 07 2C 64 2C 65")}, 0x0129),
@@ -361,3 +368,91 @@ def test_class3_duplicate_sequence_is_not_executed_twice(client: RawClient, devi
     items = decode_send_data(again.data).items
     assert struct.unpack("<I", items[0].data)[0] == opened.t_o_connection_id
     assert decode_reply(items[1].data[2:]).service == 0x90
+
+
+# -- defects found on 913aed5, each pinned ----------------------------------------------------------
+
+
+def test_size_refusals_carry_the_expected_size(client: RawClient, device) -> None:
+    """0x0127/0x0128 come with a second additional status word: the size the target expects."""
+    assert client.request(forward_open(o_t_size=9)[0]).additional_status == (0x0127, 8)
+    assert client.request(forward_open(t_o_size=5)[0]).additional_status == (0x0128, 4)
+    eeip_defaults = forward_open(o_t_size=505, t_o_size=505, variable=True)[0]
+    assert client.request(eeip_defaults).additional_status == (0x0127, 8)
+    assert not device.connections
+
+
+def test_reply_items_never_leak_into_the_next_reply(client: RawClient, device) -> None:
+    """A multicast Forward Open sent over a class-3 connection (SendUnitData) gets its 0x8001 item;
+    the next, unrelated SendRRData reply carries none."""
+    from enip_farm.protocol.commands import decode_send_data, encode_connected_payload
+    from enip_farm.protocol.encapsulation import Command, encode_frame
+
+    message, _ = forward_open(path=bytes.fromhex("20 02 24 01"), transport=0xA3, o_t_size=500, t_o_size=500,
+                              variable=True, rpi=100_000)
+    explicit = decode_forward_open_reply(client.request(message).data)
+    multicast, _ = forward_open(t_o_type=MULTICAST)
+    reply = client.exchange(encode_frame(Command.SEND_UNIT_DATA,
+                                         encode_connected_payload(explicit.o_t_connection_id, 1, multicast), 1))
+    items = decode_send_data(reply.data).items
+    assert [item.type_id for item in items] == [ItemType.CONNECTED_ADDRESS, ItemType.CONNECTED_DATA,
+                                                ItemType.SOCKADDR_T_O]
+    assert decode_reply(items[1].data[2:]).general_status == 0
+    assert decode_sockaddr(items[2].data).host == device.profile.multicast_group
+    get = client.exchange(encode_frame(Command.SEND_RR_DATA, bytes(6) + _items_for(encode_request(
+        0x0E, encode_request_path(1, 1, 1))), 1))
+    assert [item.type_id for item in decode_send_data(get.data).items] == [ItemType.NULL_ADDRESS,
+                                                                          ItemType.UNCONNECTED_DATA]
+
+
+def _items_for(message: bytes) -> bytes:
+    from enip_farm.protocol.cpf import encode_items
+
+    return encode_items([(ItemType.NULL_ADDRESS, b""), (ItemType.UNCONNECTED_DATA, message)])
+
+
+def test_images_never_tear(make_farm) -> None:
+    """The Python API's set() of 32 inputs races T->O production (RPI 2 ms) and explicit Gets: every
+    image anyone sees is a whole set(), never half of one."""
+    import threading
+
+    farm = make_farm({"name": "io1", "model": "DSQC1030", "addons": ["DSQC1031"],
+                      "implicit": {"first_watchdog_s": 30}})
+    handle, device = farm["io1"], farm.device("io1")
+    whole = {b"\x00" * 4, b"\xff" * 4}
+    stop = threading.Event()
+
+    def toggle() -> None:
+        for n in range(200_000):
+            if stop.is_set():
+                return
+            handle.set({"DI1-32": [n & 1] * 32})
+
+    with RawClient(device.profile.address) as c, socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as udp:
+        c.register()
+        udp.bind(("127.0.0.1", 0))
+        udp.setblocking(False)
+        message, triad = forward_open(o_t_size=2 + 4 + 4, t_o_size=2 + 4, rpi=2_000)
+        reply, _ = c.request_items(message, [(ItemType.SOCKADDR_T_O,
+                                              encode_sockaddr(SocketAddress("0.0.0.0", udp.getsockname()[1])))])
+        assert reply.general_status == 0, reply
+        writer = threading.Thread(target=toggle)
+        writer.start()
+        seen_t_o, seen_get = [], []
+        try:
+            deadline = time.monotonic() + 2.0
+            while time.monotonic() < deadline and len(seen_get) < 3_000:
+                seen_get.append(c.get(4, 101, 3).data)
+                while True:
+                    try:
+                        packet = decode_io_packet(udp.recv(2048))
+                    except BlockingIOError:
+                        break
+                    seen_t_o.append(packet.data)
+        finally:
+            stop.set()
+            writer.join(10)
+        assert c.request(forward_close(triad)).general_status == 0
+    assert len(seen_t_o) >= 50 and len(seen_get) >= 50
+    assert set(seen_t_o) <= whole and set(seen_get) <= whole
+    assert len(set(seen_get) | set(seen_t_o)) == 2  # both states were seen: the race was real

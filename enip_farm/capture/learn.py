@@ -186,7 +186,7 @@ def _replay_table(name: str, shell: dict, pairs: list[tuple[bytes, bytes]]) -> l
     context = MessageContext("127.0.0.1", object())
     table, seen = [], set()
     for request, captured in pairs:
-        modelled = device.handle_unconnected(request, context)
+        modelled, _ = device.handle_unconnected(request, context)
         if modelled == captured or modelled[2:3] not in (b"\x05", b"\x08", b"\x14"):
             continue
         try:

@@ -1,9 +1,8 @@
 """Assembly object, class 0x04 (CIP Networks Library Vol. 1, 5-5): attribute 3 is the instance's
-data (the device's I/O image, shared with every other view of it), attribute 4 its size in bytes."""
+data (the device's I/O image, shared with every other view of it), attribute 4 its size in bytes.
+The device holds its lock around every read and write of the bytes (device/device.py)."""
 
 from __future__ import annotations
-
-from collections.abc import Callable
 
 from enip_farm.cip.object import UINT, Attribute, CipClass, CipInstance
 from enip_farm.protocol.status import GeneralStatus
@@ -12,7 +11,7 @@ from enip_farm.protocol.status import GeneralStatus
 class AssemblyInstance:
     """One assembly's bytes. `settable` says whether clients may write attribute 3."""
 
-    __slots__ = ("instance_id", "data", "settable", "owned", "writable_while_owned", "on_change")
+    __slots__ = ("instance_id", "data", "settable", "owned", "writable_while_owned")
 
     def __init__(self, instance_id: int, size: int, settable: bool, writable_while_owned: bool = False) -> None:
         self.instance_id = instance_id
@@ -20,7 +19,6 @@ class AssemblyInstance:
         self.settable = settable
         self.owned = False  # an exclusive-owner connection consumes into it
         self.writable_while_owned = writable_while_owned
-        self.on_change: Callable[[bytes], None] | None = None  # called with the old bytes after a set
 
     def get(self) -> bytes:
         return bytes(self.data)
@@ -35,10 +33,7 @@ class AssemblyInstance:
             return GeneralStatus.NOT_ENOUGH_DATA
         if len(value) > size:
             return GeneralStatus.TOO_MUCH_DATA
-        old = bytes(self.data)
         self.data[:] = value
-        if self.on_change is not None and old != value:
-            self.on_change(old)
         return GeneralStatus.SUCCESS
 
 

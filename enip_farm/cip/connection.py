@@ -1,11 +1,13 @@
 """Connections as the Connection Manager opens them (CIP Networks Library Vol. 1, 3-4 and 3-5):
 class-1 I/O connections (exclusive owner, input only, listen only) and class-3 explicit
-connections. State only; the server produces and consumes their packets."""
+connections, with their supervision deadline (3-4.4.9) and their T->O production stream.
+
+Times are integers in nanoseconds of a monotonic clock that the caller passes in.
+"""
 
 from __future__ import annotations
 
-import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from enum import Enum
 
 from enip_farm.protocol.connection import ConnectionTriad
@@ -28,26 +30,59 @@ class Connection:
     t_o_rpi: int
     timeout_multiplier: int
     originator_host: str
+    opened_at: int  # ns
+    first_watchdog_ns: int = 0  # the watchdog before the first packet is at least this long
     t_o_address: tuple[str, int] | None = None  # where T->O packets go (class 1)
     multicast: bool = False
     o_t_point: int | None = None
     t_o_point: int | None = None
     o_t_run_idle_header: bool = True
+    o_t_variable: bool = False  # the originator may send less data than the assembly holds
     owner: object | None = None  # the encapsulation session of a class-3 connection
-    opened_at: float = field(default_factory=time.monotonic)
-    last_received: float = field(default_factory=time.monotonic)
+    last_received: int | None = None  # ns, the last valid packet consumed
     received: int = 0  # valid packets consumed
-    produced: int = 0
     last_sequence: int | None = None  # 32-bit sequence of the last O->T packet consumed
     run: bool = False
     closed: bool = False
-    last_reply: tuple[int, bytes] | None = None  # class 3: (sequence count, reply) for duplicates
+    last_reply: tuple[int, bytes, tuple] | None = None  # class 3: (sequence count, reply, items) for duplicates
+
+    @property
+    def timeout_ns(self) -> int:
+        """Connection timeout: O->T RPI x 2^(2 + multiplier) (Vol. 1, 3-4.4.9)."""
+        return self.o_t_rpi * 1000 << (2 + min(self.timeout_multiplier, 7))
 
     @property
     def timeout(self) -> float:
-        """Connection timeout in seconds: O->T RPI x 2^(2 + multiplier) (Vol. 1, 3-4.4.9)."""
-        return self.o_t_rpi * (1 << (2 + min(self.timeout_multiplier, 7))) / 1e6
+        """The connection timeout in seconds."""
+        return self.timeout_ns / 1e9
+
+    @property
+    def deadline(self) -> int:
+        """When the connection times out unless a valid packet arrives before: the first watchdog
+        (from the Forward Open) until the first packet, then the last valid packet + the timeout."""
+        if self.last_received is None:
+            return self.opened_at + max(self.timeout_ns, self.first_watchdog_ns)
+        return self.last_received + self.timeout_ns
 
     @property
     def is_io(self) -> bool:
         return self.kind is not ConnectionKind.EXPLICIT
+
+
+@dataclass(eq=False)
+class Production:
+    """One T->O stream: packet n is due at start + n x period (absolute deadlines, no drift). A T->O
+    connection id shared by several multicast connections is one stream."""
+
+    connection_id: int
+    address: tuple[str, int]
+    period_ns: int
+    start: int
+    count: int = 0  # packets due so far
+    sequence: int = 0
+    users: int = 1
+    late: int = 0  # periods skipped because the producer fell a whole period behind
+
+    @property
+    def due(self) -> int:
+        return self.start + self.count * self.period_ns

@@ -6,9 +6,8 @@ from __future__ import annotations
 import logging
 import struct
 from collections import Counter
-from collections.abc import Callable
 
-from enip_farm.cip.object import UINT, CipClass, CipInstance, ServiceResult, constant
+from enip_farm.cip.object import UINT, CipClass, CipInstance, Reply, ServiceResult, constant
 from enip_farm.protocol.cip import (
     REPLY_BIT,
     CipDecodeError,
@@ -39,7 +38,7 @@ class MessageRouter(CipClass):
         self.objects: dict[int, CipClass] = {self.class_id: self}
         self.forced_status: dict[int, int] = {}  # fault injection: service -> general status
         self.request_counts: Counter[tuple[int, int]] = Counter()  # (service, general status)
-        self.on_request: Callable[[int, bytes, int], None] | None = None  # service, path, status
+        self.handled: list[tuple[int, bytes, int]] = []  # (service, path, status) since pop_handled
         self.replay: dict[tuple[int, bytes, bytes], bytes] = {}  # a learned profile's replay table
         self._paths: dict[bytes, RequestPath | int] = {}
         self.handlers[Service.MULTIPLE_SERVICE_PACKET] = self.multiple_service_packet
@@ -58,25 +57,35 @@ class MessageRouter(CipClass):
         self.instances[1].attributes[2] = constant(UINT.pack(len(ids)))
 
     def handle(self, message: bytes, context: MessageContext) -> bytes:
-        """A whole request in, a whole reply out. Errors are replies, never exceptions. Each reply is
-        counted by service and status, and reported to `on_request` (the event log)."""
-        reply = self._handle(message, context)
-        if self.replay and reply[2] in _NOT_IMPLEMENTED:  # the model first, then the replay table
+        """A whole request in, a whole reply out (the items beside it, if any, are left out)."""
+        return self.dispatch(message, context).message
+
+    def dispatch(self, message: bytes, context: MessageContext) -> Reply:
+        """A whole request in, a whole reply and its CPF items out. Errors are replies, never
+        exceptions. Each reply is counted by service and status and kept for `pop_handled`."""
+        reply = self._dispatch(message, context)
+        status = reply.message[2]
+        if self.replay and status in _NOT_IMPLEMENTED:  # the model first, then the replay table
             request = decode_request(message) if len(message) >= 2 else None
             recorded = self.replay.get((request.service, request.path, request.data)) if request else None
             if recorded is not None:
-                reply = recorded
-        service, status = message[0] if message else 0, reply[2]
+                reply = Reply(recorded)
+                status = recorded[2]
+        service = message[0] if message else 0
         self.request_counts[service, status] += 1
-        if self.on_request is not None:
-            self.on_request(service, message[2 : 2 + 2 * message[1]] if len(message) > 1 else b"", status)
+        self.handled.append((service, message[2 : 2 + 2 * message[1]] if len(message) > 1 else b"", status))
         return reply
 
-    def _handle(self, message: bytes, context: MessageContext) -> bytes:
+    def pop_handled(self) -> list[tuple[int, bytes, int]]:
+        """The requests answered since the last call (embedded ones too): (service, path, status)."""
+        handled, self.handled = self.handled, []
+        return handled
+
+    def _dispatch(self, message: bytes, context: MessageContext) -> Reply:
         try:
             service, path_bytes, data = decode_request(message)
         except CipDecodeError as error:
-            return encode_reply(message[0] if message else 0, error.status)
+            return Reply(encode_reply(message[0] if message else 0, error.status))
         path = self._paths.get(path_bytes)
         if path is None:
             try:
@@ -86,28 +95,28 @@ class MessageRouter(CipClass):
             if len(self._paths) < _PATH_CACHE_SIZE:
                 self._paths[path_bytes] = path
         if type(path) is int:
-            return encode_reply(service, path)
+            return Reply(encode_reply(service, path))
         if self.forced_status and service in self.forced_status:
-            return encode_reply(service, self.forced_status[service])
+            return Reply(encode_reply(service, self.forced_status[service]))
         if service & REPLY_BIT:
-            return encode_reply(service, GeneralStatus.SERVICE_NOT_SUPPORTED)
+            return Reply(encode_reply(service, GeneralStatus.SERVICE_NOT_SUPPORTED))
         obj = self.objects.get(path.class_id)
         if obj is None:
-            return encode_reply(service, GeneralStatus.PATH_DESTINATION_UNKNOWN)
+            return Reply(encode_reply(service, GeneralStatus.PATH_DESTINATION_UNKNOWN))
         instance = obj.instance(path.instance_id)
         if instance is None:
-            return encode_reply(service, GeneralStatus.PATH_DESTINATION_UNKNOWN)
+            return Reply(encode_reply(service, GeneralStatus.PATH_DESTINATION_UNKNOWN))
         handler = obj.handlers.get(service)
         if handler is None:
-            return encode_reply(service, GeneralStatus.SERVICE_NOT_SUPPORTED)
+            return Reply(encode_reply(service, GeneralStatus.SERVICE_NOT_SUPPORTED))
         try:
             result = handler(instance, path, data, context)
         except Exception:  # a defect in an object must not cost the client its connection
             log.exception("class 0x%02X service 0x%02X failed", path.class_id, service)
-            return encode_reply(service, GeneralStatus.VENDOR_SPECIFIC)
-        if type(result) is bytes:
+            return Reply(encode_reply(service, GeneralStatus.VENDOR_SPECIFIC))
+        if type(result) is Reply:
             return result
-        return encode_reply(service, result[0], result[1], result[2])
+        return Reply(encode_reply(service, result[0], result[1], result[2]), result[3])
 
     def multiple_service_packet(self, instance: CipInstance, path: RequestPath, data: bytes,
                                 context: MessageContext) -> ServiceResult:

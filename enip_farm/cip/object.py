@@ -24,10 +24,22 @@ class Attribute(NamedTuple):
     set: Callable[[bytes], int] | None = None
 
 
+#: CPF items that travel beside a reply (type id, data), e.g. a Forward Open's T->O socket address.
+ReplyItems = tuple[tuple[int, bytes], ...]
+
+
 class ServiceResult(NamedTuple):
     status: int
     data: bytes = b""
     additional_status: tuple[int, ...] = ()
+    items: ReplyItems = ()
+
+
+class Reply(NamedTuple):
+    """A whole encoded reply message and the CPF items that go beside it."""
+
+    message: bytes
+    items: ReplyItems = ()
 
 
 class CipInstance:
@@ -40,8 +52,8 @@ class CipInstance:
         self.all_ids = tuple(sorted(attributes)) if all_ids is None else all_ids
 
 
-#: A service handler: instance, parsed path, request data, context -> result, or a whole reply message.
-Handler = Callable[[CipInstance, RequestPath, bytes, MessageContext], "ServiceResult | bytes"]
+#: A service handler: instance, parsed path, request data, context -> result, or a whole reply.
+Handler = Callable[[CipInstance, RequestPath, bytes, MessageContext], "ServiceResult | Reply"]
 
 NOT_SUPPORTED = ServiceResult(GeneralStatus.SERVICE_NOT_SUPPORTED)
 ATTRIBUTE_NOT_SUPPORTED = ServiceResult(GeneralStatus.ATTRIBUTE_NOT_SUPPORTED)

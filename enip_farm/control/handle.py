@@ -25,11 +25,12 @@ class DeviceHandle:
         self.device = device
         self.signals = SignalMap(device.profile)
         self._changed = threading.Condition()
-        device.listeners.append(self._notify)
+        device.observe(self._notify)
 
-    def _notify(self, device: Device, role: str, old: bytes, new: bytes) -> None:
-        with self._changed:
-            self._changed.notify_all()
+    def _notify(self, event: Event) -> None:
+        if event.kind == "image changed":
+            with self._changed:
+                self._changed.notify_all()
 
     # -- identity and images ----------------------------------------------------------------------
 
@@ -103,10 +104,10 @@ class DeviceHandle:
     def on_output_change(self, callback: Callable[[DeviceHandle, bytes, bytes], None]) -> None:
         """callback(handle, old, new) after every change of the output image, in the thread that
         changed it (the farm's event loop or its cyclic I/O thread): keep it short."""
-        def listener(device: Device, role: str, old: bytes, new: bytes) -> None:
-            if role == "output":
-                callback(self, old, new)
-        self.device.listeners.append(listener)
+        def listener(event: Event) -> None:
+            if event.kind == "image changed" and event.detail.role == "output":
+                callback(self, event.detail.old, event.detail.new)
+        self.device.observe(listener)
 
     # -- faults -------------------------------------------------------------------------------------
 

@@ -180,8 +180,7 @@ async def _stream(devices: list, kinds: set[str]) -> AsyncIterator[str]:
                 lost = 0
             queue.put_nowait(event)
 
-    for device in devices:
-        device.events.subscribers.append(deliver)
+    unsubscribes = [device.observe(deliver) for device in devices]
     try:
         yield ": enip-farm event stream\n\n"
         while True:
@@ -191,9 +190,8 @@ async def _stream(devices: list, kinds: set[str]) -> AsyncIterator[str]:
             else:
                 yield f"data: {json.dumps(item.as_dict())}\n\n"
     finally:
-        for device in devices:
-            with contextlib.suppress(ValueError):
-                device.events.subscribers.remove(deliver)
+        for unsubscribe in unsubscribes:
+            unsubscribe()
 
 
 class _EmbeddedServer(uvicorn.Server):

@@ -16,6 +16,7 @@ from enip_farm.control.signals import SignalMap, SignalRange, parse_signal
 if TYPE_CHECKING:
     from enip_farm.config import FarmConfig
     from enip_farm.device.device import Device
+    from enip_farm.device.events import Event
     from enip_farm.farm import Farm
 
 
@@ -93,7 +94,11 @@ class Wiring:
             self.rules.setdefault((when.device, when.signal.role), []).append((when, target, rule))
         if self.wires or self.rules:
             for device in farm.devices.values():
-                device.listeners.append(self.changed)
+                device.observe(lambda event, device=device: self._observe(device, event))
+
+    def _observe(self, device: Device, event: Event) -> None:
+        if event.kind == "image changed":
+            self.changed(device, *event.detail)
 
     def changed(self, device: Device, role: str, old: bytes, new: bytes) -> None:
         key = (device.name, role)
@@ -117,4 +122,4 @@ class Wiring:
         device = self.farm.devices[target.device]
         signals = self.maps[target.device]
         device.write_image(target.signal.role, lambda image: signals.write(target.signal, image, values))
-        device.events.record("wired", f"{target} = {values if len(values) > 1 else values[0]}")
+        device.record("wired", f"{target} = {values if len(values) > 1 else values[0]}")

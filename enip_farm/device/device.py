@@ -1,26 +1,30 @@
-"""One virtual device: its CIP objects, its I/O image and its encapsulation-level identity.
+"""One virtual device: its CIP objects, its I/O image, its connection table and its
+encapsulation-level identity (the `Target` of protocol/session.py).
 
-The assembly bytearrays are the device's I/O image: explicit messaging, and later implicit I/O and
-the control API, all read and write these same bytes.
+One lock discipline: the device lock is held around every read and every write of the images and
+of the connection table (explicit requests, O->T consumption, T->O production, supervision, the
+Python and HTTP APIs), so no reader sees half a write and no writer loses one. What happened
+inside the lock (requests, connection events, image changes) is published to the device's
+observers after the lock is released, in the thread that made it happen: one observer mechanism.
 """
 
 from __future__ import annotations
 
-import random
 import threading
 import time
 from collections import Counter
-from collections.abc import Callable
-from typing import Protocol
+from collections.abc import Callable, Iterable
 
 from enip_farm.cip.assembly import AssemblyInstance, AssemblyObject
-from enip_farm.cip.connection import Connection, ConnectionKind
+from enip_farm.cip.connection import Connection
 from enip_farm.cip.connection_manager import ConnectionManager
+from enip_farm.cip.connection_table import ConnectionEvent, ConnectionPolicy, ConnectionTable, KeyIdentity
 from enip_farm.cip.ethernet_link import EthernetLinkObject
-from enip_farm.cip.identity import STATUS_NO_IO_CONNECTIONS, IdentityObject
+from enip_farm.cip.identity import IdentityObject
 from enip_farm.cip.message_router import MessageRouter
+from enip_farm.cip.object import ReplyItems
 from enip_farm.cip.tcpip_interface import TcpIpInterfaceObject
-from enip_farm.device.events import EventLog
+from enip_farm.device.events import Event, EventLog, ImageChange
 from enip_farm.device.faults import DeviceFaults
 from enip_farm.device.latency import LatencyHistogram
 from enip_farm.device.profile import DeviceProfile
@@ -35,30 +39,31 @@ from enip_farm.protocol.commands import (
     encode_identity_item,
     encode_service_item,
 )
-from enip_farm.protocol.connection import ConnectionTriad, IoPacket
+from enip_farm.protocol.connection import ConnectionTriad
 from enip_farm.protocol.cpf import ItemType, encode_items
-from enip_farm.protocol.session import MessageContext
+from enip_farm.protocol.session import MessageContext, ReplyWithItems
 
 ENIP_PORT = 44818
 #: ListIdentity state: 3 = "operational" (Vol. 2, table 2-4.4 refers to the Identity state attribute).
 _STATE_OPERATIONAL = 3
-#: Identity status (Vol. 1, table 5-2.4): bit 0 owned; bits 4-7 extended device status.
-_OWNED = 0x0001
-_IO_RUN = 0x0060  # at least one I/O connection in run mode
-_IO_IDLE = 0x0070  # I/O connections established, all idle
-_HALF = 0x80000000
+
+#: An observer of a device: called with every event (log entries, connection events, image changes).
+Observer = Callable[[Event], None]
+#: Sends one datagram (the server's socket): data, destination.
+SendDatagram = Callable[[bytes, tuple[str, int]], None]
 
 
-#: A change of an I/O image: (device, "input" or "output", old bytes, new bytes).
-ChangeListener = Callable[["Device", str, bytes, bytes], None]
-
-
-class ConnectionObserver(Protocol):
-    """The server side of connections: produces T->O and supervises timeouts."""
-
-    def opened(self, connection: Connection) -> None: ...
-
-    def closed(self, connection: Connection) -> None: ...
+def _policy(profile: DeviceProfile) -> ConnectionPolicy:
+    implicit = profile.implicit
+    return ConnectionPolicy(
+        rpi_min_us=implicit.rpi_min_us, rpi_max_us=implicit.rpi_max_us,
+        max_class1_connections=implicit.max_class1_connections,
+        max_class3_connections=implicit.max_class3_connections,
+        outputs_off_on_idle=implicit.idle_state == "off", outputs_off_on_fault=implicit.fault_state == "off",
+        first_watchdog_ns=round(implicit.first_watchdog_s * 1e9),
+        input_only_point=profile.input_only_point, listen_only_point=profile.listen_only_point,
+        multicast_group=profile.multicast_group,
+    )
 
 
 class Device:
@@ -78,19 +83,11 @@ class Device:
         self._next_session_handle = 1
         self.sessions: set[int] = set()
         self.events = EventLog(profile.name)
-        self.connections: dict[int, Connection] = {}  # by O->T connection id
-        self._by_triad: dict[ConnectionTriad, Connection] = {}
-        self._next_connection_id = random.getrandbits(32) & 0xFFFF0000
-        self.observer: ConnectionObserver | None = None
-        # connections are opened and closed on the event loop and consumed in the cyclic I/O thread;
-        # the API writes images from any thread. Listeners are called after the lock is released.
+        self._observers: list[Observer] = []
         self.lock = threading.Lock()
-        self.listeners: list[ChangeListener] = []
-        for role, assembly in self.assemblies.items():
-            assembly.on_change = lambda old, role=role: self._changed(role, old)
+        self.table = ConnectionTable(self.assemblies, _policy(profile), self._key_identity, self.counters)
         self.router = MessageRouter()
         self.router.forced_status = self.faults.forced_status
-        self.router.on_request = self.events.request
         self.router.replay = {(service, path, data): reply for service, path, data, reply in profile.replay}
         for obj in (
             IdentityObject(
@@ -100,10 +97,10 @@ class Device:
                 revision=profile.revision,
                 serial_number=profile.serial_number,
                 product_name=profile.product_name,
-                status=lambda: self.status,
+                status=lambda: self.table.status,
             ),
             AssemblyObject(list(self.assemblies.values())),
-            ConnectionManager(self.router, self),
+            ConnectionManager(self.router, self.table),
             TcpIpInterfaceObject(address=profile.address, netmask=profile.netmask, gateway=profile.gateway,
                                  host_name=profile.host_name),
             EthernetLinkObject(mac=profile.mac),
@@ -111,22 +108,67 @@ class Device:
             self.router.register(obj)
         service = ServiceItem(PROTOCOL_VERSION, CAPABILITY_TCP | CAPABILITY_UDP_CLASS_0_1, "Communications")
         self._list_services = encode_items([(ItemType.LIST_SERVICES, encode_service_item(service))])
+        self._output = self.assemblies.get("output")
+        self._input = self.assemblies.get("input")
 
     @property
     def name(self) -> str:
         return self.profile.name
 
+    def _key_identity(self) -> KeyIdentity:
+        p = self.profile
+        return KeyIdentity(p.vendor_id, p.device_type, self.product_code, p.revision)
+
+    # -- observers ------------------------------------------------------------------------------
+
+    def observe(self, observer: Observer) -> Callable[[], None]:
+        """Call `observer(event)` for everything that happens to the device, after the device lock
+        is released, in the thread that made it happen (keep it short). Returns the unsubscribe."""
+        self._observers = [*self._observers, observer]  # copy on write: publishing never locks
+
+        def unsubscribe() -> None:
+            self._observers = [o for o in self._observers if o is not observer]
+        return unsubscribe
+
+    def record(self, kind: str, detail: object = "", at: float | None = None) -> None:
+        """Log an event and tell the observers."""
+        event = self.events.record(kind, detail, at)
+        for observer in self._observers:
+            observer(event)
+
+    def _snapshot(self) -> tuple[bytes, bytes]:
+        output, inputs = self._output, self._input
+        return (bytes(output.data) if output is not None else b"", bytes(inputs.data) if inputs is not None else b"")
+
+    def _publish(self, before: tuple[bytes, bytes], after: tuple[bytes, bytes],
+                 requests: Iterable[tuple[int, bytes, int]] = (), connections: Iterable[ConnectionEvent] = ()) -> None:
+        observers = self._observers
+        for service, path, status in requests:
+            entry = self.events.request(service, path, status)
+            if observers:
+                event = self.events.event(entry)
+                for observer in observers:
+                    observer(event)
+        for change in connections:
+            self.record(change.kind, f"{describe(change.connection)}"
+                        + (f": {change.reason}" if change.reason else ""), change.at / 1e9)
+        for role, old, new in (("output", before[0], after[0]), ("input", before[1], after[1])):
+            if old != new and self._observers:
+                event = Event(time.monotonic(), time.time(), self.name, "image changed", ImageChange(role, old, new))
+                for observer in self._observers:
+                    observer(event)
+
     # -- the I/O image --------------------------------------------------------------------------
 
     @property
     def outputs(self) -> bytes:
-        assembly = self.assemblies.get("output")
-        return bytes(assembly.data) if assembly else b""
+        with self.lock:
+            return bytes(self._output.data) if self._output is not None else b""
 
     @property
     def inputs(self) -> bytes:
-        assembly = self.assemblies.get("input")
-        return bytes(assembly.data) if assembly else b""
+        with self.lock:
+            return bytes(self._input.data) if self._input is not None else b""
 
     @property
     def product_code(self) -> int:
@@ -137,37 +179,45 @@ class Device:
     @property
     def status(self) -> int:
         """Identity attribute 5, from the device's I/O connections."""
-        io = [c for c in self.connections.values() if c.is_io]
-        if not io:
-            return STATUS_NO_IO_CONNECTIONS
-        owned = _OWNED if any(c.kind is ConnectionKind.EXCLUSIVE_OWNER for c in io) else 0
-        return owned | (_IO_RUN if any(c.run for c in io) else _IO_IDLE)
+        with self.lock:
+            return self.table.status
+
+    @property
+    def connections(self) -> dict[int, Connection]:
+        """The open connections by O->T connection id (a copy)."""
+        with self.lock:
+            return dict(self.table.connections)
+
+    def find_connection(self, triad: ConnectionTriad) -> Connection | None:
+        with self.lock:
+            return self.table.find(triad)
 
     def set_inputs(self, data: bytes) -> None:
         """Set the input image as a sensor would (not subject to `writable_inputs`)."""
         self.write_image("input", lambda image: _replace(image, data, self.name))
 
-    def write_image(self, role: str, change: Callable[[bytearray], None]) -> None:
-        """Change an image in place under the device lock (read-modify-write: no write is lost when
-        several callers write at once), then tell the listeners."""
+    def write_image(self, role: str, change: Callable[[bytearray], object]) -> None:
+        """Change an image in one locked step: `change` edits a copy, which replaces the image only
+        if it returns without an error. No reader sees half of it, no concurrent writer loses a write."""
         image = self.assemblies[role].data
         with self.lock:
-            old = bytes(image)
-            change(image)
-        self._changed(role, old)
-
-    def _changed(self, role: str, old: bytes) -> None:
-        new = bytes(self.assemblies[role].data)
-        if new != old:
-            for listener in self.listeners:
-                listener(self, role, old, new)
+            before = self._snapshot()
+            edited = bytearray(image)
+            change(edited)
+            if len(edited) != len(image):
+                raise ValueError(f"{self.name}: the {role} image is {len(image)} bytes")
+            image[:] = edited
+            after = self._snapshot()
+        self._publish(before, after)
 
     # -- encapsulation Target -------------------------------------------------------------------
 
     def identity_item(self) -> IdentityItem:
         p = self.profile
+        with self.lock:
+            status = self.table.status
         return IdentityItem(PROTOCOL_VERSION, SocketAddress(p.address, ENIP_PORT), p.vendor_id, p.device_type,
-                            self.product_code, p.revision[0], p.revision[1], self.status, p.serial_number,
+                            self.product_code, p.revision[0], p.revision[1], status, p.serial_number,
                             p.product_name, _STATE_OPERATIONAL)
 
     def list_identity_data(self) -> bytes:
@@ -184,128 +234,95 @@ class Device:
         handle = self._next_session_handle
         self._next_session_handle = handle + 1 if handle < 0xFFFFFFFF else 1
         self.sessions.add(handle)
-        self.events.record("session registered", f"handle {handle}")
+        self.record("session registered", f"handle {handle}")
         return handle
 
     def unregister_session(self, session_handle: int) -> None:
         self.sessions.discard(session_handle)
-        self.events.record("session ended", f"handle {session_handle}")
+        self.record("session ended", f"handle {session_handle}")
 
-    def handle_unconnected(self, message: bytes, context: MessageContext) -> bytes:
-        return self.router.handle(message, context)
+    def handle_unconnected(self, message: bytes, context: MessageContext) -> ReplyWithItems:
+        with self.lock:
+            before = self._snapshot()
+            reply = self.router.dispatch(message, context)
+            requests = self.router.pop_handled()
+            connections = self.table.pop_events()
+            after = self._snapshot()
+        self._publish(before, after, requests, connections)
+        return reply
 
     def handle_connected(self, connection_id: int, sequence_count: int, message: bytes,
-                         context: MessageContext) -> tuple[int, bytes] | None:
-        connection = self.connections.get(connection_id)
-        if connection is None or connection.is_io or connection.owner is not context.owner:
-            return None
-        connection.last_received = time.monotonic()
-        connection.received += 1
-        if connection.last_reply is not None and connection.last_reply[0] == sequence_count:
-            return connection.t_o_id, connection.last_reply[1]  # a duplicate: the same reply, not re-executed
-        reply = self.router.handle(message, context)
-        connection.last_reply = (sequence_count, reply)
-        return connection.t_o_id, reply
-
-    def session_closed(self, owner: object) -> None:
-        for connection in [c for c in self.connections.values() if c.owner is owner]:
-            self.close_connection(connection, "TCP connection closed")
-
-    # -- connections ----------------------------------------------------------------------------
-
-    def new_connection_id(self) -> int:
-        while True:
-            self._next_connection_id = (self._next_connection_id + 1) & 0xFFFFFFFF
-            if self._next_connection_id and self._next_connection_id not in self.connections:
-                return self._next_connection_id
-
-    def find_connection(self, triad: ConnectionTriad) -> Connection | None:
-        return self._by_triad.get(triad)
-
-    def open_connection(self, connection: Connection) -> None:
+                         context: MessageContext) -> tuple[int, bytes, ReplyItems] | None:
         with self.lock:
-            self.connections[connection.o_t_id] = connection
-            self._by_triad[connection.triad] = connection
-            if connection.kind is ConnectionKind.EXCLUSIVE_OWNER:
-                self.assemblies["output"].owned = True
-        self.events.record("connection opened", _describe(connection))
-        if self.observer is not None:
-            self.observer.opened(connection)
+            connection = self.table.receive_connected(connection_id, context.session, context.now)
+            if connection is None:
+                return None
+            if connection.last_reply is not None and connection.last_reply[0] == sequence_count:
+                return connection.t_o_id, connection.last_reply[1], connection.last_reply[2]  # a duplicate
+            before = self._snapshot()
+            reply, items = self.router.dispatch(message, context)
+            connection.last_reply = (sequence_count, reply, items)
+            requests = self.router.pop_handled()
+            connections = self.table.pop_events()
+            after = self._snapshot()
+        self._publish(before, after, requests, connections)
+        return connection.t_o_id, reply, items
 
-    def close_connection(self, connection: Connection, reason: str) -> None:
-        timed_out = reason == "timeout"
-        old_outputs = self.outputs
-        with self.lock:
-            if connection.closed:
-                return
-            connection.closed = True
-            self.connections.pop(connection.o_t_id, None)
-            self._by_triad.pop(connection.triad, None)
-            if connection.kind is ConnectionKind.EXCLUSIVE_OWNER:
-                output = self.assemblies["output"]
-                output.owned = False
-                policy = self.profile.implicit
-                if (policy.fault_state if timed_out else policy.idle_state) == "off":
-                    output.data[:] = bytes(len(output.data))
-        if connection.kind is ConnectionKind.EXCLUSIVE_OWNER:
-            self._changed("output", old_outputs)
-        self.events.record("connection timed out" if timed_out else "connection closed",
-                           f"{_describe(connection)}: {reason}")
-        if self.observer is not None:
-            self.observer.closed(connection)
-        if connection.multicast and connection.kind is not ConnectionKind.LISTEN_ONLY and not any(
-                c.multicast and c.t_o_point == connection.t_o_point and c.kind is not ConnectionKind.LISTEN_ONLY
-                for c in self.connections.values()):
-            for listener in [c for c in self.connections.values() if c.kind is ConnectionKind.LISTEN_ONLY
-                             and c.t_o_point == connection.t_o_point]:
-                self.close_connection(listener, "its producing connection closed")
+    def session_closed(self, session: object, now: int) -> None:
+        self._locked(lambda: self.table.session_closed(session, now))
 
-    def consume(self, source_host: str, packet: IoPacket) -> bool:
-        """An O->T packet (Vol. 2, 3-2): True if it belonged to a connection and was taken."""
-        output = self.assemblies.get("output")
-        old = bytes(output.data) if output is not None else b""
+    def close_connections(self, reason: str, now: int) -> None:
+        """Close every connection (e.g. the device goes offline)."""
+        self._locked(lambda: self.table.close_all(reason, now))
+
+    def _locked(self, operation: Callable[[], object]) -> None:
         with self.lock:
-            taken = self._consume(source_host, packet)
-        if output is not None and output.data != old:
-            self._changed("output", old)
+            before = self._snapshot()
+            operation()
+            connections = self.table.pop_events()
+            after = self._snapshot()
+        self._publish(before, after, (), connections)
+
+    # -- class-1 I/O (the cyclic I/O thread) --------------------------------------------------------
+
+    def receive_io(self, data: bytes, host: str, now: int) -> bool:
+        """An O->T datagram from `host`, received at `now`: True if a connection took it."""
+        if self.faults.io_stopped:
+            self.counters["o_t_dropped_io_stopped"] += 1
+            return False
+        with self.lock:
+            before = self._snapshot()
+            taken = self.table.receive_datagram(data, host, now)
+            connections = self.table.pop_events()
+            after = self._snapshot()
+        if before != after or connections:
+            self._publish(before, after, (), connections)
         return taken
 
-    def _consume(self, source_host: str, packet: IoPacket) -> bool:
-        if self.faults.io_stopped:
-            return False
-        connection = self.connections.get(packet.connection_id)
-        if connection is None or not connection.is_io or source_host != connection.originator_host:
-            return False
-        last = connection.last_sequence
-        if last is not None and (packet.sequence - last) & 0xFFFFFFFF >= _HALF:
-            return False  # older than what was consumed already
-        connection.last_sequence = packet.sequence
-        connection.last_received = time.monotonic()
-        connection.received += 1
-        self.counters["o_t_packets"] += 1
-        data = packet.data
-        if not connection.o_t_run_idle_header:  # a heartbeat: no data, run/idle header optional
-            connection.run = not data or bool(data[0] & 1)
-            return True
-        if len(data) < 4:
-            return False
-        output = self.assemblies["output"]
-        connection.run = bool(data[0] & 1)
-        if connection.run:
-            payload = data[4:]
-            if len(payload) != len(output.data):
-                return False
-            output.data[:] = payload
-        elif self.profile.implicit.idle_state == "off":
-            output.data[:] = bytes(len(output.data))
-        return True
+    def service_io(self, now: int, send: SendDatagram) -> int | None:
+        """Supervise the connections and send the T->O packets due at `now`; the next time
+        something is due. Packets are sent inside the lock, so none leaves after the Forward Close
+        (or timeout) that ends its connection has been handled."""
+        with self.lock:
+            before = self._snapshot()
+            self.table.handle_timer(now)
+            due = self.table.datagrams_to_send(now)
+            if due and not self.faults.io_stopped:
+                for packet, address in due:
+                    send(packet, address)
+            connections = self.table.pop_events()
+            after = self._snapshot()
+            timer = self.table.get_timer()
+        if connections:
+            self._publish(before, after, (), connections)
+        return timer
 
-    def produced_data(self) -> bytes:
-        """T->O data: the input image, modeless."""
-        return bytes(self.assemblies["input"].data)
+    def get_timer(self) -> int | None:
+        with self.lock:
+            return self.table.get_timer()
 
 
-def _describe(connection: Connection) -> str:
+def describe(connection: Connection) -> str:
     return (f"{connection.kind.value} O->T 0x{connection.o_t_id:08X} T->O 0x{connection.t_o_id:08X} "
             f"from {connection.originator_host}, RPI {connection.o_t_rpi}/{connection.t_o_rpi} us")
 

@@ -1,15 +1,27 @@
 """The device event log: what happened to a device, with monotonic and wall-clock timestamps.
 
 Request events keep their raw (service, path, status) and are formatted only when read, so that
-logging every request stays cheap. Subscribers (the HTTP event stream) are called on record.
+logging every request stays cheap. The device tells its observers (device.py, `Device.observe`);
+the log only keeps what happened.
 """
 
 from __future__ import annotations
 
 import time
 from collections import deque
-from collections.abc import Callable, Iterator
+from collections.abc import Iterator
 from typing import Any, NamedTuple
+
+
+class ImageChange(NamedTuple):
+    """The detail of an "image changed" event: which image, its bytes before and after."""
+
+    role: str  # "input" or "output"
+    old: bytes
+    new: bytes
+
+    def __str__(self) -> str:
+        return f"{self.role} {self.old.hex()} -> {self.new.hex()}"
 
 
 class Event(NamedTuple):
@@ -40,24 +52,22 @@ class EventLog:
         self.device = device
         self._entries: deque[tuple[float, str, Any]] = deque(maxlen=size)
         self._wall_offset = time.time() - time.monotonic()
-        self.subscribers: list[Callable[[Event], None]] = []
 
-    def record(self, kind: str, detail: Any = "") -> None:
-        entry = (time.monotonic(), kind, detail)
+    def record(self, kind: str, detail: Any = "", at: float | None = None) -> Event:
+        """Keep an event; `at` is its monotonic time in seconds (default: now)."""
+        entry = (time.monotonic() if at is None else at, kind, detail)
         self._entries.append(entry)
-        if self.subscribers:
-            event = self._event(entry)
-            for subscriber in self.subscribers:
-                subscriber(event)
+        return self._event(entry)
 
-    def request(self, service: int, path: bytes, status: int) -> None:
-        """One explicit request: the message router calls this for every reply."""
+    def request(self, service: int, path: bytes, status: int) -> tuple[float, str, Any]:
+        """One explicit request, as the message router answered it; the raw entry (`event` makes
+        it an Event), so that logging a request costs no more than a tuple."""
         entry = (time.monotonic(), "request", (service, path, status))
         self._entries.append(entry)
-        if self.subscribers:
-            event = self._event(entry)
-            for subscriber in self.subscribers:
-                subscriber(event)
+        return entry
+
+    def event(self, entry: tuple[float, str, Any]) -> Event:
+        return self._event(entry)
 
     def _event(self, entry: tuple[float, str, Any]) -> Event:
         monotonic, kind, detail = entry

@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import socket
 import struct
+from collections.abc import Iterable
 from typing import NamedTuple
 
 from enip_farm.protocol.cpf import CpfItem, ItemType, decode_items, encode_items
@@ -75,24 +76,28 @@ def decode_unconnected_message(data: bytes) -> tuple[bytes, list[CpfItem]] | Non
     return items[1].data, items[2:]
 
 
-def decode_connected_message(data: bytes) -> tuple[int, int, bytes] | None:
-    """SendUnitData body: (connection id, sequence count, CIP message), or None if malformed."""
+def decode_connected_message(data: bytes) -> tuple[int, int, bytes, list[CpfItem]] | None:
+    """SendUnitData body: (connection id, sequence count, CIP message, socket-address items), or
+    None if malformed (other items than a connected address, connected data and socket addresses)."""
     try:
         items = decode_send_data(data).items
     except ValueError:
         return None
-    if (len(items) != 2 or items[0].type_id != ItemType.CONNECTED_ADDRESS or len(items[0].data) != 4
-            or items[1].type_id != ItemType.CONNECTED_DATA or len(items[1].data) < 3):
+    if (len(items) < 2 or items[0].type_id != ItemType.CONNECTED_ADDRESS or len(items[0].data) != 4
+            or items[1].type_id != ItemType.CONNECTED_DATA or len(items[1].data) < 3
+            or any(item.type_id not in _SOCKADDR_ITEMS or len(item.data) != 16 for item in items[2:])):
         return None
     return (int.from_bytes(items[0].data, "little"), int.from_bytes(items[1].data[:2], "little"),
-            items[1].data[2:])
+            items[1].data[2:], items[2:])
 
 
-def encode_connected_payload(connection_id: int, sequence_count: int, message: bytes) -> bytes:
-    """SendUnitData body: connected address item and connected data item (sequence count first)."""
+def encode_connected_payload(connection_id: int, sequence_count: int, message: bytes,
+                             extra_items: Iterable[tuple[int, bytes]] = ()) -> bytes:
+    """SendUnitData body: connected address item, connected data item (sequence count first), and
+    any items that go beside the reply (a Forward Open's T->O socket address)."""
     return _SEND_DATA_HEADER.pack(0, 0) + encode_items(
         ((ItemType.CONNECTED_ADDRESS, struct.pack("<I", connection_id)),
-         (ItemType.CONNECTED_DATA, struct.pack("<H", sequence_count) + message)))
+         (ItemType.CONNECTED_DATA, struct.pack("<H", sequence_count) + message), *extra_items))
 
 
 def encode_send_data(items: list[tuple[int, bytes]], timeout: int = 0, interface_handle: int = 0) -> bytes:

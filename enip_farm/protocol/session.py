@@ -8,7 +8,7 @@ sessions, commands and their status codes, and nothing of CIP objects.
 from __future__ import annotations
 
 import struct
-from typing import Protocol
+from typing import NamedTuple, Protocol
 
 from enip_farm.protocol.commands import (
     PROTOCOL_VERSION,
@@ -37,17 +37,20 @@ _SEND_DATA_HEAD = struct.pack("<IH", 0, 0)  # interface handle, timeout
 _SEND_RR_DATA = int(Command.SEND_RR_DATA)
 
 
-class MessageContext:
-    """Where an explicit request came from, and the CPF items that travel beside it: the
-    socket-address items of a Forward Open in, and those its reply must carry out."""
+class MessageContext(NamedTuple):
+    """One explicit request's circumstances, immutable: where it came from, the session it came
+    on (class-3 connections belong to it), the socket-address items that travelled beside it (a
+    Forward Open's T->O address) and the time it arrived (ns, monotonic). The items a reply must
+    carry are returned with the reply, never stored here."""
 
-    __slots__ = ("peer_host", "owner", "items", "reply_items")
+    peer_host: str
+    session: object | None = None
+    items: tuple[CpfItem, ...] = ()
+    now: int = 0
 
-    def __init__(self, peer_host: str, owner: object) -> None:
-        self.peer_host = peer_host
-        self.owner = owner  # the session; class-3 connections belong to it
-        self.items: list[CpfItem] = []
-        self.reply_items: list[tuple[int, bytes]] = []
+
+#: A reply message and the CPF items (type id, data) that go beside it.
+ReplyWithItems = tuple[bytes, tuple[tuple[int, bytes], ...]]
 
 
 class Target(Protocol):
@@ -63,17 +66,17 @@ class Target(Protocol):
 
     def unregister_session(self, session_handle: int) -> None: ...
 
-    def handle_unconnected(self, message: bytes, context: MessageContext) -> bytes:
-        """An unconnected CIP request in, its whole reply out."""
+    def handle_unconnected(self, message: bytes, context: MessageContext) -> ReplyWithItems:
+        """An unconnected CIP request in, its whole reply and the items beside it out."""
         ...
 
     def handle_connected(self, connection_id: int, sequence_count: int, message: bytes,
-                         context: MessageContext) -> tuple[int, bytes] | None:
-        """A class-3 request on one of this session's connections: (T->O connection id, reply),
-        or None when the connection is not this session's."""
+                         context: MessageContext) -> tuple[int, bytes, tuple[tuple[int, bytes], ...]] | None:
+        """A class-3 request on one of this session's connections: (T->O connection id, reply,
+        items), or None when the connection is not this session's."""
         ...
 
-    def session_closed(self, owner: object) -> None:
+    def session_closed(self, session: object, now: int) -> None:
         """The TCP connection ended: its class-3 connections end with it."""
         ...
 
@@ -87,7 +90,7 @@ def _reply(header: EncapsulationHeader, data: bytes = b"", session_handle: int |
 class EncapsulationSession:
     """One TCP connection: frames in, replies out; `closing` says the connection must end."""
 
-    __slots__ = ("target", "framer", "session_handle", "closing", "discarded", "context")
+    __slots__ = ("target", "framer", "session_handle", "closing", "discarded", "peer_host", "_now")
 
     def __init__(self, target: Target, peer_host: str = "0.0.0.0", max_length: int = MAX_DATA_LENGTH) -> None:
         self.target = target
@@ -95,9 +98,12 @@ class EncapsulationSession:
         self.session_handle = 0  # 0: no session registered on this connection
         self.closing = False
         self.discarded = 0  # frames with non-zero options, discarded as the spec requires
-        self.context = MessageContext(peer_host, self)
+        self.peer_host = peer_host
+        self._now = 0
 
-    def receive(self, data: bytes) -> list[bytes]:
+    def receive(self, data: bytes, now: int = 0) -> list[bytes]:
+        """Bytes from the stream, received at `now` (ns, monotonic): the whole replies to send."""
+        self._now = now
         replies: list[bytes] = []
         for frame in self.framer.feed(data):
             if type(frame) is not Frame:  # OversizeFrame
@@ -111,11 +117,11 @@ class EncapsulationSession:
                 break
         return replies
 
-    def connection_lost(self) -> None:
+    def connection_lost(self, now: int = 0) -> None:
         if self.session_handle:
             self.target.unregister_session(self.session_handle)
             self.session_handle = 0
-            self.target.session_closed(self)
+            self.target.session_closed(self, now or self._now)
 
     def handle_frame(self, frame: Frame) -> bytes | None:
         header, data = frame
@@ -163,13 +169,11 @@ class EncapsulationSession:
         if decoded is None:
             return _reply(header, status=EncapsulationStatus.INCORRECT_DATA)
         request, items = decoded
-        context = self.context
-        context.items = items
-        message = self.target.handle_unconnected(request, context)
-        if context.reply_items:  # e.g. the T->O socket address of a multicast Forward Open
+        message, reply_items = self.target.handle_unconnected(
+            request, MessageContext(self.peer_host, self, tuple(items), self._now))
+        if reply_items:  # e.g. the T->O socket address of a multicast Forward Open
             body = _SEND_DATA_HEAD + encode_items([(ItemType.NULL_ADDRESS, b""), (ItemType.UNCONNECTED_DATA, message),
-                                                   *context.reply_items])
-            context.reply_items = []
+                                                   *reply_items])
         else:
             body = _RR_PREFIX + _UINT.pack(len(message)) + message
         return HEADER.pack(_SEND_RR_DATA, len(body), header.session_handle, 0, header.sender_context, 0) + body
@@ -180,12 +184,13 @@ class EncapsulationSession:
         decoded = decode_connected_message(data)
         if decoded is None:
             return _reply(header, status=EncapsulationStatus.INCORRECT_DATA)
-        connection_id, sequence_count, message = decoded
-        answer = self.target.handle_connected(connection_id, sequence_count, message, self.context)
+        connection_id, sequence_count, message, items = decoded
+        answer = self.target.handle_connected(connection_id, sequence_count, message,
+                                              MessageContext(self.peer_host, self, tuple(items), self._now))
         if answer is None:  # not a connection of this session: say so rather than stay silent
             return _reply(header, status=EncapsulationStatus.INCORRECT_DATA)
-        t_o_id, reply = answer
-        return _reply(header, encode_connected_payload(t_o_id, sequence_count, reply))
+        t_o_id, reply, reply_items = answer
+        return _reply(header, encode_connected_payload(t_o_id, sequence_count, reply, reply_items))
 
 
 def handle_datagram(target: Target, datagram: bytes) -> bytes | None:

@@ -1,35 +1,35 @@
-"""Class-1 implicit I/O on UDP 2222 (CIP Networks Library Vol. 2, 3-2 and 3-3).
+"""Class-1 implicit I/O on UDP 2222 (CIP Networks Library Vol. 2, 3-2 and 3-3): the sockets and
+the one thread that moves the datagrams. The connections themselves (consumption, production
+schedule, supervision) are the devices' sans-IO connection tables (cip/connection_table.py).
 
 All cyclic traffic of a farm runs in one I/O thread, apart from the event loop, so that neither
-delays the other:
+delays the other, and it is the only place that sleeps:
 - every device address has a UDP 2222 socket (SO_REUSEADDR, so a scanner on the same host can
-  still bind 0.0.0.0:2222); the thread reads O->T packets from all of them through epoll and hands
-  them to their device;
-- the thread sends every T->O packet on absolute deadlines (start + n x RPI, no drift). epoll waits
-  in whole milliseconds, so the thread stops waiting on it a millisecond early and sleeps the rest
-  with time.sleep (which wakes within a few hundred microseconds here; a Condition.wait with a
-  timeout was measured 2.6 ms late at p99). A T->O connection id shared by several multicast
-  connections is produced once.
-Each connection's watchdog runs on the event loop (timeout = RPI x 2^(2 + multiplier); the first
-one no shorter than the device's `first_watchdog_s`).
+  still bind 0.0.0.0:2222); the thread reads O->T datagrams from all of them through epoll and
+  hands them to their device with the time they were read;
+- it keeps one timer per device, the one its table asks for (`get_timer`): at that time it lets
+  the device supervise its connections and send the T->O packets due (`Device.service_io`). A
+  Forward Open on the event loop wakes the thread through a pipe. epoll waits in whole
+  milliseconds, so the thread stops waiting on it a millisecond early and sleeps the rest with
+  time.sleep (which wakes within a few hundred microseconds here; a Condition.wait with a timeout
+  was measured 2.6 ms late at p99).
 """
 
 from __future__ import annotations
 
-import asyncio
 import collections
 import heapq
 import itertools
 import logging
+import os
 import select
 import socket
 import sys
 import threading
 import time
 
-from enip_farm.cip.connection import Connection
 from enip_farm.device.device import Device
-from enip_farm.protocol.connection import decode_io_packet, encode_io_packet
+from enip_farm.device.events import Event
 from enip_farm.server.udp import udp_socket
 
 log = logging.getLogger(__name__)
@@ -46,123 +46,111 @@ def io_socket(host: str, port: int = IO_PORT) -> socket.socket:
     return sock
 
 
-class Production:
-    """One T->O stream: a connection id, a destination and a period."""
-
-    __slots__ = ("device", "sock", "connection_id", "address", "period", "start", "count", "sequence",
-                 "users", "stopped", "late", "errors")
-
-    def __init__(self, device: Device, sock: socket.socket, connection: Connection) -> None:
-        self.device = device
-        self.sock = sock
-        self.connection_id = connection.t_o_id
-        self.address = connection.t_o_address
-        self.period = connection.t_o_rpi / 1e6
-        self.start = 0.0  # set when the I/O thread takes it up
-        self.count = 0  # packets due so far
-        self.sequence = 0
-        self.users = 1  # connections sharing this stream
-        self.stopped = False
-        self.late = 0  # periods skipped because the thread fell a whole period behind
-        self.errors = 0
-
-    def send(self) -> None:
-        if self.device.faults.io_stopped:
-            return
-        self.sequence += 1
-        packet = encode_io_packet(self.connection_id, self.sequence, self.sequence, self.device.produced_data())
-        try:
-            self.sock.sendto(packet, self.address)
-            self.device.counters["t_o_packets"] += 1
-            if self.device.recorder is not None:
-                self.device.recorder.udp((self.device.profile.address, IO_PORT), self.address, packet)
-        except OSError as error:
-            self.errors += 1
-            log.debug("%s: T->O send failed: %s", self.device.name, error)
-
-
 class CyclicIoThread(threading.Thread):
-    """Reads O->T from every device socket and sends each production at start + n x period."""
+    """Reads O->T from every device socket and runs each device's connection timer."""
 
-    _MAX_WAIT = 0.002  # with productions scheduled: new ones and a stop request are taken up this often
-    _IDLE_WAIT = 0.02  # with none: O->T is still read at once (epoll); only a new production waits
-    _EPOLL_MARGIN = 0.001  # epoll rounds its timeout up to whole milliseconds
+    _IDLE_WAIT = 0.5  # with no timer: O->T is read at once (epoll), a new timer wakes the thread
+    _EPOLL_MARGIN_NS = 1_000_000  # epoll rounds its timeout up to whole milliseconds
 
     def __init__(self) -> None:
         super().__init__(name="enip-farm-cyclic-io", daemon=True)
-        self._heap: list[tuple[float, int, Production]] = []
+        self._heap: list[tuple[int, int, DeviceIo]] = []
         self._order = itertools.count()
-        self._pending: collections.deque[Production] = collections.deque()
+        self._requests: collections.deque[DeviceIo] = collections.deque()  # timers that may have moved
         self._epoll = select.epoll()
         self._readers: dict[int, DeviceIo] = {}
+        self._wake_read, self._wake_write = os.pipe()
+        os.set_blocking(self._wake_read, False)
+        os.set_blocking(self._wake_write, False)
+        self._epoll.register(self._wake_read, select.EPOLLIN)
         self._stopping = False
 
     def register(self, endpoint: DeviceIo) -> None:
         self._readers[endpoint.sock.fileno()] = endpoint
         self._epoll.register(endpoint.sock.fileno(), select.EPOLLIN)
 
-    def add(self, production: Production) -> None:
-        self._pending.append(production)  # deque append and popleft are thread-safe
+    def reschedule(self, endpoint: DeviceIo) -> None:
+        """From any thread: the device's timer may now be earlier than the one the thread holds."""
+        self._requests.append(endpoint)  # deque append and popleft are thread-safe
+        self._wake()
+
+    def _wake(self) -> None:
+        try:
+            os.write(self._wake_write, b"\0")
+        except BlockingIOError:  # the pipe is full: the thread has wake-ups pending anyway
+            pass
 
     def stop(self) -> None:
         self._stopping = True
+        self._wake()
         if self.is_alive():
             self.join(5)
         self._epoll.close()
+        os.close(self._wake_read)
+        os.close(self._wake_write)
+
+    def _schedule(self, endpoint: DeviceIo, timer: int | None) -> None:
+        if timer is None or (endpoint.scheduled is not None and endpoint.scheduled <= timer):
+            return  # nothing due, or an earlier wake-up is queued already (it asks the device again)
+        endpoint.scheduled = timer
+        heapq.heappush(self._heap, (timer, next(self._order), endpoint))
 
     def run(self) -> None:
-        heap, pending, order, readers = self._heap, self._pending, self._order, self._readers
-        monotonic, sleep, poll = time.monotonic, time.sleep, self._epoll.poll
+        heap, requests, readers = self._heap, self._requests, self._readers
+        monotonic_ns, sleep, poll = time.monotonic_ns, time.sleep, self._epoll.poll
+        wake_read = self._wake_read
         while not self._stopping:
-            while pending:
-                production = pending.popleft()
-                production.start = monotonic()
-                heapq.heappush(heap, (production.start, next(order), production))
-            now = monotonic()
+            while requests:
+                endpoint = requests.popleft()
+                self._schedule(endpoint, endpoint.device.get_timer())
+            now = monotonic_ns()
             while heap and heap[0][0] <= now:
-                _, _, production = heapq.heappop(heap)
-                if production.stopped:
-                    continue
-                production.send()
-                production.count += 1
-                due = production.start + production.count * production.period
-                behind = monotonic() - due
-                if behind > production.period:  # skip whole missed periods rather than burst
-                    skipped = int(behind / production.period)
-                    production.count += skipped
-                    production.late += skipped
-                    due += skipped * production.period
-                heapq.heappush(heap, (due, next(order), production))
-            delay = min(heap[0][0] - monotonic(), self._MAX_WAIT) if heap else self._IDLE_WAIT
-            if delay > self._EPOLL_MARGIN:
-                events = poll(delay - self._EPOLL_MARGIN)
+                when, _, endpoint = heapq.heappop(heap)
+                if when != endpoint.scheduled:
+                    continue  # superseded by an earlier wake-up
+                endpoint.scheduled = None
+                self._schedule(endpoint, endpoint.service(now))
+                now = monotonic_ns()
+            delay = (heap[0][0] - monotonic_ns()) if heap else None
+            if delay is None:
+                events = poll(self._IDLE_WAIT)
+            elif delay > self._EPOLL_MARGIN_NS:
+                events = poll((delay - self._EPOLL_MARGIN_NS) / 1e9)
             else:
                 events = poll(0)
                 if not events and delay > 0:
-                    sleep(delay)
+                    sleep(delay / 1e9)
             for fd, _ in events:
+                if fd == wake_read:
+                    try:
+                        os.read(wake_read, 4096)
+                    except BlockingIOError:
+                        pass
+                    continue
                 endpoint = readers.get(fd)
                 if endpoint is not None:
                     endpoint.read()
 
 
 class DeviceIo:
-    """UDP 2222 of one device, and the server side of its connections (the device's observer)."""
+    """UDP 2222 of one device: moves its datagrams between the socket and the device."""
 
-    def __init__(self, device: Device, sock: socket.socket, thread: CyclicIoThread,
-                 loop: asyncio.AbstractEventLoop) -> None:
+    def __init__(self, device: Device, sock: socket.socket, thread: CyclicIoThread) -> None:
         self.device = device
         self.sock = sock
         self.thread = thread
-        self.loop = loop
-        self.productions: dict[int, Production] = {}
-        self.watchdogs: dict[Connection, asyncio.TimerHandle] = {}
-        self.dropped = 0  # datagrams that were no valid O->T packet of a connection of this device
-        device.observer = self
+        self.scheduled: int | None = None  # the wake-up the thread holds for this device (ns)
+        self.send_errors = 0
+        self._unsubscribe = device.observe(self._observe)
+
+    def _observe(self, event: Event) -> None:
+        if event.kind == "connection opened":  # a new stream and a new watchdog: the timer moved
+            self.thread.reschedule(self)
 
     def read(self) -> None:
-        """In the I/O thread: consume the datagrams waiting on this device's socket."""
-        recvfrom, consume = self.sock.recvfrom, self.device.consume
+        """In the I/O thread: hand the datagrams waiting on this device's socket to the device."""
+        recvfrom, receive = self.sock.recvfrom, self.device.receive_io
+        address = (self.device.profile.address, IO_PORT)
         for _ in range(_READS_PER_WAKE):
             try:
                 data, addr = recvfrom(2048)
@@ -171,63 +159,30 @@ class DeviceIo:
             except OSError as error:
                 log.debug("%s: UDP 2222 error %s", self.device.name, error)
                 return
-            if self.device.recorder is not None:
-                self.device.recorder.udp(addr, (self.device.profile.address, IO_PORT), data)
-            packet = decode_io_packet(data)
-            if packet is None or not consume(addr[0], packet):
-                self.dropped += 1
+            now = time.monotonic_ns()
+            recorder = self.device.recorder
+            if recorder is not None:
+                recorder.udp(addr, address, data)
+            receive(data, addr[0], now)
 
-    # -- ConnectionObserver (on the event loop) ---------------------------------------------------
+    def service(self, now: int) -> int | None:
+        """In the I/O thread: the device's timer has come; the next one."""
+        return self.device.service_io(now, self.send)
 
-    def opened(self, connection: Connection) -> None:
-        first = connection.timeout if not connection.is_io else max(
-            connection.timeout, self.device.profile.implicit.first_watchdog_s)
-        self._arm(connection, connection.opened_at + first)
-        if not connection.is_io:
+    def send(self, packet: bytes, destination: tuple[str, int]) -> None:
+        try:
+            self.sock.sendto(packet, destination)
+        except OSError as error:
+            self.send_errors += 1
+            self.device.counters["t_o_send_errors"] += 1
+            log.debug("%s: T->O send failed: %s", self.device.name, error)
             return
-        production = self.productions.get(connection.t_o_id)
-        if production is not None and not production.stopped:
-            production.users += 1
-            return
-        production = Production(self.device, self.sock, connection)
-        self.productions[connection.t_o_id] = production
-        self.thread.add(production)
-
-    def closed(self, connection: Connection) -> None:
-        handle = self.watchdogs.pop(connection, None)
-        if handle is not None:
-            handle.cancel()
-        production = self.productions.get(connection.t_o_id) if connection.is_io else None
-        if production is not None:
-            production.users -= 1
-            if production.users <= 0:
-                production.stopped = True
-                del self.productions[connection.t_o_id]
-
-    def _arm(self, connection: Connection, deadline: float) -> None:
-        self.watchdogs[connection] = self.loop.call_at(
-            self.loop.time() + (deadline - time.monotonic()), self._watchdog, connection)
-
-    def _watchdog(self, connection: Connection) -> None:
-        self.watchdogs.pop(connection, None)
-        if connection.closed:
-            return
-        if connection.received:
-            deadline = connection.last_received + connection.timeout
-        else:
-            deadline = connection.opened_at + max(connection.timeout, self.device.profile.implicit.first_watchdog_s)
-        if time.monotonic() >= deadline:
-            self.device.close_connection(connection, "timeout")
-        else:
-            self._arm(connection, deadline)
+        recorder = self.device.recorder
+        if recorder is not None:
+            recorder.udp((self.device.profile.address, IO_PORT), destination, packet)
 
     def close(self) -> None:
-        for handle in self.watchdogs.values():
-            handle.cancel()
-        self.watchdogs.clear()
-        for production in self.productions.values():
-            production.stopped = True
-        self.device.observer = None
+        self._unsubscribe()
 
 
 class ImplicitIo:
@@ -243,9 +198,10 @@ class ImplicitIo:
     def add(self, device: Device) -> None:
         sock = io_socket(device.profile.address)
         self._sockets.append(sock)
-        endpoint = DeviceIo(device, sock, self.thread, asyncio.get_running_loop())
+        endpoint = DeviceIo(device, sock, self.thread)
         self.thread.register(endpoint)
         self.endpoints.append(endpoint)
+        self.thread.reschedule(endpoint)
 
     def start(self) -> None:
         self.thread.start()

@@ -39,7 +39,7 @@ class EncapsulationProtocol(asyncio.Protocol):
             recorder.tcp_opened(self, peer[:2], transport.get_extra_info("sockname")[:2])
         self.connections.add(self)
         self.device.counters["tcp_connections"] += 1
-        self.device.events.record("tcp connected", f"{peer[0]}:{peer[1]}" if peer else "")
+        self.device.record("tcp connected", f"{peer[0]}:{peer[1]}" if peer else "")
         kind = self.device.faults.connection_fault
         if kind is not None:
             self.kill(kind)
@@ -64,7 +64,7 @@ class EncapsulationProtocol(asyncio.Protocol):
         if recorder is not None:
             recorder.tcp_data(self, True, data)
         try:
-            replies = session.receive(data)  # type: ignore[union-attr]
+            replies = session.receive(data, time.monotonic_ns())  # type: ignore[union-attr]
         except Exception:  # last resort: the protocol layers answer errors as values
             log.exception("%s: closing a connection after an internal error", self.device.name)
             self.transport.close()  # type: ignore[union-attr]
@@ -75,10 +75,10 @@ class EncapsulationProtocol(asyncio.Protocol):
             out = replies[0] if len(replies) == 1 else b"".join(replies)
             fault = faults.reply_fault if faults.active else None
             if fault is None:
+                if recorder is not None:  # recorded first: a farm killed in between leaves the reply on file
+                    recorder.tcp_data(self, False, out)
                 transport.write(out)  # type: ignore[union-attr]
                 self.device.latency.observe(time.perf_counter() - started)
-                if recorder is not None:
-                    recorder.tcp_data(self, False, out)
             elif fault.kind is FaultKind.DELAY:
                 loop = asyncio.get_running_loop()
                 when = max(loop.time() + fault.reply_delay(), self._not_before)
@@ -94,9 +94,9 @@ class EncapsulationProtocol(asyncio.Protocol):
     def _write_late(self, out: bytes, close: bool) -> None:
         if self.transport is None or self.transport.is_closing():
             return
-        self.transport.write(out)
         if self.device.recorder is not None:
             self.device.recorder.tcp_data(self, False, out)
+        self.transport.write(out)
         if close:
             self._closed_by_us = True
             self.transport.close()
@@ -106,9 +106,9 @@ class EncapsulationProtocol(asyncio.Protocol):
 
     def connection_lost(self, exc: Exception | None) -> None:
         if self.session is not None:
-            self.session.connection_lost()
+            self.session.connection_lost(time.monotonic_ns())
         self.connections.discard(self)
-        self.device.events.record("tcp closed", "")
+        self.device.record("tcp closed", "")
         if self.device.recorder is not None:
             self.device.recorder.tcp_closed(self, by_client=not self._closed_by_us)
         self.transport = None
