@@ -68,7 +68,7 @@ class ConnectionManager(CipClass):
             return ServiceResult(GeneralStatus.CONNECTION_FAILURE, route_words, (X.INVALID_LINK_ADDRESS,))
         if not request.message:
             return ServiceResult(GeneralStatus.NOT_ENOUGH_DATA)
-        return self.router.dispatch(request.message, context)
+        return Reply(*self.router.dispatch(request.message, context))
 
     # -- Forward Open -----------------------------------------------------------------------------
 

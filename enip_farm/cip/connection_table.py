@@ -148,6 +148,10 @@ class ConnectionTable:
 
     # -- what the table says -------------------------------------------------------------------
 
+    @property
+    def has_events(self) -> bool:
+        return bool(self._events)
+
     def pop_events(self) -> list[ConnectionEvent]:
         events, self._events = self._events, []
         return events

@@ -7,7 +7,7 @@ import logging
 import struct
 from collections import Counter
 
-from enip_farm.cip.object import UINT, CipClass, CipInstance, Reply, ServiceResult, constant
+from enip_farm.cip.object import UINT, CipClass, CipInstance, Reply, ReplyItems, ServiceResult, constant
 from enip_farm.protocol.cip import (
     REPLY_BIT,
     CipDecodeError,
@@ -58,18 +58,18 @@ class MessageRouter(CipClass):
 
     def handle(self, message: bytes, context: MessageContext) -> bytes:
         """A whole request in, a whole reply out (the items beside it, if any, are left out)."""
-        return self.dispatch(message, context).message
+        return self.dispatch(message, context)[0]
 
-    def dispatch(self, message: bytes, context: MessageContext) -> Reply:
+    def dispatch(self, message: bytes, context: MessageContext) -> tuple[bytes, ReplyItems]:
         """A whole request in, a whole reply and its CPF items out. Errors are replies, never
         exceptions. Each reply is counted by service and status and kept for `pop_handled`."""
         reply = self._dispatch(message, context)
-        status = reply.message[2]
+        status = reply[0][2]
         if self.replay and status in _NOT_IMPLEMENTED:  # the model first, then the replay table
             request = decode_request(message) if len(message) >= 2 else None
             recorded = self.replay.get((request.service, request.path, request.data)) if request else None
             if recorded is not None:
-                reply = Reply(recorded)
+                reply = recorded, ()
                 status = recorded[2]
         service = message[0] if message else 0
         self.request_counts[service, status] += 1
@@ -81,11 +81,11 @@ class MessageRouter(CipClass):
         handled, self.handled = self.handled, []
         return handled
 
-    def _dispatch(self, message: bytes, context: MessageContext) -> Reply:
+    def _dispatch(self, message: bytes, context: MessageContext) -> tuple[bytes, ReplyItems]:
         try:
             service, path_bytes, data = decode_request(message)
         except CipDecodeError as error:
-            return Reply(encode_reply(message[0] if message else 0, error.status))
+            return encode_reply(message[0] if message else 0, error.status), ()
         path = self._paths.get(path_bytes)
         if path is None:
             try:
@@ -95,28 +95,28 @@ class MessageRouter(CipClass):
             if len(self._paths) < _PATH_CACHE_SIZE:
                 self._paths[path_bytes] = path
         if type(path) is int:
-            return Reply(encode_reply(service, path))
+            return encode_reply(service, path), ()
         if self.forced_status and service in self.forced_status:
-            return Reply(encode_reply(service, self.forced_status[service]))
+            return encode_reply(service, self.forced_status[service]), ()
         if service & REPLY_BIT:
-            return Reply(encode_reply(service, GeneralStatus.SERVICE_NOT_SUPPORTED))
+            return encode_reply(service, GeneralStatus.SERVICE_NOT_SUPPORTED), ()
         obj = self.objects.get(path.class_id)
         if obj is None:
-            return Reply(encode_reply(service, GeneralStatus.PATH_DESTINATION_UNKNOWN))
+            return encode_reply(service, GeneralStatus.PATH_DESTINATION_UNKNOWN), ()
         instance = obj.instance(path.instance_id)
         if instance is None:
-            return Reply(encode_reply(service, GeneralStatus.PATH_DESTINATION_UNKNOWN))
+            return encode_reply(service, GeneralStatus.PATH_DESTINATION_UNKNOWN), ()
         handler = obj.handlers.get(service)
         if handler is None:
-            return Reply(encode_reply(service, GeneralStatus.SERVICE_NOT_SUPPORTED))
+            return encode_reply(service, GeneralStatus.SERVICE_NOT_SUPPORTED), ()
         try:
             result = handler(instance, path, data, context)
         except Exception:  # a defect in an object must not cost the client its connection
             log.exception("class 0x%02X service 0x%02X failed", path.class_id, service)
-            return Reply(encode_reply(service, GeneralStatus.VENDOR_SPECIFIC))
+            return encode_reply(service, GeneralStatus.VENDOR_SPECIFIC), ()
         if type(result) is Reply:
             return result
-        return Reply(encode_reply(service, result[0], result[1], result[2]), result[3])
+        return encode_reply(service, result[0], result[1], result[2]), result[3]
 
     def multiple_service_packet(self, instance: CipInstance, path: RequestPath, data: bytes,
                                 context: MessageContext) -> ServiceResult:

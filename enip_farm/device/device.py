@@ -242,13 +242,18 @@ class Device:
         self.record("session ended", f"handle {session_handle}")
 
     def handle_unconnected(self, message: bytes, context: MessageContext) -> ReplyWithItems:
+        router = self.router
         with self.lock:
             before = self._snapshot()
-            reply = self.router.dispatch(message, context)
-            requests = self.router.pop_handled()
-            connections = self.table.pop_events()
+            reply = router.dispatch(message, context)
+            requests = router.pop_handled()
+            connections = self.table.pop_events() if self.table.has_events else ()
             after = self._snapshot()
-        self._publish(before, after, requests, connections)
+        if connections or before != after or self._observers:
+            self._publish(before, after, requests, connections)
+        else:  # the hot path: a request that changed nothing, nobody listening
+            for service, path, status in requests:
+                self.events.request(service, path, status)
         return reply
 
     def handle_connected(self, connection_id: int, sequence_count: int, message: bytes,
@@ -270,10 +275,6 @@ class Device:
 
     def session_closed(self, session: object, now: int) -> None:
         self._locked(lambda: self.table.session_closed(session, now))
-
-    def close_connections(self, reason: str, now: int) -> None:
-        """Close every connection (e.g. the device goes offline)."""
-        self._locked(lambda: self.table.close_all(reason, now))
 
     def _locked(self, operation: Callable[[], object]) -> None:
         with self.lock:

@@ -7,6 +7,7 @@ sessions, commands and their status codes, and nothing of CIP objects.
 
 from __future__ import annotations
 
+import functools
 import struct
 from typing import NamedTuple, Protocol
 
@@ -48,6 +49,8 @@ class MessageContext(NamedTuple):
     items: tuple[CpfItem, ...] = ()
     now: int = 0
 
+
+_new_context = functools.partial(tuple.__new__, MessageContext)  # MessageContext(...) without its Python __new__
 
 #: A reply message and the CPF items (type id, data) that go beside it.
 ReplyWithItems = tuple[bytes, tuple[tuple[int, bytes], ...]]
@@ -170,7 +173,7 @@ class EncapsulationSession:
             return _reply(header, status=EncapsulationStatus.INCORRECT_DATA)
         request, items = decoded
         message, reply_items = self.target.handle_unconnected(
-            request, MessageContext(self.peer_host, self, tuple(items), self._now))
+            request, _new_context((self.peer_host, self, tuple(items) if items else (), self._now)))
         if reply_items:  # e.g. the T->O socket address of a multicast Forward Open
             body = _SEND_DATA_HEAD + encode_items([(ItemType.NULL_ADDRESS, b""), (ItemType.UNCONNECTED_DATA, message),
                                                    *reply_items])
