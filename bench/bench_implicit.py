@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import argparse
 import heapq
+import json
 import os
 import select
 import socket
@@ -202,6 +203,7 @@ def main() -> None:
                         help="instead: N connections at decreasing RPIs, 10 s each")
     parser.add_argument("--farm-cpu", type=int, default=1, help="CPU 0 takes this VM's interrupts")
     parser.add_argument("--client-cpu", type=int, default=0)
+    parser.add_argument("--json", type=Path, default=None, help="also write the results here")
     args = parser.parse_args()
     os.sched_setaffinity(0, {args.client_cpu})
     count = args.sweep or args.connections
@@ -226,6 +228,9 @@ def main() -> None:
     for i, r in enumerate(results):
         label = "median" if args.repeat > 1 and i == len(results) - 1 else ""
         print(" ".join(f"{r[k]:14.3f}" if isinstance(r[k], float) else f"{r[k]:14d}" for k in keys), label)
+    if args.json:
+        args.json.parent.mkdir(parents=True, exist_ok=True)
+        args.json.write_text(json.dumps(results, indent=2))
 
 
 if __name__ == "__main__":
