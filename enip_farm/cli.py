@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import asyncio
-import gc
 import logging
 import signal
 import sys
@@ -12,17 +11,22 @@ from pathlib import Path
 import click
 
 from enip_farm.config import ConfigError, FarmConfig, default_config_path, load_config
-from enip_farm.device.catalogue import load_catalogue
-from enip_farm.farm import BindError, Farm, new_event_loop
+from enip_farm.device.build import build_profiles
+from enip_farm.device.catalogue import shipped_catalogue
+from enip_farm.farm import BindError, Farm, freeze_heap, new_event_loop
 from enip_farm.fleet import shard
+from enip_farm.table import device_table
 
 
 def _load(path: Path | None) -> FarmConfig:
+    """The configuration, checked by building its devices (models, add-ons, profile files, wiring)."""
     try:
-        return load_config(path or default_config_path())
+        config = load_config(path or default_config_path())
+        build_profiles(config, shipped_catalogue())
     except ConfigError as error:
         click.echo(str(error), err=True)
         sys.exit(2)
+    return config
 
 
 def _table(rows: list[list[str]], headers: list[str]) -> str:
@@ -30,27 +34,6 @@ def _table(rows: list[list[str]], headers: list[str]) -> str:
     lines = ["  ".join(str(cell).ljust(width) for cell, width in zip(row, widths, strict=True)).rstrip()
              for row in [headers, *rows]]
     return "\n".join(lines)
-
-
-_COLUMNS = [("NAME", 10), ("ADDRESS", 15), ("MODEL", 26), ("IN BYTES", 8), ("OUT BYTES", 9)]
-TABLE_HEADER = "  ".join(title.ljust(width) for title, width in _COLUMNS).rstrip()
-
-
-def device_table(farm: Farm, header: bool = True) -> str:
-    """One line per device (fixed columns, so the tables of several workers line up)."""
-    lines = [TABLE_HEADER] if header else []
-    for device in farm.devices.values():
-        p = device.profile
-        cells = [p.name, p.address, "+".join((p.model, *p.addons)), str(p.input_size), str(p.output_size)]
-        lines.append("  ".join(cell.ljust(width) for cell, (_, width) in zip(cells, _COLUMNS, strict=True)).rstrip())
-    return "\n".join(lines)
-
-
-def freeze_heap() -> None:
-    """Move everything built at start into the permanent generation: a full collection then scans
-    only new objects, instead of stalling the T->O schedule (47 ms for a 200-device heap, measured)."""
-    gc.collect()
-    gc.freeze()
 
 
 def _select(config: FarmConfig, shard_spec: str | None) -> FarmConfig:
@@ -119,7 +102,7 @@ async def _serve(farm: Farm) -> None:
     await farm.start()
     freeze_heap()
     try:
-        click.echo(device_table(farm))
+        click.echo(device_table(farm.devices.values()))
         click.echo(f"{len(farm.devices)} devices listening on TCP and UDP 44818. Ctrl-C to stop.", err=True)
         if farm.http is not None:
             click.echo(f"HTTP API on {farm.http.url}", err=True)
@@ -139,7 +122,7 @@ def validate(config_path: Path) -> None:
 @main.command()
 def models() -> None:
     """List the catalogue's models; UNVERIFIED marks unpublished placeholder values."""
-    catalogue = load_catalogue()
+    catalogue = shipped_catalogue()
     rows = []
     for name, model in catalogue.models.items():
         io = model.io
@@ -376,7 +359,8 @@ def golden(capture: Path, config_path: Path | None, device: str | None, address:
 @main.command()
 @click.argument("capture", type=click.Path(exists=True, dir_okay=False, path_type=Path))
 @click.option("-o", "--output", type=click.Path(dir_okay=False, path_type=Path), required=True)
-@click.option("--name", default=None, help="the model's name (default: the learned product name)")
+@click.option("--name", default=None,
+              help="the model's name (default: the learned product name); never a model of the catalogue")
 def learn(capture: Path, output: Path, name: str | None) -> None:
     """Write a device profile learned from a capture of a real device. Name it as a device's
     model in a cell config (`model: PROFILE.yaml`); values the capture does not determine are
@@ -385,7 +369,10 @@ def learn(capture: Path, output: Path, name: str | None) -> None:
 
     from enip_farm.capture.learn import learn as learn_profile
 
-    profile = learn_profile(capture, name)
+    try:
+        profile = learn_profile(capture, name)
+    except ValueError as error:
+        raise click.BadParameter(str(error), param_hint="--name") from None
     ((model_name, model),) = profile["models"].items()
     output.write_text(f"# enip-farm profile learned from {capture.name}; unverified values are placeholders.\n"
                       + yaml.safe_dump(profile, sort_keys=False))

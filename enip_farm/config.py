@@ -1,4 +1,6 @@
-"""Cell configuration: YAML in, validated pydantic models out.
+"""Cell configuration: YAML in, validated pydantic models out. Pure schema: field formats, `count`
+expansion, unique names and addresses. Whether the models, add-ons and wiring exist is checked
+when devices are built from it against a catalogue (`enip_farm.device.build`).
 
 Errors are reported as `ConfigError` with one line per problem naming the file, the device and the
 field, never as a traceback.
@@ -12,9 +14,16 @@ from pathlib import Path
 from typing import Any, Literal
 
 import yaml
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, ValidationInfo, field_validator, model_validator
-
-from enip_farm.device.catalogue import load_catalogue, load_profile
+from pydantic import (
+    BaseModel,
+    ConfigDict,
+    Field,
+    PrivateAttr,
+    ValidationError,
+    ValidationInfo,
+    field_validator,
+    model_validator,
+)
 
 _MAC = re.compile(r"^([0-9A-Fa-f]{2}[:-]){5}[0-9A-Fa-f]{2}$")
 
@@ -97,31 +106,15 @@ class DeviceConfig(_Strict):
     mac: str | None = Field(None, description="default: 02:00 followed by the address's four bytes")
     host_name: str = ""
     implicit: ImplicitConfig = ImplicitConfig()
+    _entry: int = PrivateAttr(0)
 
     @field_validator("model")
     @classmethod
-    def _known_base(cls, value: str, info: ValidationInfo) -> str:
-        if value.endswith((".yaml", ".yml")):  # a profile file, e.g. from `enip-farm learn`
-            base = Path((info.context or {}).get("base_dir", "."))
-            path = Path(value) if Path(value).is_absolute() else base / value
-            try:
-                return load_profile(path)
-            except OSError as error:
-                raise ValueError(f"profile {path}: {error.strerror}") from None
-            except (yaml.YAMLError, ValidationError) as error:
-                raise ValueError(f"profile {path} is not a valid profile: {error}") from None
-        catalogue = load_catalogue()
-        if value not in catalogue.bases():
-            raise ValueError(f"unknown base model {value!r}; known: {', '.join(catalogue.bases())}")
-        return value
-
-    @field_validator("addons")
-    @classmethod
-    def _known_addons(cls, value: list[str]) -> list[str]:
-        catalogue = load_catalogue()
-        for addon in value:
-            if addon not in catalogue.addons():
-                raise ValueError(f"unknown add-on {addon!r}; known: {', '.join(catalogue.addons())}")
+    def _profile_path(cls, value: str, info: ValidationInfo) -> str:
+        """A profile file (e.g. from `enip-farm learn`) is named relative to the configuration's
+        directory; it is read when devices are built."""
+        if is_profile_path(value) and not Path(value).is_absolute():
+            return str(Path((info.context or {}).get("base_dir", ".")) / value)
         return value
 
     @field_validator("mac")
@@ -148,12 +141,10 @@ class DeviceConfig(_Strict):
         return [self.model_copy(update={"name": self.name.replace("{n}", str(n + 1)),
                                         "address": self.address + n, "count": 1}) for n in range(self.count)]
 
-    @model_validator(mode="after")
-    def _addons_need_assemblies(self) -> DeviceConfig:
-        model = load_catalogue().models[self.model]
-        if self.addons and model.assemblies is None:
-            raise ValueError(f"model {self.model} takes no add-ons")
-        return self
+    @property
+    def entry(self) -> int:
+        """The index of the entry in the configuration's `devices` list this device came from."""
+        return self._entry
 
 
 class WireConfig(_Strict):
@@ -181,12 +172,24 @@ class FarmConfig(_Strict):
     rules: list[RuleConfig] = []
 
 
-    @model_validator(mode="after")
-    def _resolve(self) -> FarmConfig:
-        """Expand `count` entries, refuse duplicate names and addresses, then check the wiring."""
-        from enip_farm.control.wiring import check_wiring  # needs resolved profiles
+    _source: str = PrivateAttr("<config>")
 
-        self.devices = [device for entry in self.devices for device in entry.expand()]
+    @property
+    def source(self) -> str:
+        """Where the configuration came from (a file name), for messages."""
+        return self._source
+
+    @model_validator(mode="after")
+    def _expand(self) -> FarmConfig:
+        """Expand `count` entries, then refuse duplicate names and addresses."""
+        devices = []
+        for index, entry in enumerate(self.devices):
+            for device in entry.expand():
+                if device is entry:  # an entry may be shared with another configuration
+                    device = device.model_copy()
+                device._entry = index
+                devices.append(device)
+        self.devices = devices
         for field in ("name", "address"):
             seen: dict[Any, str] = {}
             for device in self.devices:
@@ -194,8 +197,17 @@ class FarmConfig(_Strict):
                 if value in seen:
                     raise ValueError(f"devices {seen[value]!r} and {device.name!r} have the same {field} {value}")
                 seen[value] = device.name
-        check_wiring(self)
         return self
+
+
+def is_profile_path(model: str) -> bool:
+    """A device's model names a profile file (the catalogue's format) rather than a catalogue model."""
+    return model.endswith((".yaml", ".yml"))
+
+
+def device_location(index: int, name: str | None = None) -> str:
+    """How messages name a device: by its entry in the configuration's `devices` list."""
+    return f"device {name!r} (devices[{index}])" if name else f"devices[{index}]"
 
 
 def _describe(error: dict[str, Any], data: Any) -> str:
@@ -207,7 +219,7 @@ def _describe(error: dict[str, Any], data: Any) -> str:
         if isinstance(data, dict) and isinstance(data.get("devices"), list) and index < len(data["devices"]):
             entry = data["devices"][index]
             name = entry.get("name") if isinstance(entry, dict) else None
-        where = f"device {name!r} (devices[{index}])" if name else f"devices[{index}]"
+        where = device_location(index, name)
         location = location[2:]
     field = ".".join(str(part) for part in location)
     message = error["msg"].removeprefix("Value error, ")
@@ -215,12 +227,15 @@ def _describe(error: dict[str, Any], data: Any) -> str:
 
 
 def parse_config(data: Any, source: str = "<config>", base_dir: str | Path = ".") -> FarmConfig:
-    """`base_dir`: where profile files named by a device's model are looked up."""
+    """`source` names the configuration in messages; `base_dir`: where profile files named by a
+    device's model are looked up."""
     try:
-        return FarmConfig.model_validate(data, context={"base_dir": str(base_dir)})
+        config = FarmConfig.model_validate(data, context={"base_dir": str(base_dir)})
     except ValidationError as error:
         lines = [f"{source}: {_describe(e, data)}" for e in error.errors()]
         raise ConfigError("\n".join(lines)) from None
+    config._source = source
+    return config
 
 
 def load_config(path: str | Path) -> FarmConfig:

@@ -17,16 +17,15 @@ from typing import Any
 import click
 
 from enip_farm.config import FarmConfig, parse_config
+from enip_farm.farm import BindError, Farm, freeze_heap, new_event_loop
 from enip_farm.fleet import split
+from enip_farm.table import TABLE_HEADER, device_table
 
 _START_TIMEOUT = 120.0
 
 
 def _worker(index: int, config_data: dict[str, Any], http: tuple[str, int] | None, token: str | None,
             reports: multiprocessing.Queue) -> None:
-    from enip_farm.cli import device_table, freeze_heap
-    from enip_farm.farm import BindError, Farm, new_event_loop
-
     farm = Farm(parse_config(config_data, f"worker {index}"), http=http, token=token)
     loop = new_event_loop()
     asyncio.set_event_loop(loop)
@@ -41,7 +40,7 @@ def _worker(index: int, config_data: dict[str, Any], http: tuple[str, int] | Non
             reports.put((index, "error", str(error)))
             return
         freeze_heap()
-        reports.put((index, "ready", device_table(farm, header=False)))
+        reports.put((index, "ready", device_table(farm.devices.values(), header=False)))
         try:
             await stop.wait()
         finally:
@@ -55,8 +54,6 @@ def _worker(index: int, config_data: dict[str, Any], http: tuple[str, int] | Non
 
 def serve_workers(config: FarmConfig, count: int, http: tuple[str, int] | None, token: str | None) -> int:
     """Run the workers until a signal; the exit status for the CLI."""
-    from enip_farm.cli import TABLE_HEADER
-
     parts = split(config, count)
     context = multiprocessing.get_context("spawn")
     reports: multiprocessing.Queue = context.Queue()

@@ -12,6 +12,8 @@ from pathlib import Path
 import pytest
 
 from enip_farm.config import ConfigError, load_config, parse_config
+from enip_farm.device.build import build_profiles
+from enip_farm.device.catalogue import shipped_catalogue
 from enip_farm.farm import BindError, Farm
 from tests.helpers import RawClient, next_address
 
@@ -45,7 +47,7 @@ def _write(tmp_path: Path, text: str) -> Path:
 def test_config_errors_name_file_device_field(tmp_path: Path, body: str, expected: str) -> None:
     path = _write(tmp_path, body)
     with pytest.raises(ConfigError) as error:
-        load_config(path)
+        build_profiles(load_config(path), shipped_catalogue())  # the schema, then the catalogue
     assert str(path) in str(error.value)
     assert expected in str(error.value)
     result = subprocess.run([*CLI, "validate", str(path)], capture_output=True, text=True, timeout=60)

@@ -17,6 +17,8 @@ import pytest
 from pycomm3 import CIPDriver, CommError, Services
 
 from enip_farm.config import ConfigError, parse_config
+from enip_farm.device.build import build_profiles
+from enip_farm.device.catalogue import shipped_catalogue
 from enip_farm.protocol.encapsulation import Command, decode_frame, encode_frame
 from enip_farm.pytest_plugin import free_address
 from tests.helpers import RawClient
@@ -300,7 +302,7 @@ def test_analog_wire(enip_farm) -> None:
 def test_bad_wiring_is_refused_at_load(wiring: dict, message: str) -> None:
     devices = [{"name": n, "address": free_address(), "model": "DSQC1030"} for n in ("a", "b")]
     with pytest.raises(ConfigError) as error:
-        parse_config({"devices": devices, **wiring})
+        build_profiles(parse_config({"devices": devices, **wiring}), shipped_catalogue())
     assert message in str(error.value)
 
 

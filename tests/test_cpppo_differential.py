@@ -9,8 +9,9 @@ from cpppo.server.enip import device as cpppo_device
 from cpppo.server.enip import logix, parser
 
 from enip_farm.config import parse_config
+from enip_farm.device.build import build_profiles
+from enip_farm.device.catalogue import shipped_catalogue
 from enip_farm.device.device import Device
-from enip_farm.device.profile import resolve
 from enip_farm.protocol.cip import decode_reply, encode_multiple_service, encode_request
 from enip_farm.protocol.commands import decode_identity_item, decode_send_data, encode_send_rr_data
 from enip_farm.protocol.cpf import decode_items
@@ -42,7 +43,7 @@ def cpppo_decode(frame: bytes) -> dotdict:
 def session() -> EncapsulationSession:
     config = parse_config({"devices": [{"name": "d", "address": "127.0.0.5", "model": "DSQC1030",
                                         "addons": ["DSQC1031"]}]})
-    session = EncapsulationSession(Device(resolve(config.devices[0])))
+    session = EncapsulationSession(Device(build_profiles(config, shipped_catalogue())[0]))
     session.receive(encode_frame(Command.REGISTER_SESSION, b"\x01\x00\x00\x00"))
     return session
 

@@ -8,8 +8,9 @@ import random
 import pytest
 
 from enip_farm.config import parse_config
+from enip_farm.device.build import build_profiles
+from enip_farm.device.catalogue import shipped_catalogue
 from enip_farm.device.device import Device
-from enip_farm.device.profile import resolve
 from enip_farm.protocol.cip import (
     CipDecodeError,
     decode_multiple_service_request,
@@ -115,8 +116,9 @@ def test_cip_layouts() -> None:
 
 def test_fuzzed_frames_never_raise() -> None:
     """Mutations of valid frames: every one becomes replies or silence, and replies are whole frames."""
-    device = Device(resolve(parse_config({"devices": [{"name": "f", "address": "127.0.0.5", "model": "DSQC1030",
-                                                        "addons": ["DSQC1032"]}]}).devices[0]))
+    config = parse_config({"devices": [{"name": "f", "address": "127.0.0.5", "model": "DSQC1030",
+                                        "addons": ["DSQC1032"]}]})
+    device = Device(build_profiles(config, shipped_catalogue())[0])
     seeds = [
         encode_frame(Command.REGISTER_SESSION, b"\x01\x00\x00\x00"),
         encode_send_rr_data(bytes.fromhex("10 03 20 04 24 64 30 03 10 00"), 1),

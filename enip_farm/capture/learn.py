@@ -10,24 +10,33 @@ capture of a real device.
   assemblies does not implement (its model answers 0x05, 0x08 or 0x14) and that got another
   reply, with that reply; matched on service, path and request data exactly.
 Every value the capture does not determine gets a placeholder and is listed under `unverified`.
+The model is named after the product, never after a model of the catalogue (a learned profile
+does not replace a built-in model): a product named like one gets `_learned` appended.
 """
 
 from __future__ import annotations
 
 import struct
 from pathlib import Path
+from types import MappingProxyType
 from typing import Any
 
 from enip_farm.capture.exchanges import Exchange, load_exchanges
+from enip_farm.config import DeviceConfig
+from enip_farm.device.catalogue import Catalogue, shipped_catalogue
+from enip_farm.device.device import Device
+from enip_farm.device.profile import resolve
 from enip_farm.protocol.cip import CipDecodeError, decode_reply, decode_request, decode_unconnected_send
 from enip_farm.protocol.commands import decode_identity_item, decode_send_data
 from enip_farm.protocol.connection import DecodeError, decode_forward_open
 from enip_farm.protocol.cpf import ItemType, decode_items
 from enip_farm.protocol.encapsulation import Command
 from enip_farm.protocol.epath import LogicalSegment, LogicalType, PathError, decode_epath, decode_request_path
+from enip_farm.protocol.session import MessageContext
 
 _IDENTITY_FIELDS = ("vendor_id", "device_type", "product_code", "revision", "product_name", "serial_number")
-_PLACEHOLDER = {"vendor_id": 0, "device_type": 0, "product_code": 0, "revision": [1, 0], "product_name": "learned"}
+_PLACEHOLDER = MappingProxyType({"vendor_id": 0, "device_type": 0, "product_code": 0, "revision": (1, 0),
+                                 "product_name": "learned"})
 
 
 def _cip_pairs(exchange: Exchange) -> tuple[bytes, bytes] | None:
@@ -73,8 +82,13 @@ def _identity_attribute(attribute: int, data: bytes, identity: dict[str, Any]) -
         identity["product_name"] = data[1 : 1 + data[0]].decode("latin-1")
 
 
-def learn(capture: str | Path, name: str | None = None) -> dict[str, Any]:
-    """The profile document (a one-model catalogue) learned from `capture`."""
+def learn(capture: str | Path, name: str | None = None, catalogue: Catalogue | None = None) -> dict[str, Any]:
+    """The profile document (a one-model catalogue) learned from `capture`. `catalogue` (default:
+    the shipped one) holds the names the model must not take; raises ValueError if `name` is one."""
+    catalogue = shipped_catalogue() if catalogue is None else catalogue
+    if name is not None and name in catalogue.models:
+        raise ValueError(f"{name!r} is a model of the catalogue: a learned profile never replaces one, "
+                         "choose another name")
     exchanges = [e for group in load_exchanges(capture) for e in group]
     identity: dict[str, Any] = {}
     sizes: dict[int, int] = {}
@@ -118,7 +132,7 @@ def learn(capture: str | Path, name: str | None = None) -> dict[str, Any]:
             _learn_forward_open(request.data, request.service == 0x5B, sizes, roles)
 
     unverified = [f"identity.{f}" for f in _IDENTITY_FIELDS if f not in identity and f != "serial_number"]
-    identity = {**_PLACEHOLDER, **identity}
+    identity = {**_PLACEHOLDER, "revision": list(_PLACEHOLDER["revision"]), **identity}
     if "input" not in roles:
         candidates = [i for i in sizes if i != roles.get("output")]
         if candidates:
@@ -133,6 +147,8 @@ def learn(capture: str | Path, name: str | None = None) -> dict[str, Any]:
         if instance not in sizes and role != "configuration":
             unverified.append(f"sizes.{role}")
     model_name = name or str(identity["product_name"]).replace(" ", "_") or "learned"
+    while model_name in catalogue.models:
+        model_name += "_learned"
     model: dict[str, Any] = {
         "kind": "base",
         "description": f"learned from {Path(capture).name}",
@@ -141,7 +157,7 @@ def learn(capture: str | Path, name: str | None = None) -> dict[str, Any]:
         "sizes": assembly_sizes,
         "io": {"do": 8 * assembly_sizes["output"], "di": 8 * assembly_sizes["input"]},
         "unverified": unverified,
-        "replay": _replay_table(model_name, model_shell(identity, assemblies, assembly_sizes), pairs),
+        "replay": _replay_table(model_name, model_shell(identity, assemblies, assembly_sizes), pairs, catalogue),
     }
     return {"models": {model_name: model}}
 
@@ -169,20 +185,11 @@ def model_shell(identity: dict, assemblies: dict, sizes: dict) -> dict:
             "sizes": sizes, "io": {}}
 
 
-def _replay_table(name: str, shell: dict, pairs: list[tuple[bytes, bytes]]) -> list[dict[str, Any]]:
+def _replay_table(name: str, shell: dict, pairs: list[tuple[bytes, bytes]],
+                  catalogue: Catalogue) -> list[dict[str, Any]]:
     """Captured requests the model would not implement, with their captured replies."""
-    from enip_farm.config import parse_config
-    from enip_farm.device.catalogue import Catalogue, _profiles
-    from enip_farm.device.device import Device
-    from enip_farm.device.profile import resolve
-    from enip_farm.protocol.session import MessageContext
-
-    _profiles.update(Catalogue.model_validate({"models": {name: shell}}).models)
-    try:
-        config = parse_config({"devices": [{"name": "learning", "address": "127.0.0.1", "model": name}]})
-        device = Device(resolve(config.devices[0]))
-    finally:
-        _profiles.pop(name, None)
+    learning = catalogue.with_models(Catalogue.from_document({"models": {name: shell}}).models, "learning")
+    device = Device(resolve(DeviceConfig(name="learning", address="127.0.0.1", model=name), learning))
     context = MessageContext("127.0.0.1", object())
     table, seen = [], set()
     for request, captured in pairs:

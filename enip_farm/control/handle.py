@@ -7,20 +7,42 @@ from __future__ import annotations
 import asyncio
 import threading
 import time
-from collections.abc import Callable
-from typing import TYPE_CHECKING, Any
+from collections.abc import Callable, Coroutine, Mapping
+from typing import Any, Protocol, TypeVar
 
-from enip_farm.control.signals import SignalMap, parse_signal
+from enip_farm.config import FarmConfig
 from enip_farm.device.device import Device
 from enip_farm.device.events import Event
 from enip_farm.device.faults import Fault, FaultKind
+from enip_farm.device.signals import SignalMap, parse_signal
 
-if TYPE_CHECKING:
-    from enip_farm.farm import Farm
+T = TypeVar("T")
+
+
+class FarmControl(Protocol):
+    """What the control layer needs of a farm (`enip_farm.farm.Farm` provides it): its devices and
+    their handles, its event loop, and faults switched on the loop."""
+
+    @property
+    def config(self) -> FarmConfig: ...
+
+    @property
+    def devices(self) -> Mapping[str, Device]: ...
+
+    @property
+    def loop(self) -> asyncio.AbstractEventLoop | None: ...
+
+    def __getitem__(self, name: str) -> DeviceHandle: ...
+
+    def run(self, coroutine: Coroutine[Any, Any, T], timeout: float = ...) -> T: ...
+
+    async def inject_fault(self, name: str, fault: Fault) -> None: ...
+
+    async def clear_faults(self, name: str, kind: FaultKind | None = None) -> list[FaultKind]: ...
 
 
 class DeviceHandle:
-    def __init__(self, farm: Farm, device: Device) -> None:
+    def __init__(self, farm: FarmControl, device: Device) -> None:
         self.farm = farm
         self.device = device
         self.signals = SignalMap(device.profile)

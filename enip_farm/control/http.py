@@ -13,7 +13,7 @@ import contextlib
 import hmac
 import json
 from collections.abc import AsyncIterator, Iterator
-from typing import TYPE_CHECKING, Annotated, Any
+from typing import Annotated, Any
 
 import uvicorn
 from fastapi import Depends, FastAPI, HTTPException, Query, Request
@@ -22,15 +22,13 @@ from prometheus_client import CollectorRegistry, generate_latest
 from prometheus_client.exposition import CONTENT_TYPE_LATEST
 from pydantic import BaseModel, Field
 
+from enip_farm.control.handle import FarmControl
 from enip_farm.control.metrics import FarmCollector
-from enip_farm.control.signals import SignalError
 from enip_farm.device.events import Event
 from enip_farm.device.faults import Fault, FaultKind
+from enip_farm.device.signals import SignalError
 
-if TYPE_CHECKING:
-    from enip_farm.farm import Farm
-
-LOCALHOST = {"127.0.0.1", "localhost", "::1"}
+LOCALHOST = frozenset({"127.0.0.1", "localhost", "::1"})
 _EVENT_QUEUE = 10000
 
 
@@ -51,7 +49,7 @@ class FaultRequest(BaseModel):
     duration_s: float | None = Field(None, description="end the fault by itself after this long")
 
 
-def _io(farm: Farm, name: str) -> dict[str, Any]:
+def _io(farm: FarmControl, name: str) -> dict[str, Any]:
     handle = farm[name]
     signals = {}
     for kind, count in handle.signals.names().items():
@@ -61,7 +59,7 @@ def _io(farm: Farm, name: str) -> dict[str, Any]:
     return {"inputs": handle.inputs.hex(), "outputs": handle.outputs.hex(), "signals": signals}
 
 
-def _device(farm: Farm, name: str, detail: bool = False) -> dict[str, Any]:
+def _device(farm: FarmControl, name: str, detail: bool = False) -> dict[str, Any]:
     device = farm.devices[name]
     p = device.profile
     out: dict[str, Any] = {
@@ -82,7 +80,7 @@ def _device(farm: Farm, name: str, detail: bool = False) -> dict[str, Any]:
     return out
 
 
-def create_app(farm: Farm, token: str | None = None) -> FastAPI:
+def create_app(farm: FarmControl, token: str | None = None) -> FastAPI:
     app = FastAPI(title="enip-farm", description="Drive and observe a farm of virtual EtherNet/IP devices.")
     registry = CollectorRegistry()
     registry.register(FarmCollector(farm.devices.values()))
@@ -203,7 +201,7 @@ class _EmbeddedServer(uvicorn.Server):
 
 
 class HttpApi:
-    def __init__(self, farm: Farm, host: str, port: int, token: str | None) -> None:
+    def __init__(self, farm: FarmControl, host: str, port: int, token: str | None) -> None:
         if host not in LOCALHOST and not token:
             raise ValueError(f"the HTTP API on {host} needs a token (--token or ENIP_FARM_TOKEN); "
                              "only localhost is served without one")

@@ -1,11 +1,19 @@
-"""The shipped catalogue of device models (`catalogue.yaml`), validated with pydantic."""
+"""Catalogues of device models: the shipped one (`catalogue.yaml`) and profile files in the same
+format (`enip-farm learn`), validated with pydantic.
+
+A `Catalogue` is an immutable value: adding a profile file returns a new catalogue, and a profile
+never redefines a model the catalogue already holds (a learned DSQC1030 cannot replace the built-in
+one). Who needs models is handed a catalogue; there is no process-wide registry."""
 
 from __future__ import annotations
 
+from collections.abc import Mapping
+from dataclasses import dataclass, field
 from functools import lru_cache
 from importlib import resources
 from pathlib import Path
-from typing import Literal
+from types import MappingProxyType
+from typing import Any, Literal
 
 import yaml
 from pydantic import BaseModel, ConfigDict, Field
@@ -70,12 +78,37 @@ class Model(_Strict):
     assemblies: AssemblyIds | None = None
     sizes: AssemblySizes | None = Field(None, description="explicit sizes (learned profiles); else from io")
     io: IoCounts = IoCounts()
-    unverified: list[str] = []
-    replay: list[ReplayEntry] = []
+    unverified: tuple[str, ...] = ()
+    replay: tuple[ReplayEntry, ...] = ()
 
 
-class Catalogue(_Strict):
+class CatalogueFile(_Strict):
+    """The format of `catalogue.yaml` and of a profile file."""
+
     models: dict[str, Model]
+
+
+#: The origin of the shipped catalogue's models.
+BUILT_IN = "built in"
+
+
+@dataclass(frozen=True)
+class Catalogue:
+    """Models by name, each with its origin (`BUILT_IN` or the profile file it came from)."""
+
+    models: Mapping[str, Model]
+    origins: Mapping[str, str] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        origins = {name: self.origins.get(name, BUILT_IN) for name in self.models}
+        object.__setattr__(self, "models", MappingProxyType(dict(self.models)))
+        object.__setattr__(self, "origins", MappingProxyType(origins))
+
+    @classmethod
+    def from_document(cls, data: Any, origin: str = BUILT_IN) -> Catalogue:
+        """Raises pydantic.ValidationError if `data` is not in the catalogue's format."""
+        models = CatalogueFile.model_validate(data).models
+        return cls(models, {name: origin for name in models})
 
     def bases(self) -> list[str]:
         return [name for name, model in self.models.items() if model.kind == "base"]
@@ -83,28 +116,28 @@ class Catalogue(_Strict):
     def addons(self) -> list[str]:
         return [name for name, model in self.models.items() if model.kind == "addon"]
 
+    def with_models(self, models: Mapping[str, Model], origin: str) -> Catalogue:
+        """A new catalogue with `models` added. Raises ValueError if one of them would redefine a
+        model of this catalogue (one from the same origin may be added again unchanged)."""
+        for name, model in models.items():
+            if name in self.models and (self.origins[name] != origin or self.models[name] != model):
+                where = "the built-in model" if self.origins[name] == BUILT_IN else f"the model of {self.origins[name]}"
+                raise ValueError(f"profile {origin} defines model {name!r}, which would replace {where}: "
+                                 "give the profile's model another name (enip-farm learn --name)")
+        return Catalogue({**self.models, **models}, {**self.origins, **{name: origin for name in models}})
+
+    def with_profile(self, path: str | Path) -> tuple[Catalogue, str]:
+        """A new catalogue with the models of a profile file, and the name of its base model.
+        Raises OSError, yaml.YAMLError, pydantic.ValidationError or ValueError."""
+        profile = Catalogue.from_document(yaml.safe_load(Path(path).read_text()), str(path))
+        bases = profile.bases()
+        if len(bases) != 1:
+            raise ValueError(f"profile {path} holds one base model, found {len(bases)}")
+        return self.with_models(profile.models, str(path)), bases[0]
+
 
 @lru_cache(maxsize=1)
-def _shipped() -> Catalogue:
+def shipped_catalogue() -> Catalogue:
+    """The models shipped with the package (immutable, so one copy serves every caller)."""
     text = resources.files("enip_farm.device").joinpath("catalogue.yaml").read_text()
-    return Catalogue.model_validate(yaml.safe_load(text))
-
-
-_profiles: dict[str, Model] = {}  # models from profile files (enip-farm learn), by name
-
-
-def load_catalogue() -> Catalogue:
-    """The shipped catalogue plus every profile file a configuration has named."""
-    if not _profiles:
-        return _shipped()
-    return Catalogue(models={**_shipped().models, **_profiles})
-
-
-def load_profile(path: str | Path) -> str:
-    """Add the models of a profile file (the catalogue's format) and return its base model's name."""
-    catalogue = Catalogue.model_validate(yaml.safe_load(Path(path).read_text()))
-    bases = [name for name, model in catalogue.models.items() if model.kind == "base"]
-    if len(bases) != 1:
-        raise ValueError(f"{path}: a profile file holds one base model, found {len(bases)}")
-    _profiles.update(catalogue.models)
-    return bases[0]
+    return Catalogue.from_document(yaml.safe_load(text))

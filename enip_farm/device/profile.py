@@ -11,7 +11,7 @@ import zlib
 from dataclasses import dataclass
 
 from enip_farm.config import DeviceConfig, ImplicitConfig
-from enip_farm.device.catalogue import IoCounts, load_catalogue
+from enip_farm.device.catalogue import Catalogue, IoCounts
 
 
 @dataclass(frozen=True)
@@ -85,8 +85,9 @@ def default_multicast_group(address: str, netmask: str) -> str:
     return str(ipaddress.IPv4Address(_MULTICAST_BASE + ((host_id - 1) & 0x3FF) * 32))
 
 
-def resolve(config: DeviceConfig) -> DeviceProfile:
-    catalogue = load_catalogue()
+def resolve(config: DeviceConfig, catalogue: Catalogue) -> DeviceProfile:
+    """The profile of one device whose model and add-ons `catalogue` holds (see device/build.py,
+    which checks that first and names profile files' models)."""
     model = catalogue.models[config.model]
     assert model.identity is not None, f"base model {config.model} has no identity in the catalogue"
     identity = config.identity

@@ -1,11 +1,13 @@
 """Signal names as RobotWare gives them to a scalable I/O device: DI1..DIn and DO1..DOn (bits,
-1-based, across the base and its add-ons in slot order), AI1.. and AO1.. (one INT each).
-Where each lives in the assemblies follows the catalogue's layout (`device/catalogue.yaml`)."""
+1-based, across the base and its add-ons in slot order), AI1.. and AO1.. (one INT each), and
+`DEVICE.SIGNAL` endpoints across a cell. Where each signal lives in the assemblies follows the
+catalogue's layout (`device/catalogue.yaml`)."""
 
 from __future__ import annotations
 
 import re
 import struct
+from collections.abc import Mapping
 from typing import NamedTuple
 
 from enip_farm.device.profile import DeviceProfile
@@ -102,3 +104,23 @@ class SignalMap:
 
     def names(self) -> dict[str, int]:
         return {kind: self.count(kind) for kind in ("DI", "DO", "AI", "AO")}
+
+
+class Endpoint(NamedTuple):
+    """A signal range of one device of a cell: DEVICE.DOn[-m], as wires and rules name them."""
+
+    device: str
+    signal: SignalRange
+
+    def __str__(self) -> str:
+        return f"{self.device}.{self.signal}"
+
+
+def parse_endpoint(text: str, devices: Mapping[str, SignalMap]) -> Endpoint:
+    """Raises ValueError (SignalError) naming the endpoint if the device or signal does not exist."""
+    name, _, signal_text = text.rpartition(".")
+    if name not in devices:
+        raise SignalError(f"{text!r}: no device named {name!r}")
+    signal = parse_signal(signal_text)
+    devices[name].check(signal)
+    return Endpoint(name, signal)
