@@ -11,7 +11,8 @@ import sys
 from pycomm3 import CIPDriver, Services
 
 from enip_farm.config import load_config
-from enip_farm.device.profile import resolve
+from enip_farm.device.build import build_profiles
+from enip_farm.device.catalogue import shipped_catalogue
 
 
 def read(address: str, instance: int) -> bytes | None:
@@ -24,9 +25,8 @@ def read(address: str, instance: int) -> bytes | None:
 def main(path: str) -> int:
     failures = 0
     print(f"{'NAME':12} {'ADDRESS':16} {'PRODUCT':10} {'INPUTS':26} OUTPUTS")
-    for config in load_config(path).devices:
-        profile = resolve(config)
-        address = str(config.address)
+    for profile in build_profiles(load_config(path), shipped_catalogue()):
+        address = profile.address
         try:
             identity = CIPDriver.list_identity(CIPDriver(address), address) or {}
             inputs = read(address, 101) if profile.input_size else b""
@@ -35,7 +35,7 @@ def main(path: str) -> int:
         except Exception as error:  # one failing device must not hide the others
             identity, inputs, outputs, ok = {"product_name": f"error: {error}"}, None, None, False
         failures += not ok
-        print(f"{config.name:12} {address:16} {identity.get('product_name', '-'):10} "
+        print(f"{profile.name:12} {address:16} {identity.get('product_name', '-'):10} "
               f"{(inputs or b'').hex():26} {(outputs or b'').hex()}")
     total = len(load_config(path).devices)
     print(f"{total - failures}/{total} devices answered")

@@ -7,6 +7,7 @@ import logging
 import signal
 import sys
 from pathlib import Path
+from typing import Any
 
 import click
 
@@ -18,15 +19,25 @@ from enip_farm.fleet import shard
 from enip_farm.table import device_table
 
 
-def _load(path: Path | None) -> FarmConfig:
-    """The configuration, checked by building its devices (models, add-ons, profile files, wiring)."""
+def _load(path: Path | None, build: bool = True) -> FarmConfig:
+    """The configuration, checked by building its devices (models, add-ons, profile files, wiring)
+    unless the caller builds a Farm of it at once (`build=False`, then see `_farm`)."""
     try:
         config = load_config(path or default_config_path())
-        build_profiles(config, shipped_catalogue())
+        if build:
+            build_profiles(config, shipped_catalogue())
     except ConfigError as error:
         click.echo(str(error), err=True)
         sys.exit(2)
     return config
+
+
+def _farm(config: FarmConfig, **options: Any) -> Farm:
+    try:
+        return Farm(config, **options)
+    except ConfigError as error:
+        click.echo(str(error), err=True)
+        sys.exit(2)
 
 
 def _table(rows: list[list[str]], headers: list[str]) -> str:
@@ -69,7 +80,7 @@ def serve(config_path: Path | None, log_level: str, http: str | None, token: str
           shard_spec: str | None, record: Path | None) -> None:
     """Serve every device of a cell until Ctrl-C or SIGTERM."""
     logging.basicConfig(level=log_level.upper(), format="%(asctime)s %(levelname)s %(name)s: %(message)s")
-    config = _select(_load(config_path), shard_spec)
+    config = _select(_load(config_path, build=bool(shard_spec) or workers > 1), shard_spec)
     address = None
     if http:
         host, _, port = http.rpartition(":")
@@ -82,7 +93,7 @@ def serve(config_path: Path | None, log_level: str, http: str | None, token: str
         from enip_farm.workers import serve_workers
 
         sys.exit(serve_workers(config, workers, address, token))
-    farm = Farm(config, http=address, token=token, record=record)
+    farm = _farm(config, http=address, token=token, record=record)
     loop = new_event_loop()
     asyncio.set_event_loop(loop)
     try:
@@ -325,7 +336,7 @@ def golden(capture: Path, config_path: Path | None, device: str | None, address:
     if not captured:
         click.echo(f"{capture}: no EtherNet/IP exchanges on port 44818", err=True)
         sys.exit(1)
-    farm = None if address else Farm(_load(config_path))
+    farm = None if address else _farm(_load(config_path, build=False))
     names: dict[str, str] = {}
     for item in mapping:
         ip, _, name = item.partition("=")

@@ -1,11 +1,16 @@
 """Layers point one way: no module hides an import of the package under `TYPE_CHECKING` (the
 import-linter contract in pyproject.toml, run by `lint-imports` in CI, checks the direction of
-every other import, lazy ones included)."""
+every other import, lazy ones included), and the farm provides what control/ asks of it."""
 
 from __future__ import annotations
 
 import ast
+import inspect
 from pathlib import Path
+
+from enip_farm.config import parse_config
+from enip_farm.control.handle import FarmControl
+from enip_farm.farm import Farm
 
 PACKAGE = Path(__file__).resolve().parent.parent / "enip_farm"
 
@@ -47,3 +52,13 @@ def test_the_check_finds_what_it_looks_for(tmp_path: Path) -> None:
     module.write_text("import typing\nif typing.TYPE_CHECKING:\n    from enip_farm.farm import Farm\n"
                       "    import os\nif TYPE_CHECKING:\n    from .x import y\n")
     assert _type_checking_imports(module) == ["enip_farm.farm", ".x"]
+
+
+def test_farm_provides_farm_control() -> None:
+    farm = Farm(parse_config({"devices": [{"name": "io", "address": "127.0.0.5", "model": "DSQC1030"}]}))
+    assert isinstance(farm, FarmControl)
+    for name, member in vars(FarmControl).items():
+        if inspect.isfunction(member) and name not in ("__init__", "__subclasshook__"):
+            wanted, given = inspect.signature(member), inspect.signature(getattr(Farm, name))
+            assert list(wanted.parameters) == list(given.parameters), name
+            assert inspect.iscoroutinefunction(member) == inspect.iscoroutinefunction(getattr(Farm, name)), name

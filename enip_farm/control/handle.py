@@ -8,7 +8,7 @@ import asyncio
 import threading
 import time
 from collections.abc import Callable, Coroutine, Mapping
-from typing import Any, Protocol, TypeVar
+from typing import Any, Protocol, TypeVar, runtime_checkable
 
 from enip_farm.config import FarmConfig
 from enip_farm.device.device import Device
@@ -19,6 +19,7 @@ from enip_farm.device.signals import SignalMap, parse_signal
 T = TypeVar("T")
 
 
+@runtime_checkable
 class FarmControl(Protocol):
     """What the control layer needs of a farm (`enip_farm.farm.Farm` provides it): its devices and
     their handles, its event loop, and faults switched on the loop."""
