@@ -17,6 +17,7 @@ from enip_farm.config import ConfigError, parse_config
 from enip_farm.device.build import build_profiles
 from enip_farm.device.catalogue import BUILT_IN, Catalogue, shipped_catalogue
 from enip_farm.farm import Farm
+from enip_farm.fleet import split
 from enip_farm.protocol.commands import IdentityItem, SocketAddress, encode_identity_item
 from enip_farm.protocol.cpf import ItemType, encode_items
 from enip_farm.protocol.encapsulation import Command, encode_frame
@@ -72,6 +73,17 @@ def test_profile_models_are_per_farm(tmp_path: Path) -> None:
     with pytest.raises(ConfigError, match="unknown base model 'MINE'"):
         build_profiles(parse_config({"devices": [{"name": "d", "address": "127.0.0.5", "model": "MINE"}]}),
                        shipped_catalogue())
+
+
+def test_a_worker_builds_its_slice_with_the_profile_file(tmp_path: Path) -> None:
+    """`serve --workers N` hands each worker its slice as data; a profile file named relative to the
+    config's directory is still found there (the worker never saw that directory)."""
+    _profile(tmp_path / "mine.yaml", "MINE", di=8)
+    config = parse_config({"devices": [{"name": "a", "address": "127.0.0.5", "model": "mine.yaml"},
+                                       {"name": "b", "address": "127.0.0.6", "model": "DSQC1030"}]}, "c", tmp_path)
+    slices = [parse_config(part.model_dump(mode="json", by_alias=True), f"worker {i}")
+              for i, part in enumerate(split(config, 2))]
+    assert [[p.model for p in build_profiles(part, shipped_catalogue())] for part in slices] == [["MINE"], ["DSQC1030"]]
 
 
 def test_two_profiles_with_one_model_name_are_refused(tmp_path: Path) -> None:
