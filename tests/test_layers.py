@@ -14,11 +14,6 @@ from enip_farm.farm import Farm
 
 PACKAGE = Path(__file__).resolve().parent.parent / "enip_farm"
 
-#: Rewritten in the connection-core work of issue 9; remove the entry when that lands (this test
-#: fails while an entry is stale).
-PENDING = {"cip/connection_manager.py"}
-
-
 def _is_type_checking(test: ast.expr) -> bool:
     return (isinstance(test, ast.Name) and test.id == "TYPE_CHECKING") or (
         isinstance(test, ast.Attribute) and test.attr == "TYPE_CHECKING")
@@ -43,8 +38,7 @@ def _type_checking_imports(path: Path) -> list[str]:
 def test_no_type_checking_imports_of_the_package() -> None:
     found = {str(path.relative_to(PACKAGE)): names for path in sorted(PACKAGE.rglob("*.py"))
              if (names := _type_checking_imports(path))}
-    assert {name: imports for name, imports in found.items() if name not in PENDING} == {}
-    assert PENDING <= set(found), f"no longer needed, remove from PENDING: {sorted(PENDING - set(found))}"
+    assert found == {}
 
 
 def test_the_check_finds_what_it_looks_for(tmp_path: Path) -> None:
