@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import socket
 import struct
-from collections.abc import Iterable
+from collections.abc import Iterable, Sequence
 from typing import NamedTuple
 
 from enip_farm.protocol.cpf import CpfItem, ItemType, decode_items, encode_items
@@ -46,10 +46,10 @@ _CANONICAL_ITEMS = struct.pack("<HHHH", 2, ItemType.NULL_ADDRESS, 0, ItemType.UN
 
 
 _SOCKADDR_ITEMS = (ItemType.SOCKADDR_O_T, ItemType.SOCKADDR_T_O)
-_NO_ITEMS: list[CpfItem] = []
+_NO_ITEMS: tuple[CpfItem, ...] = ()
 
 
-def decode_unconnected_message(data: bytes) -> tuple[bytes, list[CpfItem]] | None:
+def decode_unconnected_message(data: bytes) -> tuple[bytes, Sequence[CpfItem]] | None:
     """The CIP message of a SendRRData body and its socket-address items (0x8000/0x8001, as a
     Forward Open may carry), or None if the body is malformed or carries other items than a null
     address, a non-empty unconnected data item and socket-address items of 16 bytes.
