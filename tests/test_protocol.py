@@ -90,13 +90,13 @@ def test_cpf_round_trip_and_errors() -> None:
 def test_canonical_and_general_send_data_paths_agree() -> None:
     message = b"\x0e\x01\x20\x01"
     canonical = encode_send_data([(ItemType.NULL_ADDRESS, b""), (ItemType.UNCONNECTED_DATA, message)])
-    assert decode_unconnected_message(canonical) == (message, [])
+    assert decode_unconnected_message(canonical) == (message, ())
     assert decode_unconnected_message(canonical + b"x") is None  # caught by both paths
     assert decode_unconnected_message(canonical[:-1]) is None
     sockaddr = bytes.fromhex("0002 08ae 00000000 0000000000000000")
     with_item = encode_send_data([(ItemType.NULL_ADDRESS, b""), (ItemType.UNCONNECTED_DATA, message),
                                   (ItemType.SOCKADDR_T_O, sockaddr)])
-    assert decode_unconnected_message(with_item) == (message, [(ItemType.SOCKADDR_T_O, sockaddr)])
+    assert decode_unconnected_message(with_item) == (message, ((ItemType.SOCKADDR_T_O, sockaddr),))
     wrong_item = encode_send_data([(ItemType.NULL_ADDRESS, b""), (ItemType.UNCONNECTED_DATA, message),
                                    (ItemType.CONNECTED_DATA, sockaddr)])
     assert decode_unconnected_message(wrong_item) is None

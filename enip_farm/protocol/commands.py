@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import socket
 import struct
-from collections.abc import Iterable, Sequence
+from collections.abc import Iterable
 from typing import NamedTuple
 
 from enip_farm.protocol.cpf import CpfItem, ItemType, decode_items, encode_items
@@ -49,7 +49,7 @@ _SOCKADDR_ITEMS = (ItemType.SOCKADDR_O_T, ItemType.SOCKADDR_T_O)
 _NO_ITEMS: tuple[CpfItem, ...] = ()
 
 
-def decode_unconnected_message(data: bytes) -> tuple[bytes, Sequence[CpfItem]] | None:
+def decode_unconnected_message(data: bytes) -> tuple[bytes, tuple[CpfItem, ...]] | None:
     """The CIP message of a SendRRData body and its socket-address items (0x8000/0x8001, as a
     Forward Open may carry), or None if the body is malformed or carries other items than a null
     address, a non-empty unconnected data item and socket-address items of 16 bytes.
@@ -73,7 +73,7 @@ def decode_unconnected_message(data: bytes) -> tuple[bytes, Sequence[CpfItem]] |
         or any(item.type_id not in _SOCKADDR_ITEMS or len(item.data) != 16 for item in items[2:])
     ):
         return None
-    return items[1].data, items[2:]
+    return items[1].data, tuple(items[2:])
 
 
 def decode_connected_message(data: bytes) -> tuple[int, int, bytes, list[CpfItem]] | None:

@@ -173,7 +173,7 @@ class EncapsulationSession:
             return _reply(header, status=EncapsulationStatus.INCORRECT_DATA)
         request, items = decoded
         message, reply_items = self.target.handle_unconnected(
-            request, _new_context((self.peer_host, self, tuple(items) if items else (), self._now)))
+            request, _new_context((self.peer_host, self, items, self._now)))
         if reply_items:  # e.g. the T->O socket address of a multicast Forward Open
             body = _SEND_DATA_HEAD + encode_items([(ItemType.NULL_ADDRESS, b""), (ItemType.UNCONNECTED_DATA, message),
                                                    *reply_items])
