@@ -8,16 +8,10 @@ import random
 
 import pytest
 
+from enip_farm.cip.admission import ConnectionPolicy, KeyIdentity, Originator, Refusal
 from enip_farm.cip.assembly import AssemblyInstance
 from enip_farm.cip.connection import ConnectionKind
-from enip_farm.cip.connection_table import (
-    ConnectionPolicy,
-    ConnectionTable,
-    KeyIdentity,
-    Opened,
-    Originator,
-    Refusal,
-)
+from enip_farm.cip.connection_table import ConnectionTable, Opened
 from enip_farm.protocol.connection import (
     ConnectionTriad,
     ConnectionType,

@@ -12,7 +12,8 @@ from __future__ import annotations
 
 import socket
 
-from enip_farm.cip.connection_table import ConnectionTable, Opened, Originator
+from enip_farm.cip.admission import Originator
+from enip_farm.cip.connection_table import ConnectionTable, Opened
 from enip_farm.cip.message_router import MessageRouter
 from enip_farm.cip.object import CipClass, CipInstance, Reply, ServiceResult
 from enip_farm.protocol.cip import CipDecodeError, Service, decode_unconnected_send

@@ -15,10 +15,11 @@ import time
 from collections import Counter
 from collections.abc import Callable, Iterable
 
+from enip_farm.cip.admission import ConnectionPolicy, KeyIdentity
 from enip_farm.cip.assembly import AssemblyInstance, AssemblyObject
 from enip_farm.cip.connection import Connection
 from enip_farm.cip.connection_manager import ConnectionManager
-from enip_farm.cip.connection_table import ConnectionEvent, ConnectionPolicy, ConnectionTable, KeyIdentity
+from enip_farm.cip.connection_table import ConnectionEvent, ConnectionTable
 from enip_farm.cip.ethernet_link import EthernetLinkObject
 from enip_farm.cip.identity import IdentityObject
 from enip_farm.cip.message_router import MessageRouter

@@ -1,0 +1,276 @@
+"""Admission of a Forward Open or Large Forward Open (CIP Networks Library Vol. 1, 3-5.5.2 and
+table 3-5.33): connection path, electronic key (C-1.4.2), transport class and trigger, connection
+types, RPI, sizes, ownership and limits. Each refusal carries its extended status and, for sizes,
+the size the target expects as a second additional status word (as OpENer sends it). Sans-IO:
+the time is a parameter; nothing here is changed, the connection table keeps what is admitted.
+"""
+
+from __future__ import annotations
+
+import random
+import socket
+from collections.abc import Callable, Collection, Mapping
+from dataclasses import dataclass
+from typing import NamedTuple
+
+from enip_farm.cip.assembly import AssemblyInstance
+from enip_farm.cip.connection import Connection, ConnectionKind
+from enip_farm.protocol.commands import SocketAddress
+from enip_farm.protocol.connection import ConnectionType, ForwardOpenRequest
+from enip_farm.protocol.epath import (
+    DataSegment,
+    ElectronicKey,
+    LogicalSegment,
+    LogicalType,
+    PathError,
+    PortSegment,
+    decode_epath,
+)
+from enip_farm.protocol.status import ExtendedStatus as X
+from enip_farm.protocol.status import GeneralStatus
+
+IO_PORT = 2222
+SEQUENCE_COUNT_SIZE = 2
+RUN_IDLE_HEADER_SIZE = 4
+_SELF = PortSegment(1, b"\x00")  # a route to this device itself: backplane port 1, slot 0
+_CLASS_1, _CLASS_3 = 0x01, 0x03
+_ASSEMBLY, _MESSAGE_ROUTER = 0x04, 0x02
+
+
+@dataclass(frozen=True)
+class ConnectionPolicy:
+    """What a device accepts; built from its profile."""
+
+    rpi_min_us: int
+    rpi_max_us: int
+    max_class1_connections: int
+    max_class3_connections: int
+    outputs_off_on_idle: bool  # idle_state "off": outputs cleared on Idle and on Forward Close
+    outputs_off_on_fault: bool  # fault_state "off": outputs cleared when a connection times out
+    first_watchdog_ns: int
+    input_only_point: int | None
+    listen_only_point: int | None
+    multicast_group: str
+
+
+class KeyIdentity(NamedTuple):
+    """The identity an electronic key is checked against (Vol. 1, C-1.4.2)."""
+
+    vendor_id: int
+    device_type: int
+    product_code: int
+    revision: tuple[int, int]
+
+
+class Originator(NamedTuple):
+    """Where a Forward Open came from: its host, the T->O socket address item it carried (if any),
+    and the encapsulation session (class-3 connections belong to it)."""
+
+    host: str
+    t_o_sockaddr: SocketAddress | None = None
+    session: object | None = None
+
+
+class Refusal(NamedTuple):
+    """A Forward Open refused: general status, extended status, and for sizes the expected size."""
+
+    extended: int
+    expected_size: int | None = None
+    general: int = GeneralStatus.CONNECTION_FAILURE
+
+    @property
+    def additional_status(self) -> tuple[int, ...]:
+        return (self.extended,) if self.expected_size is None else (self.extended, self.expected_size)
+
+
+class _Refused(Exception):
+    def __init__(self, refusal: Refusal) -> None:
+        super().__init__(hex(refusal.extended))
+        self.refusal = refusal
+
+
+def _refuse(extended: int, expected_size: int | None = None) -> _Refused:
+    return _Refused(Refusal(extended, expected_size))
+
+
+class Admission:
+    """The checks of one device: its assemblies, its policy and its identity (for keys)."""
+
+    def __init__(self, assemblies: Mapping[str, AssemblyInstance], policy: ConnectionPolicy,
+                 identity: Callable[[], KeyIdentity], rng: random.Random | None = None) -> None:
+        self.assemblies = assemblies
+        self.policy = policy
+        self.identity = identity
+        self._rng = rng or random.Random()
+
+    def admit(self, request: ForwardOpenRequest, originator: Originator, now: int,
+              connections: Collection[Connection], taken_ids: Callable[[int], bool]) -> Connection | Refusal:
+        """The connection a Forward Open asks for, or why not. `connections`: those open now;
+        `taken_ids(id)`: whether a connection id is in use."""
+        try:
+            return self._admit(request, originator, now, connections, taken_ids)
+        except _Refused as refused:
+            return refused.refusal
+
+    def _new_connection_id(self, taken_ids: Callable[[int], bool]) -> int:
+        while True:
+            candidate = self._rng.getrandbits(32)
+            if candidate and not taken_ids(candidate):
+                return candidate
+
+    def _admit(self, request: ForwardOpenRequest, originator: Originator, now: int,
+               connections: Collection[Connection], taken_ids: Callable[[int], bool]) -> Connection:
+        if any(c.triad == request.triad for c in connections):
+            raise _refuse(X.CONNECTION_IN_USE)
+        o_t_type = request.o_t_parameters.connection_type
+        t_o_type = request.t_o_parameters.connection_type
+        if o_t_type == ConnectionType.NULL and t_o_type == ConnectionType.NULL:
+            raise _refuse(X.NULL_FORWARD_OPEN_NOT_SUPPORTED)
+        transport = request.transport_class
+        if transport == _CLASS_3 and request.transport_type_trigger & 0x80:
+            return self._admit_explicit(request, originator, now, connections, taken_ids)
+        if transport != _CLASS_1 or request.production_trigger != 0:  # class 1, cyclic
+            raise _refuse(X.TRANSPORT_TRIGGER_NOT_SUPPORTED)
+        return self._admit_io(request, self._io_points(request.connection_path), originator, now, connections,
+                              taken_ids)
+
+    def _check_key(self, key: ElectronicKey) -> None:
+        identity = self.identity()
+        if ((key.vendor_id and key.vendor_id != identity.vendor_id)
+                or (key.product_code and key.product_code != identity.product_code)):
+            raise _refuse(X.VENDOR_OR_PRODUCT_MISMATCH)
+        if key.device_type and key.device_type != identity.device_type:
+            raise _refuse(X.DEVICE_TYPE_MISMATCH)
+        major, minor = identity.revision
+        if key.major_revision:
+            if key.compatibility:  # any revision that can emulate the requested one
+                if key.major_revision != major or (key.minor_revision and key.minor_revision > minor):
+                    raise _refuse(X.REVISION_MISMATCH)
+            elif key.major_revision != major or (key.minor_revision and key.minor_revision != minor):
+                raise _refuse(X.REVISION_MISMATCH)
+
+    def _path_segments(self, connection_path: bytes) -> list:
+        try:
+            segments = decode_epath(connection_path)
+        except PathError:
+            raise _refuse(X.INVALID_SEGMENT) from None
+        while segments and segments[0] == _SELF:
+            segments.pop(0)
+        if segments and isinstance(segments[0], ElectronicKey):
+            self._check_key(segments.pop(0))
+        return segments
+
+    def _io_points(self, connection_path: bytes) -> tuple[int | None, int, int]:
+        """(configuration, consuming O->T, producing T->O) points of an assembly connection path."""
+        segments = [s for s in self._path_segments(connection_path) if not isinstance(s, DataSegment)]
+        if not segments or segments[0] != LogicalSegment(LogicalType.CLASS_ID, _ASSEMBLY):
+            raise _refuse(X.INVALID_SEGMENT)
+        values = []
+        for segment in segments[1:]:
+            if not isinstance(segment, LogicalSegment) or segment.type not in (
+                    LogicalType.INSTANCE_ID, LogicalType.CONNECTION_POINT):
+                raise _refuse(X.INVALID_SEGMENT)
+            values.append(segment.value)
+        if len(values) == 3:
+            return values[0], values[1], values[2]
+        if len(values) == 2:
+            return None, values[0], values[1]
+        raise _refuse(X.INVALID_SEGMENT)
+
+    def _admit_io(self, request: ForwardOpenRequest, points: tuple[int | None, int, int], originator: Originator,
+                  now: int, connections: Collection[Connection], taken_ids: Callable[[int], bool]) -> Connection:
+        policy = self.policy
+        configuration, consuming, producing = points
+        config_assembly = self.assemblies.get("configuration")
+        if configuration is not None and (config_assembly is None or configuration != config_assembly.instance_id):
+            raise _refuse(X.INVALID_CONFIGURATION_PATH)
+        output, inputs = self.assemblies.get("output"), self.assemblies.get("input")
+        if output is not None and consuming == output.instance_id:
+            kind = ConnectionKind.EXCLUSIVE_OWNER
+        elif consuming == policy.input_only_point:
+            kind = ConnectionKind.INPUT_ONLY
+        elif consuming == policy.listen_only_point:
+            kind = ConnectionKind.LISTEN_ONLY
+        else:
+            raise _refuse(X.INVALID_CONSUMING_PATH)
+        if inputs is None or producing != inputs.instance_id:
+            raise _refuse(X.INVALID_PRODUCING_PATH)
+        o_t, t_o = request.o_t_parameters, request.t_o_parameters
+        if o_t.connection_type != ConnectionType.POINT_TO_POINT or t_o.connection_type not in (
+                ConnectionType.POINT_TO_POINT, ConnectionType.MULTICAST):
+            raise _refuse(X.INVALID_CONNECTION_TYPE)
+        for rpi in (request.o_t_rpi, request.t_o_rpi):
+            if not policy.rpi_min_us <= rpi <= policy.rpi_max_us:
+                raise _refuse(X.RPI_NOT_SUPPORTED)
+        # O->T: sequence count, 32-bit run/idle header, data; heartbeats carry no data (header optional).
+        # A variable size is accepted when the data fits: at least the header, at most the whole image.
+        if kind is ConnectionKind.EXCLUSIVE_OWNER:
+            expected = SEQUENCE_COUNT_SIZE + RUN_IDLE_HEADER_SIZE + len(output.data)  # type: ignore[union-attr]
+            fits = o_t.size == expected or (o_t.variable and SEQUENCE_COUNT_SIZE + RUN_IDLE_HEADER_SIZE
+                                            <= o_t.size <= expected)
+        else:
+            expected = SEQUENCE_COUNT_SIZE
+            fits = o_t.size in (SEQUENCE_COUNT_SIZE, SEQUENCE_COUNT_SIZE + RUN_IDLE_HEADER_SIZE)
+        if not fits:
+            raise _refuse(X.INVALID_O_T_SIZE, expected)
+        expected_t_o = SEQUENCE_COUNT_SIZE + len(inputs.data)  # modeless
+        if t_o.size != expected_t_o:  # a variable T->O gets whole images: it must hold one
+            raise _refuse(X.INVALID_T_O_SIZE, expected_t_o)
+
+        io_connections = [c for c in connections if c.is_io]
+        if kind is ConnectionKind.EXCLUSIVE_OWNER and any(
+                c.kind is ConnectionKind.EXCLUSIVE_OWNER and c.o_t_point == consuming for c in io_connections):
+            raise _refuse(X.OWNERSHIP_CONFLICT)
+        multicast = t_o.connection_type == ConnectionType.MULTICAST
+        shared = next((c for c in io_connections if c.multicast and c.t_o_point == producing
+                       and c.kind is not ConnectionKind.LISTEN_ONLY), None) if multicast else None
+        if kind is ConnectionKind.LISTEN_ONLY and shared is None:
+            raise _refuse(X.NON_LISTEN_ONLY_NOT_OPENED)
+        if shared is not None and shared.t_o_rpi != request.t_o_rpi:
+            raise _refuse(X.RPI_NOT_SUPPORTED)
+        if len(io_connections) >= policy.max_class1_connections:
+            raise _refuse(X.OUT_OF_CONNECTIONS)
+
+        if multicast:
+            t_o_id = shared.t_o_id if shared else self._new_connection_id(taken_ids)
+            t_o_address = (policy.multicast_group, IO_PORT)
+        else:
+            t_o_id = request.t_o_connection_id
+            t_o_address = self._point_to_point_address(originator)
+        return Connection(
+            kind=kind, triad=request.triad, o_t_id=self._new_connection_id(taken_ids), t_o_id=t_o_id,
+            o_t_rpi=request.o_t_rpi, t_o_rpi=request.t_o_rpi, timeout_multiplier=request.timeout_multiplier,
+            originator_host=originator.host, opened_at=now, first_watchdog_ns=policy.first_watchdog_ns,
+            t_o_address=t_o_address, multicast=multicast, o_t_point=consuming, t_o_point=producing,
+            o_t_run_idle_header=kind is ConnectionKind.EXCLUSIVE_OWNER, o_t_variable=o_t.variable,
+        )
+
+    @staticmethod
+    def _point_to_point_address(originator: Originator) -> tuple[str, int]:
+        """The originator's T->O socket-address item, where given (address 0: the originator)."""
+        host, port = originator.host, IO_PORT
+        address = originator.t_o_sockaddr
+        if address is not None and address.family == socket.AF_INET:
+            if address.port:
+                port = address.port
+            if address.host != "0.0.0.0":
+                host = address.host
+        return host, port
+
+    def _admit_explicit(self, request: ForwardOpenRequest, originator: Originator, now: int,
+                        connections: Collection[Connection], taken_ids: Callable[[int], bool]) -> Connection:
+        segments = self._path_segments(request.connection_path)
+        if segments != [LogicalSegment(LogicalType.CLASS_ID, _MESSAGE_ROUTER),
+                        LogicalSegment(LogicalType.INSTANCE_ID, 1)]:
+            raise _refuse(X.INVALID_SEGMENT)
+        if (request.o_t_parameters.connection_type != ConnectionType.POINT_TO_POINT
+                or request.t_o_parameters.connection_type != ConnectionType.POINT_TO_POINT):
+            raise _refuse(X.INVALID_CONNECTION_TYPE)
+        if sum(not c.is_io for c in connections) >= self.policy.max_class3_connections:
+            raise _refuse(X.OUT_OF_CONNECTIONS)
+        return Connection(
+            kind=ConnectionKind.EXPLICIT, triad=request.triad, o_t_id=self._new_connection_id(taken_ids),
+            t_o_id=request.t_o_connection_id, o_t_rpi=request.o_t_rpi, t_o_rpi=request.t_o_rpi,
+            timeout_multiplier=request.timeout_multiplier, originator_host=originator.host, opened_at=now,
+            owner=originator.session,
+        )
