@@ -1,13 +1,51 @@
-"""The project's tests use the pytest plugin's `enip_farm` fixture (enip_farm/pytest_plugin.py)."""
+"""The project's tests use the pytest plugin's `enip_farm` fixture (enip_farm/pytest_plugin.py).
+
+Tiers (markers registered in pyproject.toml): a test that takes the `enip_farm` fixture (directly
+or through the fixtures below) is `integration`, marked here; tests that bind or connect sockets
+otherwise say `integration` themselves; tests that start subprocesses, need root or a network
+namespace say `system`. Everything else is a unit test: it runs in-process, and opening a socket or
+starting a process from one fails it, so a mis-tiered test cannot pass unnoticed.
+"""
 
 from __future__ import annotations
 
-from collections.abc import Callable
+import os
+import socket
+import subprocess
+from collections.abc import Callable, Iterator
 from typing import Any
 
 import pytest
 
 from enip_farm.farm import Farm
+from tests.helpers import ROOT
+
+# Subprocesses (`python -m enip_farm`, pytest of the README example) import the tree under test,
+# not whatever copy is installed, whatever their working directory.
+os.environ["PYTHONPATH"] = os.pathsep.join(filter(None, [str(ROOT), os.environ.get("PYTHONPATH")]))
+
+
+def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
+    for item in items:
+        if "enip_farm" in getattr(item, "fixturenames", ()) and item.get_closest_marker("system") is None:
+            item.add_marker(pytest.mark.integration)
+
+
+@pytest.fixture(autouse=True)
+def _unit_tests_stay_in_process(request: pytest.FixtureRequest, monkeypatch: pytest.MonkeyPatch) -> Iterator[None]:
+    if request.node.get_closest_marker("integration") or request.node.get_closest_marker("system"):
+        yield
+        return
+
+    def refuse(what: str) -> Callable[..., Any]:
+        def refused(*args: object, **kwargs: object) -> None:
+            raise AssertionError(f"a unit test {what}: mark it integration (sockets) or system (processes)")
+        return refused
+
+    for name in ("bind", "connect", "connect_ex", "sendto"):
+        monkeypatch.setattr(socket.socket, name, refuse(f"called socket.{name}"))
+    monkeypatch.setattr(subprocess.Popen, "__init__", refuse("started a process"))
+    yield
 
 
 @pytest.fixture

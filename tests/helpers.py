@@ -1,8 +1,19 @@
-"""Test helpers: loopback address allocation and a raw client built on the project's own codec."""
+"""Test helpers: loopback address allocation, a raw client built on the project's own codec, and
+bounded reads of a subprocess's output (a test never blocks on a pipe without a deadline)."""
 
 from __future__ import annotations
 
+import os
+import selectors
+import signal
 import socket
+import subprocess
+import sys
+import time
+from collections.abc import Iterator
+from contextlib import contextmanager
+from pathlib import Path
+from typing import IO
 
 from enip_farm.protocol.cip import MessageRouterReply, decode_reply, encode_request
 from enip_farm.protocol.commands import decode_send_data, encode_send_data
@@ -13,6 +24,58 @@ from enip_farm.pytest_plugin import free_address
 
 ENIP_PORT = 44818
 next_address = free_address  # one allocator for the plugin and the tests
+ROOT = Path(__file__).resolve().parent.parent
+CLI = [sys.executable, "-m", "enip_farm"]  # the tree under test (conftest puts ROOT on PYTHONPATH)
+STARTUP_S = 60.0  # a subprocess's bound to print its table, generous for a loaded machine
+
+
+def read_lines(stream: IO[str], count: int, timeout: float = STARTUP_S) -> list[str]:
+    """Up to `count` lines from a subprocess pipe; fewer when it closes first (the process exited).
+    Raises TimeoutError when the deadline passes first. Reads byte by byte from the descriptor, so
+    nothing past the last line is consumed and `communicate()` still gets the rest."""
+    deadline = time.monotonic() + timeout
+    fd = stream.fileno()
+    lines: list[str] = []
+    line = bytearray()
+    with selectors.DefaultSelector() as selector:
+        selector.register(fd, selectors.EVENT_READ)
+        while len(lines) < count:
+            remaining = deadline - time.monotonic()
+            if remaining <= 0:
+                raise TimeoutError(f"{len(lines)} of {count} lines within {timeout} s: {lines} {bytes(line)!r}")
+            if not selector.select(remaining):
+                continue
+            byte = os.read(fd, 1)
+            if not byte:  # end of file
+                if line:
+                    lines.append(line.decode())
+                break
+            line += byte
+            if byte == b"\n":
+                lines.append(line.decode())
+                line.clear()
+    return lines
+
+
+@contextmanager
+def serving(args: list[str], table_rows: int, prefix: tuple[str, ...] = (), **popen: object) -> Iterator[
+        tuple[subprocess.Popen, list[str]]]:
+    """`enip-farm ARGS` (behind `prefix`, e.g. a network namespace) until it has printed its table
+    (a header and `table_rows` rows, bounded by STARTUP_S); yields the process and the table. A
+    process that exits first fails the test with its stderr. At exit it is killed if still running
+    and reaped, within bounds."""
+    process = subprocess.Popen([*prefix, *CLI, *args], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                               cwd=ROOT, **popen)
+    try:
+        table = read_lines(process.stdout, 1 + table_rows)
+        if len(table) < 1 + table_rows:
+            _, error = process.communicate(timeout=STARTUP_S)
+            raise AssertionError(f"exited {process.returncode} before its table was out: {table} {error}")
+        yield process, table
+    finally:
+        if process.poll() is None:
+            process.send_signal(signal.SIGKILL)
+        process.communicate(timeout=STARTUP_S)
 
 
 class RawClient:

@@ -3,9 +3,10 @@
 
 from __future__ import annotations
 
+import os
+import shutil
 import signal
 import subprocess
-import sys
 import textwrap
 from pathlib import Path
 
@@ -15,9 +16,7 @@ from enip_farm.config import ConfigError, load_config, parse_config
 from enip_farm.device.build import build_profiles
 from enip_farm.device.catalogue import shipped_catalogue
 from enip_farm.farm import BindError, Farm
-from tests.helpers import RawClient, next_address
-
-CLI = [sys.executable, "-m", "enip_farm"]
+from tests.helpers import CLI, STARTUP_S, RawClient, next_address, serving
 
 
 def _write(tmp_path: Path, text: str) -> Path:
@@ -44,6 +43,7 @@ def _write(tmp_path: Path, text: str) -> Path:
         ("devices: [\n", "not valid YAML"),
     ],
 )
+@pytest.mark.system
 def test_config_errors_name_file_device_field(tmp_path: Path, body: str, expected: str) -> None:
     path = _write(tmp_path, body)
     with pytest.raises(ConfigError) as error:
@@ -55,6 +55,7 @@ def test_config_errors_name_file_device_field(tmp_path: Path, body: str, expecte
     assert expected in result.stderr and "Traceback" not in result.stderr
 
 
+@pytest.mark.system
 def test_invalid_config_refused_before_binding(tmp_path: Path) -> None:
     address = next_address()
     path = _write(tmp_path, f"devices:\n  - {{name: ok, address: {address}, model: DSQC1030}}\n"
@@ -63,6 +64,7 @@ def test_invalid_config_refused_before_binding(tmp_path: Path) -> None:
     assert result.returncode == 2 and "device 'bad'" in result.stderr and "Traceback" not in result.stderr
 
 
+@pytest.mark.system
 def test_unbindable_address_names_device_and_alias(tmp_path: Path) -> None:
     # 192.0.2.1 (RFC 5737 documentation range) is on no interface: bind fails, no packet is sent.
     config = parse_config({"devices": [{"name": "first", "address": next_address(), "model": "DSQC1030"},
@@ -79,6 +81,7 @@ def test_unbindable_address_names_device_and_alias(tmp_path: Path) -> None:
     assert result.returncode == 1 and "ip addr add" in result.stderr and "Traceback" not in result.stderr
 
 
+@pytest.mark.system
 def test_serve_prints_table_and_stops_on_sigterm(tmp_path: Path) -> None:
     a, b = next_address(), next_address()
     path = _write(tmp_path, f"""\
@@ -87,44 +90,50 @@ def test_serve_prints_table_and_stops_on_sigterm(tmp_path: Path) -> None:
           - {{name: right, address: {b}, model: DSQC1030}}
         discovery: false
         """)
-    process = subprocess.Popen([*CLI, "serve", "--config", str(path)], stdout=subprocess.PIPE,
-                               stderr=subprocess.PIPE, text=True)
-    try:
-        header = process.stdout.readline()  # printed once every device listens
-        rows = [process.stdout.readline(), process.stdout.readline()]
+    with serving(["serve", "--config", str(path)], table_rows=2) as (process, table):  # once every device listens
+        header, *rows = table
         assert header.split() == ["NAME", "ADDRESS", "MODEL", "IN", "BYTES", "OUT", "BYTES"]
         assert rows[0].split() == ["left", a, "DSQC1030+DSQC1032", "10", "10"]
         with RawClient(b) as c:
             c.register()
             assert c.get(4, 100, 3).data == b"\x00\x00"
         process.send_signal(signal.SIGTERM)
-        assert process.wait(timeout=20) == 0
-    finally:
-        process.kill()
-        process.communicate()
+        assert process.wait(timeout=STARTUP_S) == 0
     with pytest.raises(OSError):
         RawClient(a, timeout=1)
 
 
-def test_serve_default_cell_sigint(tmp_path: Path) -> None:
-    """`enip-farm serve` with no --config serves the shipped default cell on 127.0.10.x."""
-    process = subprocess.Popen([*CLI, "serve"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    try:
-        lines = [process.stdout.readline() for _ in range(9)]
-        if process.poll() is not None:
-            error = process.stderr.read()
-            if "already in use" not in error:
-                pytest.fail(error)
-            pytest.skip(f"another farm serves the default cell on this host: {error}")
-        names = [line.split()[0] for line in lines[1:]]
-        assert len(names) == 8 and "io1" in names
+def _own_network_namespace() -> tuple[str, ...]:
+    """A prefix that runs a command in a fresh network namespace with loopback up (root and
+    unshare(1) needed), so the default cell's fixed addresses and the wildcard discovery port never
+    meet a farm already serving on this host; the test is skipped, saying why, where it cannot."""
+    if not all(shutil.which(tool) for tool in ("unshare", "nsenter", "ip")):
+        pytest.skip("unshare, nsenter (util-linux) and ip (iproute2) are needed to serve the default cell in a netns")
+    tried = subprocess.run(["unshare", "-n", "ip", "link", "set", "lo", "up"], capture_output=True, text=True,
+                           timeout=STARTUP_S)
+    if tried.returncode != 0:
+        pytest.skip(f"a network namespace is not permitted here (root needed; uid {os.geteuid()}): "
+                    f"{tried.stderr.strip()}")
+    return ("unshare", "-n", "sh", "-c", 'ip link set lo up && exec "$@"', "sh")
+
+
+@pytest.mark.system
+def test_serve_default_cell_sigint() -> None:
+    """`enip-farm serve` with no --config serves the shipped default cell on 127.0.10.x, in a network
+    namespace of its own: the quick-start farm may well be running beside the suite."""
+    namespace = _own_network_namespace()
+    with serving(["serve"], table_rows=8, prefix=namespace) as (process, table):
+        names = [line.split()[0] for line in table[1:]]
+        assert names == ["io1", "io2", "io3", "io4", "io5", "io6", "harness", "safety1"]
+        assert [line.split()[1] for line in table[1:]] == [f"127.0.10.{n}" for n in range(1, 9)]
+        probe = subprocess.run(["nsenter", f"--net=/proc/{process.pid}/ns/net", *CLI, "probe", "--timeout",
+                                str(STARTUP_S)], capture_output=True, text=True, timeout=2 * STARTUP_S)
+        assert probe.returncode == 0 and "8/8 devices answered" in probe.stdout, probe.stdout + probe.stderr
         process.send_signal(signal.SIGINT)
-        assert process.wait(timeout=20) == 0
-    finally:
-        process.kill()
-        process.communicate()
+        assert process.wait(timeout=STARTUP_S) == 0
 
 
+@pytest.mark.system
 def test_models_marks_unverified() -> None:
     result = subprocess.run([*CLI, "models"], capture_output=True, text=True, timeout=60)
     assert result.returncode == 0
