@@ -24,11 +24,9 @@ from enip_farm.protocol.cpf import ItemType, encode_items
 from enip_farm.protocol.encapsulation import HEADER, Command, encode_frame
 from enip_farm.protocol.epath import encode_request_path
 from enip_farm.pytest_plugin import free_address
-from tests.helpers import RawClient
+from tests.helpers import CLI, ROOT, STARTUP_S, RawClient, serving
 
-ROOT = Path(__file__).resolve().parent.parent
 SEED = ROOT / "captures" / "dsqc1030_explicit_session.pcap"
-CLI = [sys.executable, "-m", "enip_farm"]
 SEED_LENGTHS = [66, 60, 54, 82, 86, 104, 102, 102, 104, 78, 54, 60]  # frames 4-15, seed-facts.md
 
 
@@ -42,6 +40,7 @@ def _golden(*args: str) -> subprocess.CompletedProcess:
     return subprocess.run([*CLI, "golden", *args], capture_output=True, text=True, timeout=120)
 
 
+@pytest.mark.system
 def test_seed_capture_is_rebuilt_from_the_data_file(tmp_path: Path) -> None:
     rebuilt = tmp_path / "seed.pcap"
     subprocess.run([sys.executable, str(ROOT / "captures" / "build_seed_capture.py"), str(rebuilt)], check=True,
@@ -54,6 +53,7 @@ def test_seed_capture_is_rebuilt_from_the_data_file(tmp_path: Path) -> None:
     assert frames[1] == bytes.fromhex(captured[5]) and frames[4] == bytes.fromhex(captured[8])
 
 
+@pytest.mark.system
 def test_golden_seed_against_a_default_dsqc1030(tmp_path: Path) -> None:
     config = _config(tmp_path, [{"name": "io1", "address": free_address(), "model": "DSQC1030"}])
     result = _golden(str(SEED), "--config", str(config), "--device", "io1")
@@ -61,6 +61,7 @@ def test_golden_seed_against_a_default_dsqc1030(tmp_path: Path) -> None:
     assert result.stdout.count("PASS") == 4 and "4 exchanges: 4 passed, 0 failed" in result.stdout
 
 
+@pytest.mark.system
 def test_golden_names_the_field_that_differs(tmp_path: Path) -> None:
     with open(SEED, "rb") as handle:
         frames = [(ts, bytearray(buf)) for ts, buf in dpkt.pcap.Reader(handle)]
@@ -100,12 +101,13 @@ def _record_a_session(tmp_path: Path) -> tuple[Path, list[str]]:
         import socket
 
         with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as udp:
-            udp.settimeout(2)
+            udp.settimeout(10)
             udp.sendto(encode_frame(Command.LIST_IDENTITY, sender_context=b"recorded"), (addresses[1], 44818))
             udp.recv(1024)
     return recording, addresses
 
 
+@pytest.mark.system
 def test_recording_replays_as_golden_against_the_farm(tmp_path: Path) -> None:
     recording, addresses = _record_a_session(tmp_path)
     groups = load_exchanges(recording)
@@ -126,6 +128,7 @@ def test_recording_replays_as_golden_against_the_farm(tmp_path: Path) -> None:
     assert "passed, 0 failed" in result.stdout
 
 
+@pytest.mark.system
 @pytest.mark.skipif(shutil.which("tshark") is None, reason="tshark (Debian) is not installed; .ci/run installs it")
 def test_tshark_finds_nothing_wrong_in_a_recording(tmp_path: Path) -> None:
     recording, _ = _record_a_session(tmp_path)
@@ -138,6 +141,7 @@ def test_tshark_finds_nothing_wrong_in_a_recording(tmp_path: Path) -> None:
     assert "Success: Assembly - Set Attribute Single" in listing
 
 
+@pytest.mark.system
 def test_learned_seed_profile_replays_the_seed_byte_for_byte(tmp_path: Path) -> None:
     profile = tmp_path / "learned.yaml"
     learned = subprocess.run([*CLI, "learn", str(SEED), "-o", str(profile)], capture_output=True, text=True,
@@ -160,6 +164,7 @@ def test_learned_seed_profile_replays_the_seed_byte_for_byte(tmp_path: Path) -> 
     assert golden.returncode == 0, golden.stdout
 
 
+@pytest.mark.system
 def test_learn_identity_assemblies_and_replay_table(tmp_path: Path) -> None:
     """A synthetic capture of a device with an object the model lacks (class 0x300)."""
     capture = tmp_path / "other.pcap"
@@ -199,29 +204,25 @@ def test_learn_identity_assemblies_and_replay_table(tmp_path: Path) -> None:
     assert "udp #1 LIST_IDENTITY" in result.stdout
 
 
+@pytest.mark.system
 def test_a_killed_farm_leaves_a_readable_recording(tmp_path: Path) -> None:
     import signal
 
     address = free_address()
     config = _config(tmp_path, [{"name": "io1", "address": address, "model": "DSQC1030"}])
     recording = tmp_path / "killed.pcap"
-    server = subprocess.Popen([*CLI, "serve", "--config", str(config), "--record", str(recording)],
-                              stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    try:
-        server.stdout.readline()
+    with serving(["serve", "--config", str(config), "--record", str(recording)], table_rows=1) as (server, _):
         with RawClient(address) as client:
             client.register()
             assert client.get(4, 100, 3).general_status == 0
             server.send_signal(signal.SIGKILL)  # no chance to close the file
-            server.wait(timeout=20)
-    finally:
-        server.kill()
-        server.communicate()
+            server.wait(timeout=STARTUP_S)
     (stream,) = load_exchanges(recording)
     assert [e.request.header.command for e in stream] == [Command.REGISTER_SESSION, Command.SEND_RR_DATA]
     assert all(e.reply is not None for e in stream)
 
 
+@pytest.mark.system
 @pytest.mark.skipif(shutil.which("editcap") is None, reason="editcap (Debian, with tshark) is not installed")
 def test_golden_reads_pcapng_and_replays_against_a_running_farm(tmp_path: Path, enip_farm) -> None:
     pcapng = tmp_path / "seed.pcapng"
