@@ -81,7 +81,7 @@ def serving(args: list[str], table_rows: int, prefix: tuple[str, ...] = (), **po
 class RawClient:
     """A blocking TCP client that speaks frames through the project's codec."""
 
-    def __init__(self, host: str, timeout: float = 5.0) -> None:
+    def __init__(self, host: str, timeout: float = 10.0) -> None:
         self.sock = socket.create_connection((host, ENIP_PORT), timeout=timeout)
         self.framer = StreamFramer(max_length=65535)
         self.pending: list[Frame] = []
@@ -111,7 +111,7 @@ class RawClient:
         self.send(data)
         return self.recv_frame()
 
-    def is_closed(self, timeout: float = 2.0) -> bool:
+    def is_closed(self, timeout: float = 10.0) -> bool:
         """True when the device has closed the connection (EOF or reset) within the timeout."""
         self.sock.settimeout(timeout)
         try:

@@ -21,10 +21,7 @@ from enip_farm.config import ConfigError, load_config, parse_config
 from enip_farm.fleet import shard, split
 from enip_farm.protocol.encapsulation import Command, encode_frame
 from enip_farm.pytest_plugin import free_address
-from tests.helpers import RawClient
-
-ROOT = Path(__file__).resolve().parent.parent
-CLI = [sys.executable, "-m", "enip_farm"]
+from tests.helpers import CLI, ROOT, STARTUP_S, RawClient, read_lines, serving
 
 
 def _block() -> str:
@@ -58,12 +55,13 @@ def test_a_few_hundred_devices_all_answer(enip_farm) -> None:
         udp.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 1 << 20)
         for address in addresses:
             udp.sendto(encode_frame(Command.LIST_IDENTITY), (address, 44818))
-        udp.settimeout(2)
-        try:
-            while len(answered) < len(addresses):
+        deadline = time.monotonic() + 30  # done as soon as all have answered
+        while len(answered) < len(addresses) and (remaining := deadline - time.monotonic()) > 0:
+            udp.settimeout(remaining)
+            try:
                 answered.add(udp.recvfrom(2048)[1][0])
-        except TimeoutError:
-            pass
+            except TimeoutError:
+                break
     assert answered == addresses
     for address in sorted(addresses)[::30]:
         with RawClient(address) as c:
@@ -71,32 +69,35 @@ def test_a_few_hundred_devices_all_answer(enip_farm) -> None:
             assert c.get(4, 100, 3).general_status == 0
 
 
+@pytest.mark.system
 def test_workers_start_serve_and_stop(tmp_path: Path) -> None:
     first = _block()
     config = tmp_path / "cell.yaml"
     config.write_text(f"devices:\n  - {{name: 'io{{n}}', address: {first}, count: 12, model: DSQC1030}}\n"
                       "discovery: false\n")
-    server = subprocess.Popen([*CLI, "serve", "--config", str(config), "--workers", "3"], stdout=subprocess.PIPE,
-                              stderr=subprocess.PIPE, text=True)
+    workers: list[psutil.Process] = []
     try:
-        lines = [server.stdout.readline() for _ in range(13)]
-        assert lines[0].split()[:2] == ["NAME", "ADDRESS"] and len({line.split()[0] for line in lines[1:]}) == 12
-        workers = psutil.Process(server.pid).children()
-        assert len(workers) >= 3
-        probe = subprocess.run([*CLI, "probe", "--config", str(config)], capture_output=True, text=True, timeout=60)
-        assert probe.returncode == 0 and "12/12 devices answered" in probe.stdout
-        server.send_signal(signal.SIGTERM)
-        assert server.wait(timeout=30) == 0
+        with serving(["serve", "--config", str(config), "--workers", "3"], table_rows=12) as (server, lines):
+            assert lines[0].split()[:2] == ["NAME", "ADDRESS"] and len({line.split()[0] for line in lines[1:]}) == 12
+            workers = psutil.Process(server.pid).children()
+            assert len(workers) >= 3
+            probe = subprocess.run([*CLI, "probe", "--config", str(config), "--timeout", str(STARTUP_S)],
+                                   capture_output=True, text=True, timeout=2 * STARTUP_S)
+            assert probe.returncode == 0 and "12/12 devices answered" in probe.stdout, probe.stdout + probe.stderr
+            server.send_signal(signal.SIGTERM)
+            assert server.wait(timeout=STARTUP_S) == 0
         # the workers (and multiprocessing's resource tracker, which follows a moment later) are gone
-        _, alive = psutil.wait_procs(workers, timeout=5)
+        _, alive = psutil.wait_procs(workers, timeout=STARTUP_S)
         assert not alive
         with pytest.raises(OSError):
             socket.create_connection((first, 44818), timeout=1)
     finally:
-        server.kill()
-        server.communicate()
+        for worker in workers:  # only after a failure: bounded clean-up of what this test started
+            if worker.is_running():
+                worker.kill()
 
 
+@pytest.mark.system
 def test_a_failing_worker_stops_them_all(tmp_path: Path) -> None:
     config = tmp_path / "cell.yaml"
     config.write_text(f"devices:\n  - {{name: a, address: {free_address()}, model: DSQC1030}}\n"
@@ -120,6 +121,7 @@ def test_shards_cover_every_device_once_and_keep_wired_devices_together() -> Non
             shard(config, bad)
 
 
+@pytest.mark.system
 def test_compose_file_is_the_generators_output_and_validates() -> None:
     docker = ROOT / "docker"
     # compose data (subnets written into the file), not targets
@@ -133,6 +135,7 @@ def test_compose_file_is_the_generators_output_and_validates() -> None:
     assert result.returncode == 0, result.stderr
 
 
+@pytest.mark.system
 def test_dockerfile_lints_clean() -> None:
     hadolint = shutil.which("hadolint")
     if hadolint is None:
@@ -142,6 +145,7 @@ def test_dockerfile_lints_clean() -> None:
     assert result.returncode == 0, result.stdout + result.stderr
 
 
+@pytest.mark.system
 @pytest.mark.skipif(os.geteuid() != 0 or shutil.which("ip") is None, reason="network namespaces need root")
 def test_entrypoint_adds_aliases_and_serves_inside_a_namespace(tmp_path: Path) -> None:
     namespace = f"enipfarm{os.getpid()}"
@@ -171,15 +175,15 @@ def test_entrypoint_adds_aliases_and_serves_inside_a_namespace(tmp_path: Path) -
         farm = subprocess.Popen([*run, entrypoint, *serve], env=env, stdout=subprocess.PIPE,
                                 stderr=subprocess.PIPE, text=True)
         try:
-            assert farm.stdout.readline().startswith("NAME")
-            probe = subprocess.run([*run, *CLI, "probe", "--config", str(config), "--shard", "1/2"],
-                                   capture_output=True, text=True, timeout=60, env=env)
+            assert read_lines(farm.stdout, 1)[0].startswith("NAME")
+            probe = subprocess.run([*run, *CLI, "probe", "--config", str(config), "--shard", "1/2", "--timeout",
+                                    str(STARTUP_S)], capture_output=True, text=True, timeout=2 * STARTUP_S, env=env)
             assert probe.returncode == 0, probe.stdout + probe.stderr
             assert f"{len(expected)}/{len(expected)} devices answered" in probe.stdout
-        finally:
             farm.terminate()
-            assert farm.wait(timeout=30) == 0
-            farm.communicate()
+            assert farm.wait(timeout=STARTUP_S) == 0
+        finally:
+            farm.kill()  # only if still running
+            farm.communicate(timeout=STARTUP_S)
     finally:
-        subprocess.run(["ip", "netns", "delete", namespace], check=False)
-        time.sleep(0.1)
+        subprocess.run(["ip", "netns", "delete", namespace], check=False, timeout=STARTUP_S)

@@ -23,7 +23,7 @@ def test_frames_sent_one_byte_at_a_time(dsqc1030: str) -> None:
         c.sock.setsockopt(6, 1, 1)  # TCP_NODELAY: each byte its own segment
         for i in range(len(stream)):
             c.send(stream[i : i + 1])
-            time.sleep(0.0005)
+            time.sleep(0.0005)  # pacing, not synchronisation: the test holds however the bytes arrive
         frames = [c.recv_frame() for _ in range(3)]
     assert [f.header.command for f in frames] == [0x65, 0x6F, 0x6F]
     assert frames[2].header.sender_context == b"byte-get"

@@ -99,7 +99,7 @@ def test_seed_session_ethernetip(dsqc1030: str) -> None:
         assert conn.setAttrSingle(4, 100, 3, b"\x10\x00") == [0, b""]
         assert conn.getAttrSingle(4, 100, 3) == [0, b"\x10\x00"]
         conn.unregisterSession()
-        conn.sock.settimeout(2)
+        conn.sock.settimeout(10)
         assert conn.sock.recv(16) == b""  # closed by the device, no reply
     finally:
         conn.sock.close()
