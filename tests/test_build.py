@@ -107,6 +107,7 @@ def test_problems_of_a_count_entry_are_reported_once() -> None:
         + ", ".join(shipped_catalogue().addons())]
 
 
+@pytest.mark.system
 def test_validate_reports_model_addon_and_wiring_problems(tmp_path: Path) -> None:
     path = tmp_path / "cell.yaml"
     path.write_text(yaml.safe_dump({"devices": [{"name": "a", "address": "127.0.0.5", "model": "DSQC1030"},
@@ -130,6 +131,7 @@ def _identity_capture(path: Path, product_name: str) -> Path:
     return path
 
 
+@pytest.mark.system
 def test_learn_never_names_a_model_like_a_built_in_one(tmp_path: Path) -> None:
     capture = _identity_capture(tmp_path / "real.pcap", "DSQC1030")
     assert list(learn(capture)["models"]) == ["DSQC1030_learned"]
