@@ -220,11 +220,12 @@ class Farm:
     async def clear_faults(self, name: str, kind: FaultKind | None = None) -> list[FaultKind]:
         """Switch one fault (or all) off; normal behaviour returns without a restart."""
         device = self.devices[name]
+        offline_ends = FaultKind.OFFLINE in device.faults.active and kind in (None, FaultKind.OFFLINE)
+        if offline_ends and self.running and name not in self._servers:
+            await self._listen(device)  # listening again before the fault is seen gone
         cleared = device.faults.clear(kind)
         for k in cleared:
             self._cancel_timer(name, k)
-        if FaultKind.OFFLINE in cleared and self.running and name not in self._servers:
-            await self._listen(device)
         if cleared:
             device.record("fault cleared", ", ".join(k.value for k in cleared))
         return cleared
