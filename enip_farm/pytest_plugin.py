@@ -27,14 +27,24 @@ import yaml
 from enip_farm.config import parse_config
 from enip_farm.farm import BindError, Farm
 
-_BLOCK = 64 + os.getpid() % 150  # second octet of this process's addresses
-_hosts = itertools.count(1)
+
+class AddressPool:
+    """Fresh 127.x addresses for one test process: its own block (the second octet, from the pid),
+    never one address twice. Calling the pool gives the next address."""
+
+    def __init__(self, block: int) -> None:
+        self.block = block
+        self._next = itertools.count(1)
+
+    def __call__(self) -> str:
+        n = next(self._next)
+        return f"127.{self.block}.{n // 250 % 250}.{n % 250 + 1}"
 
 
-def free_address() -> str:
-    """A 127.x address no other farm of this test process has used."""
-    n = next(_hosts)
-    return f"127.{_BLOCK}.{n // 250 % 250}.{n % 250 + 1}"
+@pytest.fixture(scope="session")
+def free_address() -> AddressPool:
+    """`free_address()`: a 127.x address no other farm of this test process has used."""
+    return AddressPool(64 + os.getpid() % 150)
 
 
 def _config_dict(source: str | Path | dict[str, Any] | None, device: dict[str, Any]) -> dict[str, Any]:
@@ -47,15 +57,15 @@ def _config_dict(source: str | Path | dict[str, Any] | None, device: dict[str, A
     return yaml.safe_load(Path(source).read_text())
 
 
-def start_farm(stack: ExitStack, source: str | Path | dict[str, Any] | None = None, *, keep_addresses: bool = False,
-               discovery: bool = False, http: bool = False, **device: Any) -> Farm:
+def start_farm(stack: ExitStack, addresses: Callable[[], str], source: str | Path | dict[str, Any] | None = None, *,
+               keep_addresses: bool = False, discovery: bool = False, http: bool = False, **device: Any) -> Farm:
     data = _config_dict(source, device)
     data.setdefault("discovery", discovery)
     for attempt in range(5):
         devices = [dict(entry) for entry in data["devices"]]
         if not keep_addresses:
             for entry in devices:
-                entry["address"] = free_address()
+                entry["address"] = addresses()
         farm = Farm(parse_config({**data, "devices": devices}, str(source or "<enip_farm>")),
                     http=("127.0.0.1", 0) if http else None)
         try:
@@ -68,8 +78,8 @@ def start_farm(stack: ExitStack, source: str | Path | dict[str, Any] | None = No
 
 
 @pytest.fixture
-def enip_farm() -> Iterator[Callable[..., Farm]]:
+def enip_farm(free_address: AddressPool) -> Iterator[Callable[..., Farm]]:
     """A factory: enip_farm("cell.yaml"), enip_farm({"devices": [...]}), enip_farm(name="io1",
     model="DSQC1030", addons=["DSQC1031"]); options keep_addresses, discovery, http."""
     with ExitStack() as stack:
-        yield lambda *args, **kwargs: start_farm(stack, *args, **kwargs)
+        yield lambda *args, **kwargs: start_farm(stack, free_address, *args, **kwargs)

@@ -20,10 +20,8 @@ from enip_farm.protocol.commands import decode_send_data, encode_send_data
 from enip_farm.protocol.cpf import CpfItem, ItemType
 from enip_farm.protocol.encapsulation import Command, Frame, StreamFramer, encode_frame
 from enip_farm.protocol.epath import encode_request_path
-from enip_farm.pytest_plugin import free_address
 
 ENIP_PORT = 44818
-next_address = free_address  # one allocator for the plugin and the tests
 ROOT = Path(__file__).resolve().parent.parent
 CLI = [sys.executable, "-m", "enip_farm"]  # the tree under test (conftest puts ROOT on PYTHONPATH)
 STARTUP_S = 60.0  # a subprocess's bound to print its table, generous for a loaded machine

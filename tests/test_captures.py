@@ -23,7 +23,7 @@ from enip_farm.protocol.commands import IdentityItem, SocketAddress, encode_iden
 from enip_farm.protocol.cpf import ItemType, encode_items
 from enip_farm.protocol.encapsulation import HEADER, Command, encode_frame
 from enip_farm.protocol.epath import encode_request_path
-from enip_farm.pytest_plugin import free_address
+from enip_farm.pytest_plugin import AddressPool
 from tests.helpers import CLI, ROOT, STARTUP_S, RawClient, serving
 
 SEED = ROOT / "captures" / "dsqc1030_explicit_session.pcap"
@@ -54,7 +54,7 @@ def test_seed_capture_is_rebuilt_from_the_data_file(tmp_path: Path) -> None:
 
 
 @pytest.mark.system
-def test_golden_seed_against_a_default_dsqc1030(tmp_path: Path) -> None:
+def test_golden_seed_against_a_default_dsqc1030(free_address: AddressPool, tmp_path: Path) -> None:
     config = _config(tmp_path, [{"name": "io1", "address": free_address(), "model": "DSQC1030"}])
     result = _golden(str(SEED), "--config", str(config), "--device", "io1")
     assert result.returncode == 0, result.stdout + result.stderr
@@ -62,7 +62,7 @@ def test_golden_seed_against_a_default_dsqc1030(tmp_path: Path) -> None:
 
 
 @pytest.mark.system
-def test_golden_names_the_field_that_differs(tmp_path: Path) -> None:
+def test_golden_names_the_field_that_differs(free_address: AddressPool, tmp_path: Path) -> None:
     with open(SEED, "rb") as handle:
         frames = [(ts, bytearray(buf)) for ts, buf in dpkt.pcap.Reader(handle)]
     frames[8][1][-2] = 0x11  # frame 12: the Get reply's data 10 00 -> 11 00
@@ -78,7 +78,7 @@ def test_golden_names_the_field_that_differs(tmp_path: Path) -> None:
     assert "3 passed, 1 failed" in result.stdout
 
 
-def _record_a_session(tmp_path: Path) -> tuple[Path, list[str]]:
+def _record_a_session(free_address: AddressPool, tmp_path: Path) -> tuple[Path, list[str]]:
     addresses = [free_address(), free_address()]
     recording = tmp_path / "farm.pcap"
     config = parse_config({"devices": [{"name": n, "address": a, "model": "DSQC1030"}
@@ -108,8 +108,8 @@ def _record_a_session(tmp_path: Path) -> tuple[Path, list[str]]:
 
 
 @pytest.mark.system
-def test_recording_replays_as_golden_against_the_farm(tmp_path: Path) -> None:
-    recording, addresses = _record_a_session(tmp_path)
+def test_recording_replays_as_golden_against_the_farm(free_address: AddressPool, tmp_path: Path) -> None:
+    recording, addresses = _record_a_session(free_address, tmp_path)
     groups = load_exchanges(recording)
     assert [g[0].transport for g in groups] == ["tcp", "tcp", "udp"]
     same = _config(tmp_path, [{"name": n, "address": a, "model": "DSQC1030"}
@@ -130,8 +130,8 @@ def test_recording_replays_as_golden_against_the_farm(tmp_path: Path) -> None:
 
 @pytest.mark.system
 @pytest.mark.skipif(shutil.which("tshark") is None, reason="tshark (Debian) is not installed; .ci/run installs it")
-def test_tshark_finds_nothing_wrong_in_a_recording(tmp_path: Path) -> None:
-    recording, _ = _record_a_session(tmp_path)
+def test_tshark_finds_nothing_wrong_in_a_recording(free_address: AddressPool, tmp_path: Path) -> None:
+    recording, _ = _record_a_session(free_address, tmp_path)
     expert = subprocess.run(["tshark", "-r", str(recording), "-q", "-z", "expert"], capture_output=True, text=True,
                             timeout=120)
     assert expert.returncode == 0, expert.stderr
@@ -142,7 +142,7 @@ def test_tshark_finds_nothing_wrong_in_a_recording(tmp_path: Path) -> None:
 
 
 @pytest.mark.system
-def test_learned_seed_profile_replays_the_seed_byte_for_byte(tmp_path: Path) -> None:
+def test_learned_seed_profile_replays_the_seed_byte_for_byte(free_address: AddressPool, tmp_path: Path) -> None:
     profile = tmp_path / "learned.yaml"
     learned = subprocess.run([*CLI, "learn", str(SEED), "-o", str(profile)], capture_output=True, text=True,
                              timeout=120)
@@ -165,7 +165,7 @@ def test_learned_seed_profile_replays_the_seed_byte_for_byte(tmp_path: Path) -> 
 
 
 @pytest.mark.system
-def test_learn_identity_assemblies_and_replay_table(tmp_path: Path) -> None:
+def test_learn_identity_assemblies_and_replay_table(free_address: AddressPool, tmp_path: Path) -> None:
     """A synthetic capture of a device with an object the model lacks (class 0x300)."""
     capture = tmp_path / "other.pcap"
     device, client = ("192.168.125.77", 44818), ("192.168.125.5", 50000)  # data in a file, never a target
@@ -205,7 +205,7 @@ def test_learn_identity_assemblies_and_replay_table(tmp_path: Path) -> None:
 
 
 @pytest.mark.system
-def test_a_killed_farm_leaves_a_readable_recording(tmp_path: Path) -> None:
+def test_a_killed_farm_leaves_a_readable_recording(free_address: AddressPool, tmp_path: Path) -> None:
     import signal
 
     address = free_address()

@@ -16,7 +16,8 @@ from enip_farm.config import ConfigError, load_config, parse_config
 from enip_farm.device.build import build_profiles
 from enip_farm.device.catalogue import shipped_catalogue
 from enip_farm.farm import BindError, Farm
-from tests.helpers import CLI, STARTUP_S, RawClient, next_address, serving
+from enip_farm.pytest_plugin import AddressPool
+from tests.helpers import CLI, STARTUP_S, RawClient, serving
 
 
 def _write(tmp_path: Path, text: str) -> Path:
@@ -56,8 +57,8 @@ def test_config_errors_name_file_device_field(tmp_path: Path, body: str, expecte
 
 
 @pytest.mark.system
-def test_invalid_config_refused_before_binding(tmp_path: Path) -> None:
-    address = next_address()
+def test_invalid_config_refused_before_binding(free_address: AddressPool, tmp_path: Path) -> None:
+    address = free_address()
     path = _write(tmp_path, f"devices:\n  - {{name: ok, address: {address}, model: DSQC1030}}\n"
                             "  - {name: bad, address: nonsense, model: DSQC1030}\n")
     result = subprocess.run([*CLI, "serve", "--config", str(path)], capture_output=True, text=True, timeout=60)
@@ -65,9 +66,9 @@ def test_invalid_config_refused_before_binding(tmp_path: Path) -> None:
 
 
 @pytest.mark.system
-def test_unbindable_address_names_device_and_alias(tmp_path: Path) -> None:
+def test_unbindable_address_names_device_and_alias(free_address: AddressPool, tmp_path: Path) -> None:
     # 192.0.2.1 (RFC 5737 documentation range) is on no interface: bind fails, no packet is sent.
-    config = parse_config({"devices": [{"name": "first", "address": next_address(), "model": "DSQC1030"},
+    config = parse_config({"devices": [{"name": "first", "address": free_address(), "model": "DSQC1030"},
                                        {"name": "remote", "address": "192.0.2.1", "model": "DSQC1030"}],
                            "discovery": False})
     farm = Farm(config)
@@ -82,8 +83,8 @@ def test_unbindable_address_names_device_and_alias(tmp_path: Path) -> None:
 
 
 @pytest.mark.system
-def test_serve_prints_table_and_stops_on_sigterm(tmp_path: Path) -> None:
-    a, b = next_address(), next_address()
+def test_serve_prints_table_and_stops_on_sigterm(free_address: AddressPool, tmp_path: Path) -> None:
+    a, b = free_address(), free_address()
     path = _write(tmp_path, f"""\
         devices:
           - {{name: left, address: {a}, model: DSQC1030, addons: [DSQC1032]}}

@@ -19,7 +19,7 @@ from enip_farm.config import ConfigError, parse_config
 from enip_farm.device.build import build_profiles
 from enip_farm.device.catalogue import shipped_catalogue
 from enip_farm.protocol.encapsulation import Command, decode_frame, encode_frame
-from enip_farm.pytest_plugin import free_address
+from enip_farm.pytest_plugin import AddressPool
 from tests.helpers import CLI, STARTUP_S, RawClient, read_lines, serving
 from tests.test_implicit import ASSEMBLY_PATH, forward_open
 
@@ -99,14 +99,14 @@ def test_output_change_hook(enip_farm) -> None:
 
 
 @pytest.mark.integration
-def test_plugin_teardown_leaves_nothing_behind() -> None:
+def test_plugin_teardown_leaves_nothing_behind(free_address: AddressPool) -> None:
     from contextlib import ExitStack
 
     from enip_farm.pytest_plugin import start_farm
 
     before = {t.name for t in threading.enumerate()}
     with ExitStack() as stack:
-        farm = start_farm(stack, name="io", model="DSQC1030", http=True)
+        farm = start_farm(stack, free_address, name="io", model="DSQC1030", http=True)
         address, port = farm["io"].address, farm.http.port
         with RawClient(address) as c:
             c.register()
@@ -309,7 +309,7 @@ def test_analog_wire(enip_farm) -> None:
     ({"wires": [{"from": "a.DO1-8", "to": "c.DI1-8"}]}, "no device named 'c'"),
     ({"wires": [{"from": "a.DO17", "to": "b.DI1"}]}, "16 DO signals"),
 ])
-def test_bad_wiring_is_refused_at_load(wiring: dict, message: str) -> None:
+def test_bad_wiring_is_refused_at_load(free_address: AddressPool, wiring: dict, message: str) -> None:
     devices = [{"name": n, "address": free_address(), "model": "DSQC1030"} for n in ("a", "b")]
     with pytest.raises(ConfigError) as error:
         build_profiles(parse_config({"devices": devices, **wiring}), shipped_catalogue())
@@ -362,7 +362,7 @@ def test_http_event_stream(enip_farm) -> None:
     assert received[1]["kind"] == "fault injected"
 
 
-def test_http_token_off_localhost(enip_farm) -> None:
+def test_http_token_off_localhost(free_address: AddressPool, enip_farm) -> None:
     from enip_farm.farm import BindError, Farm
 
     config = parse_config({"devices": [{"name": "io", "address": free_address(), "model": "DSQC1030"}],
@@ -379,7 +379,7 @@ def test_http_token_off_localhost(enip_farm) -> None:
 
 
 @pytest.mark.system
-def test_cli_drives_a_running_farm(tmp_path) -> None:
+def test_cli_drives_a_running_farm(free_address: AddressPool, tmp_path) -> None:
     address = free_address()
     config = tmp_path / "cell.yaml"
     config.write_text(f"devices:\n  - {{name: io1, address: {address}, model: DSQC1030}}\ndiscovery: false\n")

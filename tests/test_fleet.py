@@ -20,11 +20,11 @@ from enip_farm.compose import compose_file
 from enip_farm.config import ConfigError, load_config, parse_config
 from enip_farm.fleet import shard, split
 from enip_farm.protocol.encapsulation import Command, encode_frame
-from enip_farm.pytest_plugin import free_address
+from enip_farm.pytest_plugin import AddressPool
 from tests.helpers import CLI, ROOT, STARTUP_S, RawClient, read_lines, serving
 
 
-def _block() -> str:
+def _block(free_address: AddressPool) -> str:
     """The first address of 1000 consecutive free ones (a /22 of this process's block)."""
     first = free_address()
     for _ in range(999):
@@ -70,8 +70,8 @@ def test_a_few_hundred_devices_all_answer(enip_farm) -> None:
 
 
 @pytest.mark.system
-def test_workers_start_serve_and_stop(tmp_path: Path) -> None:
-    first = _block()
+def test_workers_start_serve_and_stop(free_address: AddressPool, tmp_path: Path) -> None:
+    first = _block(free_address)
     config = tmp_path / "cell.yaml"
     config.write_text(f"devices:\n  - {{name: 'io{{n}}', address: {first}, count: 12, model: DSQC1030}}\n"
                       "discovery: false\n")
@@ -98,7 +98,7 @@ def test_workers_start_serve_and_stop(tmp_path: Path) -> None:
 
 
 @pytest.mark.system
-def test_a_failing_worker_stops_them_all(tmp_path: Path) -> None:
+def test_a_failing_worker_stops_them_all(free_address: AddressPool, tmp_path: Path) -> None:
     config = tmp_path / "cell.yaml"
     config.write_text(f"devices:\n  - {{name: a, address: {free_address()}, model: DSQC1030}}\n"
                       "  - {name: b, address: 192.0.2.7, model: DSQC1030}\ndiscovery: false\n")
