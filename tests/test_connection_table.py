@@ -162,7 +162,7 @@ def test_production_runs_on_absolute_deadlines() -> None:
     assert len(table.datagrams_to_send(T0 + 55 * MS)) == 1  # 3.5 periods behind: no burst
     assert table.datagrams_to_send(T0 + 59 * MS) == []
     assert len(table.datagrams_to_send(T0 + 60 * MS)) == 1
-    assert table.productions[connection.t_o_id].late == 2
+    assert table.productions[connection.t_o_id, connection.t_o_address].late == 2
 
 
 def test_nothing_is_produced_after_forward_close() -> None:
@@ -224,6 +224,18 @@ def test_run_idle() -> None:
 
 
 # -- multicast, listen only, the close cascade ------------------------------------------------------
+
+
+def test_point_to_point_streams_are_never_shared() -> None:
+    """Two originators that chose the same T->O connection id each get their own stream."""
+    table = make_table()
+    first = open_owner(table).connection
+    second = table.forward_open(request(path=INPUT_ONLY_PATH, o_t_size=2), Originator("127.0.0.10"), T0)
+    assert type(second) is Opened and second.connection.t_o_id == first.t_o_id
+    assert sorted(address for _, address in table.datagrams_to_send(T0)) == [("127.0.0.10", 2222),
+                                                                            ("127.0.0.9", 2222)]
+    table.forward_close(first.triad, T0 + MS)
+    assert [address for _, address in table.datagrams_to_send(T0 + 10 * MS)] == [("127.0.0.10", 2222)]
 
 
 def test_listen_only_closes_with_its_producer_and_shares_its_stream() -> None:

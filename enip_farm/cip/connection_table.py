@@ -65,7 +65,9 @@ class ConnectionTable:
         self.admission = Admission(assemblies, policy, identity, rng)
         self.counters: Counter[str] = counters if counters is not None else Counter()
         self.connections: dict[int, Connection] = {}  # by O->T connection id
-        self.productions: dict[int, Production] = {}  # by T->O connection id
+        # by (T->O connection id, destination): multicast connections to one group share a stream;
+        # point-to-point ones never do, even when two originators chose the same T->O id
+        self.productions: dict[tuple[int, tuple[str, int]], Production] = {}
         self._by_triad: dict[ConnectionTriad, Connection] = {}
         self._events: list[ConnectionEvent] = []
         self._short_data_reported: set[int] = set()
@@ -81,7 +83,7 @@ class ConnectionTable:
         return events
 
     def _id_taken(self, connection_id: int) -> bool:
-        return connection_id in self.connections or connection_id in self.productions
+        return connection_id in self.connections or any(key[0] == connection_id for key in self.productions)
 
     def find(self, triad: ConnectionTriad) -> Connection | None:
         return self._by_triad.get(triad)
@@ -113,11 +115,12 @@ class ConnectionTable:
         if connection.is_io:
             if connection.kind is ConnectionKind.EXCLUSIVE_OWNER:
                 self.assemblies["output"].owned = True
-            production = self.productions.get(connection.t_o_id)
+            key = (connection.t_o_id, connection.t_o_address)
+            production = self.productions.get(key)  # type: ignore[arg-type]
             if production is not None:
                 production.users += 1
             else:
-                self.productions[connection.t_o_id] = Production(
+                self.productions[key] = Production(  # type: ignore[index]
                     connection.t_o_id, connection.t_o_address, connection.t_o_rpi * 1000, now)  # type: ignore[arg-type]
             if connection.multicast:
                 items = ((ItemType.SOCKADDR_T_O, encode_sockaddr(SocketAddress(*connection.t_o_address))),)  # type: ignore[misc]
@@ -148,11 +151,12 @@ class ConnectionTable:
         self._by_triad.pop(connection.triad, None)
         self._short_data_reported.discard(connection.o_t_id)
         if connection.is_io:
-            production = self.productions.get(connection.t_o_id)
+            key = (connection.t_o_id, connection.t_o_address)
+            production = self.productions.get(key)  # type: ignore[arg-type]
             if production is not None:
                 production.users -= 1
                 if production.users <= 0:
-                    del self.productions[connection.t_o_id]
+                    del self.productions[key]  # type: ignore[arg-type]
         if connection.kind is ConnectionKind.EXCLUSIVE_OWNER:
             output = self.assemblies["output"]
             output.owned = False
