@@ -91,6 +91,15 @@ class ImplicitConfig(_Strict):
         return self
 
 
+class LimitsConfig(_Strict):
+    """What one device accepts at once; the farm's own guards, not the module's (unpublished)."""
+
+    max_tcp_connections: int = Field(1024, ge=1, le=65535, description="TCP connections at once; more are "
+                                     "closed at once (one log line, rate-limited)")
+    max_sessions: int = Field(1024, ge=1, le=65535, description="registered sessions at once; more get "
+                              "encapsulation status 0x0002 (insufficient memory)")
+
+
 class DeviceConfig(_Strict):
     name: str = Field(pattern=r"^[A-Za-z0-9_.{}-]{1,64}$")
     address: IPv4Address
@@ -106,6 +115,10 @@ class DeviceConfig(_Strict):
     mac: str | None = Field(None, description="default: 02:00 followed by the address's four bytes")
     host_name: str = ""
     implicit: ImplicitConfig = ImplicitConfig()
+    encapsulation_inactivity_timeout_s: int = Field(
+        120, ge=0, le=3600, description="TCP/IP object attribute 13: a TCP connection with no whole request "
+        "for this long is closed (0 = never)")
+    limits: LimitsConfig = LimitsConfig()
     _entry: int = PrivateAttr(0)
 
     @field_validator("model")
@@ -168,6 +181,8 @@ class RuleConfig(_Strict):
 class FarmConfig(_Strict):
     devices: list[DeviceConfig] = Field(min_length=1)
     discovery: bool = Field(True, description="answer broadcast ListIdentity on 0.0.0.0:44818")
+    max_tcp_connections: int = Field(60000, ge=1, description="TCP connections of all devices at once (also "
+                                     "bounded by the open-file limit)")
     wires: list[WireConfig] = []
     rules: list[RuleConfig] = []
 

@@ -7,6 +7,7 @@ from __future__ import annotations
 import asyncio
 import errno
 import gc
+import logging
 import resource
 import threading
 from collections.abc import Coroutine, Iterator
@@ -24,6 +25,7 @@ from enip_farm.device.catalogue import Catalogue, shipped_catalogue
 from enip_farm.device.device import ENIP_PORT, Device
 from enip_farm.device.faults import Fault, FaultKind
 from enip_farm.server.implicit import IO_PORT, ImplicitIo
+from enip_farm.server.limits import TcpLimits
 from enip_farm.server.tcp import EncapsulationProtocol
 from enip_farm.server.udp import DeviceDatagramProtocol, DiscoveryResponder, udp_socket
 
@@ -101,6 +103,7 @@ class Farm:
         self.wiring = Wiring(self)
         self._servers: dict[str, asyncio.AbstractServer] = {}
         self._connections: set[EncapsulationProtocol] = set()
+        self._tcp_limits: TcpLimits | None = None  # at start, once the open-file limit is raised
         self._datagram_transports: list[asyncio.DatagramTransport] = []
         self._discovery: DiscoveryResponder | None = None
         self._implicit: ImplicitIo | None = None
@@ -119,7 +122,7 @@ class Farm:
         loop = asyncio.get_running_loop()
         try:
             self._servers[device.name] = await loop.create_server(
-                lambda: EncapsulationProtocol(device, self._connections), host=device.profile.address,
+                lambda: EncapsulationProtocol(device, self._connections, self._tcp_limits), host=device.profile.address,
                 port=ENIP_PORT, reuse_address=True, backlog=128,
             )
         except OSError as error:
@@ -132,6 +135,8 @@ class Farm:
     async def start(self) -> None:
         loop = self.loop = asyncio.get_running_loop()
         raise_open_file_limit()
+        self._tcp_limits = TcpLimits(self.config.max_tcp_connections, SOCKETS_PER_DEVICE * len(self.devices),
+                                     logging.getLogger("enip_farm.server.tcp"))
         endpoints: list[DeviceDatagramProtocol] = []
         try:
             for device in self.devices.values():

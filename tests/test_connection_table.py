@@ -271,3 +271,31 @@ def test_class3_session_close_and_supervision() -> None:
     assert opened.connection.o_t_id in table.connections
     table.session_closed(session, T0 + 2 * MS)
     assert not table.connections
+
+
+# -- hostile peers ------------------------------------------------------------------------------------
+
+
+def test_o_t_only_from_the_port_of_the_first_valid_packet() -> None:
+    table = make_table()
+    connection = open_owner(table).connection
+    assert table.receive_datagram(o_t(connection.o_t_id, 1), "127.0.0.9", T0, 40001)
+    forged = encode_io_packet(connection.o_t_id, 0x7FFFFFF0, 0, b"\x01\x00\x00\x00\x66\x00")
+    assert not table.receive_datagram(forged, "127.0.0.9", T0 + MS, 40002)  # same host, another port
+    assert table.counters["o_t_dropped_wrong_port"] == 1
+    assert table.receive_datagram(o_t(connection.o_t_id, 2), "127.0.0.9", T0 + 2 * MS, 40001)  # not starved
+
+
+def test_t_o_goes_to_the_originator_whatever_its_item_says() -> None:
+    from enip_farm.protocol.commands import SocketAddress
+
+    table = make_table()
+    aimed = Originator("127.0.0.9", SocketAddress("127.0.0.77", 40000))  # a third host in the 0x8001 item
+    result = table.forward_open(request(), aimed, T0)
+    assert type(result) is Opened and result.connection.t_o_address == ("127.0.0.9", 40000)
+
+
+def test_connection_ids_are_not_sequential() -> None:
+    table = ConnectionTable(make_table().assemblies, make_table().policy, lambda: KeyIdentity(75, 7, 1030, (1, 1)))
+    ids = [open_owner(table, path=INPUT_ONLY_PATH, o_t_size=2).connection.o_t_id for _ in range(6)]
+    assert len(set(ids)) == 6 and sorted(b - a for a, b in zip(ids, ids[1:], strict=False)) != [1] * 5

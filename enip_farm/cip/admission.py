@@ -101,7 +101,7 @@ class Admission:
         self.assemblies = assemblies
         self.policy = policy
         self.identity = identity
-        self._rng = rng or random.Random()
+        self._rng = rng or random.SystemRandom()  # connection ids nobody can predict
 
     def admit(self, request: ForwardOpenRequest, originator: Originator, now: int,
               connections: Collection[Connection], taken_ids: Callable[[int], bool]) -> Connection | Refusal:
@@ -247,15 +247,12 @@ class Admission:
 
     @staticmethod
     def _point_to_point_address(originator: Originator) -> tuple[str, int]:
-        """The originator's T->O socket-address item, where given (address 0: the originator)."""
-        host, port = originator.host, IO_PORT
+        """Where point-to-point T->O goes: always the originator's own address (so a Forward Open
+        cannot aim the device's packets at a third host), to the port of its T->O socket-address
+        item when it gives one (Vol. 2, 3-3.9.4), else 2222."""
         address = originator.t_o_sockaddr
-        if address is not None and address.family == socket.AF_INET:
-            if address.port:
-                port = address.port
-            if address.host != "0.0.0.0":
-                host = address.host
-        return host, port
+        port = address.port if address is not None and address.family == socket.AF_INET and address.port else IO_PORT
+        return originator.host, port
 
     def _admit_explicit(self, request: ForwardOpenRequest, originator: Originator, now: int,
                         connections: Collection[Connection], taken_ids: Callable[[int], bool]) -> Connection:

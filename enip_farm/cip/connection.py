@@ -42,6 +42,7 @@ class Connection:
     last_received: int | None = None  # ns, the last valid packet consumed
     received: int = 0  # valid packets consumed
     last_sequence: int | None = None  # 32-bit sequence of the last O->T packet consumed
+    o_t_port: int | None = None  # the UDP port O->T comes from: the first valid packet's, then only it
     run: bool = False
     closed: bool = False
     last_reply: tuple[int, bytes, tuple] | None = None  # class 3: (sequence count, reply, items) for duplicates

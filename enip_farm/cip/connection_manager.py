@@ -14,7 +14,7 @@ import socket
 
 from enip_farm.cip.admission import Originator
 from enip_farm.cip.connection_table import ConnectionTable, Opened
-from enip_farm.cip.message_router import MessageRouter
+from enip_farm.cip.message_router import MAX_NESTING, MessageRouter
 from enip_farm.cip.object import CipClass, CipInstance, Reply, ServiceResult
 from enip_farm.protocol.cip import CipDecodeError, Service, decode_unconnected_send
 from enip_farm.protocol.commands import SocketAddress, decode_sockaddr
@@ -55,6 +55,8 @@ class ConnectionManager(CipClass):
 
     def unconnected_send(self, instance: CipInstance, path: RequestPath, data: bytes,
                          context: MessageContext) -> ServiceResult | Reply:
+        if context.depth >= MAX_NESTING:
+            return ServiceResult(GeneralStatus.RESOURCE_UNAVAILABLE)
         try:
             request = decode_unconnected_send(data)
             route = decode_epath(request.route_path)
@@ -69,7 +71,7 @@ class ConnectionManager(CipClass):
             return ServiceResult(GeneralStatus.CONNECTION_FAILURE, route_words, (X.INVALID_LINK_ADDRESS,))
         if not request.message:
             return ServiceResult(GeneralStatus.NOT_ENOUGH_DATA)
-        return Reply(*self.router.dispatch(request.message, context))
+        return Reply(*self.router.dispatch(request.message, context.nested()))
 
     # -- Forward Open -----------------------------------------------------------------------------
 

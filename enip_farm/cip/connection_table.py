@@ -181,9 +181,12 @@ class ConnectionTable:
 
     # -- class-1 consumption and production --------------------------------------------------------
 
-    def receive_datagram(self, data: bytes, host: str, now: int) -> bool:
-        """An O->T datagram on UDP 2222 (Vol. 2, 3-2): True if it was a valid packet of one of the
-        table's connections. Every other datagram is counted by why it was not taken."""
+    def receive_datagram(self, data: bytes, host: str, now: int, port: int | None = None) -> bool:
+        """An O->T datagram on UDP 2222 (Vol. 2, 3-2) from `host`:`port`: True if it was a valid
+        packet of one of the table's connections. O->T is taken only from the originator's address
+        and, once a first valid packet came, only from that packet's port (a forger on another port
+        of the same host cannot advance the sequence). Every other datagram is counted by why it
+        was not taken."""
         packet = decode_io_packet(data)
         if packet is None:
             return self._drop("malformed")
@@ -192,6 +195,8 @@ class ConnectionTable:
             return self._drop("unknown_connection")
         if host != connection.originator_host:
             return self._drop("wrong_originator")
+        if port is not None and connection.o_t_port is not None and port != connection.o_t_port:
+            return self._drop("wrong_port")
         last = connection.last_sequence
         if last is not None and not 0 < (packet.sequence - last) & 0xFFFFFFFF < _HALF:
             return self._drop("stale")  # a duplicate or older than what was consumed (Vol. 2, 3-2.1)
@@ -210,6 +215,7 @@ class ConnectionTable:
             run = not payload or bool(payload[0] & 1)
             image = None
         connection.last_sequence = packet.sequence
+        connection.o_t_port = port
         connection.last_received = now
         connection.received += 1
         connection.run = run

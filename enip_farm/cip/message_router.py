@@ -22,6 +22,9 @@ from enip_farm.protocol.session import MessageContext
 from enip_farm.protocol.status import GeneralStatus
 
 _PATH_CACHE_SIZE = 4096
+#: Requests may be embedded in Multiple Service Packets and Unconnected Sends this deep, no deeper:
+#: a deeper one is answered 0x02 (resource unavailable), at a bounded cost.
+MAX_NESTING = 4
 #: Replies by which the model says it does not implement a request: unknown object, service, attribute.
 _NOT_IMPLEMENTED = (0x05, 0x08, 0x14)
 log = logging.getLogger(__name__)
@@ -122,11 +125,14 @@ class MessageRouter(CipClass):
                                 context: MessageContext) -> ServiceResult:
         if path.instance_id != 1:
             return ServiceResult(GeneralStatus.SERVICE_NOT_SUPPORTED)
+        if context.depth >= MAX_NESTING:
+            return ServiceResult(GeneralStatus.RESOURCE_UNAVAILABLE)
         try:
             requests = decode_multiple_service_request(data)
         except CipDecodeError as error:
             return ServiceResult(error.status)
-        replies = [self.handle(request, context) for request in requests]
+        inner = context.nested()
+        replies = [self.handle(request, inner) for request in requests]
         failed = any(reply[2] != GeneralStatus.SUCCESS for reply in replies)
         status = GeneralStatus.EMBEDDED_SERVICE_ERROR if failed else GeneralStatus.SUCCESS
         return ServiceResult(status, encode_multiple_service(replies))

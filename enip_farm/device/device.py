@@ -87,6 +87,9 @@ class Device:
         self._observers: list[Observer] = []
         self.lock = threading.Lock()
         self.table = ConnectionTable(self.assemblies, _policy(profile), self._key_identity, self.counters)
+        self._tcpip = TcpIpInterfaceObject(address=profile.address, netmask=profile.netmask, gateway=profile.gateway,
+                                           host_name=profile.host_name,
+                                           inactivity_timeout_s=profile.encapsulation_inactivity_timeout_s)
         self.router = MessageRouter()
         self.router.forced_status = self.faults.forced_status
         self.router.replay = {(service, path, data): reply for service, path, data, reply in profile.replay}
@@ -102,8 +105,7 @@ class Device:
             ),
             AssemblyObject(list(self.assemblies.values())),
             ConnectionManager(self.router, self.table),
-            TcpIpInterfaceObject(address=profile.address, netmask=profile.netmask, gateway=profile.gateway,
-                                 host_name=profile.host_name),
+            self._tcpip,
             EthernetLinkObject(mac=profile.mac),
         ):
             self.router.register(obj)
@@ -172,6 +174,11 @@ class Device:
             return bytes(self._input.data) if self._input is not None else b""
 
     @property
+    def encapsulation_inactivity_timeout_s(self) -> int:
+        """TCP/IP Interface attribute 13 as it stands (clients may set it): 0 = never."""
+        return self._tcpip.inactivity_timeout_s
+
+    @property
     def product_code(self) -> int:
         """The product code the device shows; an `identity` fault changes it so keys stop matching."""
         code = self.profile.product_code
@@ -230,9 +237,15 @@ class Device:
     def list_interfaces_data(self) -> bytes:
         return encode_items([])
 
-    def register_session(self) -> int:
+    def register_session(self) -> int | None:
+        """A new session handle, or None when the device holds `limits.max_sessions` already."""
+        if len(self.sessions) >= self.profile.limits.max_sessions:
+            self.counters["sessions_refused"] += 1
+            return None
         self.counters["sessions"] += 1
         handle = self._next_session_handle
+        while handle in self.sessions:
+            handle = handle + 1 if handle < 0xFFFFFFFF else 1
         self._next_session_handle = handle + 1 if handle < 0xFFFFFFFF else 1
         self.sessions.add(handle)
         self.record("session registered", f"handle {handle}")
@@ -287,14 +300,14 @@ class Device:
 
     # -- class-1 I/O (the cyclic I/O thread) --------------------------------------------------------
 
-    def receive_io(self, data: bytes, host: str, now: int) -> bool:
-        """An O->T datagram from `host`, received at `now`: True if a connection took it."""
+    def receive_io(self, data: bytes, source: tuple[str, int], now: int) -> bool:
+        """An O->T datagram from `source` (host, port), received at `now`: True if a connection took it."""
         if self.faults.io_stopped:
             self.counters["o_t_dropped_io_stopped"] += 1
             return False
         with self.lock:
             before = self._snapshot()
-            taken = self.table.receive_datagram(data, host, now)
+            taken = self.table.receive_datagram(data, source[0], now, source[1])
             connections = self.table.pop_events()
             after = self._snapshot()
         if before != after or connections:

@@ -10,7 +10,7 @@ import ipaddress
 import zlib
 from dataclasses import dataclass
 
-from enip_farm.config import DeviceConfig, ImplicitConfig
+from enip_farm.config import DeviceConfig, ImplicitConfig, LimitsConfig
 from enip_farm.device.catalogue import Catalogue, IoCounts
 
 
@@ -53,6 +53,8 @@ class DeviceProfile:
     host_name: str
     unverified: tuple[str, ...]
     implicit: ImplicitConfig
+    limits: LimitsConfig
+    encapsulation_inactivity_timeout_s: int
     input_only_point: int | None
     listen_only_point: int | None
     multicast_group: str
@@ -145,6 +147,8 @@ def resolve(config: DeviceConfig, catalogue: Catalogue) -> DeviceProfile:
         host_name=config.host_name,
         unverified=tuple(unverified),
         implicit=config.implicit,
+        limits=config.limits,
+        encapsulation_inactivity_timeout_s=config.encapsulation_inactivity_timeout_s,
         input_only_point=overrides.input_only or (model.assemblies.input_only if model.assemblies else None),
         listen_only_point=overrides.listen_only or (model.assemblies.listen_only if model.assemblies else None),
         multicast_group=str(config.implicit.multicast_group or default_multicast_group(address, str(config.netmask))),

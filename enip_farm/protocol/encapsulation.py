@@ -106,7 +106,9 @@ class StreamFramer:
         """Bytes received that do not yet form a whole frame."""
         return len(self._buffer)
 
-    def feed(self, data: bytes) -> list[Frame | OversizeFrame]:
+    def feed(self, data: bytes, limit: int | None = None) -> list[Frame | OversizeFrame]:
+        """Append `data` and cut at most `limit` frames (all by default); the rest stays buffered
+        for the next call (`feed(b"", limit)`)."""
         if self.broken:
             return []
         buffer = self._buffer + data if self._buffer else data
@@ -114,7 +116,7 @@ class StreamFramer:
         offset = 0
         end = len(buffer)
         unpack_from = HEADER.unpack_from
-        while end - offset >= HEADER_SIZE:
+        while end - offset >= HEADER_SIZE and (limit is None or len(frames) < limit):
             header = EncapsulationHeader._make(unpack_from(buffer, offset))
             if header.length > self.max_length:
                 frames.append(OversizeFrame(header))
@@ -128,3 +130,12 @@ class StreamFramer:
             offset = stop
         self._buffer = buffer[offset:] if offset < end else b""
         return frames
+
+    @property
+    def has_frame(self) -> bool:
+        """Whether a whole frame (or an oversize header) is buffered, waiting to be cut."""
+        buffer = self._buffer
+        if self.broken or len(buffer) < HEADER_SIZE:
+            return False
+        length = buffer[2] | buffer[3] << 8
+        return length > self.max_length or len(buffer) >= HEADER_SIZE + length

@@ -48,6 +48,11 @@ class MessageContext(NamedTuple):
     session: object | None = None
     items: tuple[CpfItem, ...] = ()
     now: int = 0
+    depth: int = 0  # how deep in Multiple Service Packets / Unconnected Sends this request is
+
+    def nested(self) -> MessageContext:
+        """The context of a request embedded in this one."""
+        return self._replace(depth=self.depth + 1)
 
 
 _new_context = functools.partial(tuple.__new__, MessageContext)  # MessageContext(...) without its Python __new__
@@ -65,7 +70,9 @@ class Target(Protocol):
 
     def list_interfaces_data(self) -> bytes: ...
 
-    def register_session(self) -> int: ...
+    def register_session(self) -> int | None:
+        """A new session handle, or None when the target takes no more sessions."""
+        ...
 
     def unregister_session(self, session_handle: int) -> None: ...
 
@@ -93,7 +100,7 @@ def _reply(header: EncapsulationHeader, data: bytes = b"", session_handle: int |
 class EncapsulationSession:
     """One TCP connection: frames in, replies out; `closing` says the connection must end."""
 
-    __slots__ = ("target", "framer", "session_handle", "closing", "discarded", "peer_host", "_now")
+    __slots__ = ("target", "framer", "session_handle", "closing", "discarded", "peer_host", "last_frame_at", "_now")
 
     def __init__(self, target: Target, peer_host: str = "0.0.0.0", max_length: int = MAX_DATA_LENGTH) -> None:
         self.target = target
@@ -102,13 +109,19 @@ class EncapsulationSession:
         self.closing = False
         self.discarded = 0  # frames with non-zero options, discarded as the spec requires
         self.peer_host = peer_host
+        self.last_frame_at = 0  # ns: when the last whole frame arrived (encapsulation inactivity)
         self._now = 0
 
-    def receive(self, data: bytes, now: int = 0) -> list[bytes]:
-        """Bytes from the stream, received at `now` (ns, monotonic): the whole replies to send."""
+    def receive(self, data: bytes, now: int = 0, limit: int | None = None) -> list[bytes]:
+        """Bytes from the stream, received at `now` (ns, monotonic): the whole replies to send.
+        At most `limit` frames are handled; the rest wait for `receive(b"", now, limit)` (see
+        `backlog`), so that one busy connection takes its turn like the others."""
         self._now = now
         replies: list[bytes] = []
-        for frame in self.framer.feed(data):
+        frames = self.framer.feed(data, limit)
+        if frames:
+            self.last_frame_at = now
+        for frame in frames:
             if type(frame) is not Frame:  # OversizeFrame
                 replies.append(_reply(frame.header, status=EncapsulationStatus.INVALID_LENGTH))
                 self.closing = True
@@ -119,6 +132,11 @@ class EncapsulationSession:
             if self.closing:
                 break
         return replies
+
+    @property
+    def backlog(self) -> bool:
+        """Whole frames received and not handled yet (receive was given a limit)."""
+        return not self.closing and self.framer.has_frame
 
     def connection_lost(self, now: int = 0) -> None:
         if self.session_handle:
@@ -162,8 +180,11 @@ class EncapsulationSession:
             return _reply(header, _SUPPORTED_REGISTER, 0, EncapsulationStatus.UNSUPPORTED_PROTOCOL)
         if self.session_handle:  # one session per TCP connection
             return _reply(header, _SUPPORTED_REGISTER, self.session_handle, EncapsulationStatus.INVALID_COMMAND)
-        self.session_handle = self.target.register_session()
-        return _reply(header, _SUPPORTED_REGISTER, self.session_handle)
+        handle = self.target.register_session()
+        if handle is None:  # the device holds all the sessions it takes; this connection stays usable
+            return _reply(header, _SUPPORTED_REGISTER, 0, EncapsulationStatus.INSUFFICIENT_MEMORY)
+        self.session_handle = handle
+        return _reply(header, _SUPPORTED_REGISTER, handle)
 
     def _send_rr_data(self, header: EncapsulationHeader, data: bytes) -> bytes:
         if not header.session_handle or header.session_handle != self.session_handle:
@@ -173,7 +194,7 @@ class EncapsulationSession:
             return _reply(header, status=EncapsulationStatus.INCORRECT_DATA)
         request, items = decoded
         message, reply_items = self.target.handle_unconnected(
-            request, _new_context((self.peer_host, self, items, self._now)))
+            request, _new_context((self.peer_host, self, items, self._now, 0)))
         if reply_items:  # e.g. the T->O socket address of a multicast Forward Open
             body = _SEND_DATA_HEAD + encode_items([(ItemType.NULL_ADDRESS, b""), (ItemType.UNCONNECTED_DATA, message),
                                                    *reply_items])

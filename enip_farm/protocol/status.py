@@ -7,6 +7,7 @@ from enum import IntEnum
 class GeneralStatus(IntEnum):
     SUCCESS = 0x00
     CONNECTION_FAILURE = 0x01
+    RESOURCE_UNAVAILABLE = 0x02
     PATH_SEGMENT_ERROR = 0x04
     PATH_DESTINATION_UNKNOWN = 0x05
     SERVICE_NOT_SUPPORTED = 0x08

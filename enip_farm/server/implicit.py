@@ -163,7 +163,7 @@ class DeviceIo:
             recorder = self.device.recorder
             if recorder is not None:
                 recorder.udp(addr, address, data)
-            receive(data, addr[0], now)
+            receive(data, addr, now)
 
     def service(self, now: int) -> int | None:
         """In the I/O thread: the device's timer has come; the next one."""

@@ -1,5 +1,16 @@
 """TCP 44818 (CIP Networks Library Vol. 2, 2-2.1): one protocol instance per connection, feeding
 the sans-IO encapsulation session and writing each batch of whole replies with one write.
+
+- Fair service: at most `BATCH_FRAMES` requests of one connection are answered per turn of the
+  event loop; the rest wait (reading paused) for the next turn, after every other connection's.
+- Backpressure: while the replies not yet sent exceed `WRITE_HIGH_WATER` (the peer does not
+  read), the connection is not read; it is read again below `WRITE_LOW_WATER`. Memory per
+  connection is bounded: one read (at most 256 KiB with uvloop) plus one partial frame (at most
+  64 KiB + 24) waiting, and at most the high-water mark plus one batch of replies unsent.
+- Limits (server/limits.py): caps on TCP connections per device and for the farm; a connection
+  over a cap is closed at once.
+- Encapsulation inactivity timeout (TCP/IP Interface attribute 13): a connection with no whole
+  request for that long is closed, whether it sent nothing or half a header.
 Injected faults (device/faults.py) delay or drop replies, and close or reset connections."""
 
 from __future__ import annotations
@@ -13,34 +24,57 @@ import time
 from enip_farm.device.device import Device
 from enip_farm.device.faults import FaultKind
 from enip_farm.protocol.session import EncapsulationSession
+from enip_farm.server.limits import TcpLimits
 
 log = logging.getLogger(__name__)
 _LINGER_RESET = struct.pack("ii", 1, 0)  # SO_LINGER on, 0 s: close sends RST
+BATCH_FRAMES = 16
+WRITE_HIGH_WATER = 64 * 1024
+WRITE_LOW_WATER = 16 * 1024
+_RECHECK_S = 5.0  # with the inactivity timeout off (0), how often to look whether it was set
 
 
 class EncapsulationProtocol(asyncio.Protocol):
-    __slots__ = ("device", "session", "transport", "connections", "_not_before", "_peer", "_closed_by_us")
+    __slots__ = ("device", "session", "transport", "connections", "limits", "_not_before", "_peer", "_closed_by_us",
+                 "_admitted", "_scheduled", "_write_paused", "_reading_paused", "_opened_at", "_inactivity")
 
-    def __init__(self, device: Device, connections: set[EncapsulationProtocol]) -> None:
+    def __init__(self, device: Device, connections: set[EncapsulationProtocol], limits: TcpLimits) -> None:
         self.device = device
         self.session: EncapsulationSession | None = None
         self.transport: asyncio.Transport | None = None
         self.connections = connections  # the farm's open connections, closed at stop
+        self.limits = limits
         self._not_before = 0.0  # delayed replies keep their order
         self._peer: tuple[str, int] | None = None
         self._closed_by_us = False
+        self._admitted = False
+        self._scheduled = False  # a turn is queued for the frames still waiting
+        self._write_paused = False
+        self._reading_paused = False
+        self._opened_at = 0
+        self._inactivity: asyncio.TimerHandle | None = None
 
     def connection_made(self, transport: asyncio.BaseTransport) -> None:
         self.transport = transport  # type: ignore[assignment]
+        device = self.device
+        if not self.limits.admit(device.name, device.profile.limits.max_tcp_connections, time.monotonic()):
+            device.counters["tcp_refused"] += 1
+            self._closed_by_us = True
+            transport.close()
+            return
+        self._admitted = True
         peer = self._peer = transport.get_extra_info("peername")
-        self.session = EncapsulationSession(self.device, peer[0] if peer else "0.0.0.0")
-        recorder = self.device.recorder
+        self.session = EncapsulationSession(device, peer[0] if peer else "0.0.0.0")
+        self._opened_at = time.monotonic_ns()
+        transport.set_write_buffer_limits(WRITE_HIGH_WATER, WRITE_LOW_WATER)  # type: ignore[attr-defined]
+        recorder = device.recorder
         if recorder is not None and peer:
             recorder.tcp_opened(self, peer[:2], transport.get_extra_info("sockname")[:2])
         self.connections.add(self)
-        self.device.counters["tcp_connections"] += 1
-        self.device.record("tcp connected", f"{peer[0]}:{peer[1]}" if peer else "")
-        kind = self.device.faults.connection_fault
+        device.counters["tcp_connections"] += 1
+        device.record("tcp connected", f"{peer[0]}:{peer[1]}" if peer else "")
+        self._arm_inactivity(device.encapsulation_inactivity_timeout_s or _RECHECK_S)
+        kind = device.faults.connection_fault
         if kind is not None:
             self.kill(kind)
 
@@ -57,24 +91,39 @@ class EncapsulationProtocol(asyncio.Protocol):
         else:
             transport.close()
 
+    # -- requests in, replies out -----------------------------------------------------------------
+
     def data_received(self, data: bytes) -> None:
-        session = self.session
-        started = time.perf_counter()
+        if self.session is None:  # refused at connection_made
+            return
         recorder = self.device.recorder
         if recorder is not None:
             recorder.tcp_data(self, True, data)
+        self._serve(data)
+
+    def _next_turn(self) -> None:
+        self._scheduled = False
+        if self.transport is not None and not self.transport.is_closing():
+            self._serve(b"")
+
+    def _serve(self, data: bytes) -> None:
+        """Answer at most one batch of requests; queue a turn for the rest, reading paused."""
+        session = self.session
+        transport = self.transport
+        started = time.perf_counter()
         try:
-            replies = session.receive(data, time.monotonic_ns())  # type: ignore[union-attr]
+            replies = session.receive(data, time.monotonic_ns(), BATCH_FRAMES)  # type: ignore[union-attr]
         except Exception:  # last resort: the protocol layers answer errors as values
             log.exception("%s: closing a connection after an internal error", self.device.name)
-            self.transport.close()  # type: ignore[union-attr]
+            transport.close()  # type: ignore[union-attr]
             return
-        transport = self.transport
-        faults = self.device.faults
+        closing = session.closing  # type: ignore[union-attr]
         if replies:
             out = replies[0] if len(replies) == 1 else b"".join(replies)
+            faults = self.device.faults
             fault = faults.reply_fault if faults.active else None
             if fault is None:
+                recorder = self.device.recorder
                 if recorder is not None:  # recorded first: a farm killed in between leaves the reply on file
                     recorder.tcp_data(self, False, out)
                 transport.write(out)  # type: ignore[union-attr]
@@ -83,13 +132,44 @@ class EncapsulationProtocol(asyncio.Protocol):
                 loop = asyncio.get_running_loop()
                 when = max(loop.time() + fault.reply_delay(), self._not_before)
                 self._not_before = when
-                loop.call_at(when, self._write_late, out, session.closing)  # type: ignore[union-attr]
-                return
+                loop.call_at(when, self._write_late, out, closing)
+                closing = False  # closed after the late write
             else:
                 self.device.counters["replies_dropped"] += len(replies)
-        if session.closing:  # type: ignore[union-attr]
+        if closing:
             self._closed_by_us = True
             transport.close()  # type: ignore[union-attr]
+            return
+        backlog = session.backlog  # type: ignore[union-attr]
+        if backlog and not self._write_paused and not self._scheduled:
+            self._scheduled = True
+            asyncio.get_running_loop().call_soon(self._next_turn)
+        self._set_reading(paused=backlog or self._write_paused)
+
+    def _set_reading(self, paused: bool) -> None:
+        if paused == self._reading_paused or self.transport is None or self.transport.is_closing():
+            return
+        self._reading_paused = paused
+        if paused:
+            self.transport.pause_reading()
+        else:
+            self.transport.resume_reading()
+
+    def pause_writing(self) -> None:
+        """The peer does not read its replies: stop reading its requests."""
+        self._write_paused = True
+        self.device.counters["tcp_write_paused"] += 1
+        self._set_reading(paused=True)
+
+    def resume_writing(self) -> None:
+        self._write_paused = False
+        session = self.session
+        if session is not None and session.backlog:
+            if not self._scheduled:
+                self._scheduled = True
+                asyncio.get_running_loop().call_soon(self._next_turn)
+        else:
+            self._set_reading(paused=False)
 
     def _write_late(self, out: bytes, close: bool) -> None:
         if self.transport is None or self.transport.is_closing():
@@ -101,10 +181,43 @@ class EncapsulationProtocol(asyncio.Protocol):
             self._closed_by_us = True
             self.transport.close()
 
+    # -- encapsulation inactivity timeout (TCP/IP Interface attribute 13) ---------------------------
+
+    def _arm_inactivity(self, delay_s: float) -> None:
+        self._inactivity = asyncio.get_running_loop().call_later(max(delay_s, 0.001), self._check_inactivity)
+
+    def _check_inactivity(self) -> None:
+        self._inactivity = None
+        if self.transport is None or self.transport.is_closing() or self.session is None:
+            return
+        timeout_s = self.device.encapsulation_inactivity_timeout_s  # clients may have set it meanwhile
+        if not timeout_s:
+            self._arm_inactivity(_RECHECK_S)
+            return
+        last = max(self.session.last_frame_at, self._opened_at)
+        idle_s = (time.monotonic_ns() - last) / 1e9
+        if idle_s < timeout_s:
+            self._arm_inactivity(timeout_s - idle_s)
+            return
+        self.device.counters["tcp_inactivity_closed"] += 1
+        self.device.record("tcp inactive", f"{self._peer[0]}:{self._peer[1]}: no whole request for {timeout_s} s, "
+                           "closed (TCP/IP attribute 13)" if self._peer else "")
+        self._closed_by_us = True
+        self.transport.close()
+
+    # -- the end ------------------------------------------------------------------------------------
+
     def eof_received(self) -> bool:
         return False  # close our side too
 
     def connection_lost(self, exc: Exception | None) -> None:
+        if not self._admitted:
+            self.transport = None
+            return
+        self.limits.release(self.device.name)
+        if self._inactivity is not None:
+            self._inactivity.cancel()
+            self._inactivity = None
         if self.session is not None:
             self.session.connection_lost(time.monotonic_ns())
         self.connections.discard(self)
