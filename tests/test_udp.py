@@ -56,7 +56,9 @@ def test_broadcast_list_identity_answered_by_every_device(make_farm) -> None:
     seen: dict[str, int] = {}
     with _udp() as sock:
         sock.setsockopt(socket.SOL_SOCKET, socket.SO_BROADCAST, 1)
-        sock.sendto(encode_frame(Command.LIST_IDENTITY, sender_context=b"discover"), ("127.255.255.255", 44818))
+        # sender context: MaxResponseDelay 500 ms (first UINT), then anything
+        sent_at = time.monotonic()
+        sock.sendto(encode_frame(Command.LIST_IDENTITY, sender_context=b"\xf4\x01covers"), ("127.255.255.255", 44818))
         deadline = time.monotonic() + 10  # done as soon as every device has answered
         while seen.keys() != expected.keys() and (remaining := deadline - time.monotonic()) > 0:
             sock.settimeout(remaining)
@@ -70,7 +72,25 @@ def test_broadcast_list_identity_answered_by_every_device(make_farm) -> None:
                 assert port == 44818 and identity.socket_address.host == host  # from its own address
                 assert host not in seen  # once per device
                 seen[host] = identity.serial_number
+                assert frame.header.sender_context == b"\xf4\x01covers"
+                assert time.monotonic() - sent_at < 0.5 + 5.0  # within the delay asked for (+ a busy machine)
     assert seen == expected
+
+
+def test_broadcast_replies_wait_a_random_time_up_to_the_max_response_delay() -> None:
+    import random
+
+    from enip_farm.server.udp import response_delay_s
+
+    rng = random.Random(7)
+
+    def delays(max_ms: int) -> list[float]:
+        request = encode_frame(Command.LIST_IDENTITY, sender_context=max_ms.to_bytes(2, "little") + bytes(6))
+        return [response_delay_s(request, rng) for _ in range(2000)]
+
+    for max_ms, bound in ((0, 2.0), (100, 0.5), (1000, 1.0), (5000, 5.0)):
+        spread = delays(max_ms)
+        assert 0 <= min(spread) < bound / 10 and bound * 0.9 < max(spread) <= bound
 
 
 def test_pycomm3_discover(make_farm, monkeypatch) -> None:

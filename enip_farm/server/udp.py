@@ -7,6 +7,7 @@ from __future__ import annotations
 import asyncio
 import ipaddress
 import logging
+import random
 import socket
 import struct
 
@@ -72,12 +73,30 @@ def broadcast_addresses(device: Device) -> frozenset[ipaddress.IPv4Address]:
     return frozenset(found)
 
 
+#: ListIdentity's MaxResponseDelay (Vol. 2, 2-4.2.3, as OpENer reads it: the first UINT of the
+#: sender context, milliseconds): 0 means 2000 ms; less than 500 ms counts as 500 ms.
+DEFAULT_MAX_RESPONSE_DELAY_MS = 2000
+MIN_MAX_RESPONSE_DELAY_MS = 500
+
+
+def response_delay_s(datagram: bytes, rng: random.Random) -> float:
+    """How long a device waits before it answers a broadcast ListIdentity: a random time up to
+    the request's MaxResponseDelay, so that a cell of devices does not answer in one burst."""
+    max_ms = int.from_bytes(datagram[12:14], "little") if len(datagram) >= 14 else 0
+    if max_ms == 0:
+        max_ms = DEFAULT_MAX_RESPONSE_DELAY_MS
+    max_ms = max(max_ms, MIN_MAX_RESPONSE_DELAY_MS)
+    return rng.uniform(0, max_ms / 1000)
+
+
 class DiscoveryResponder:
     """Reads datagrams sent to 0.0.0.0:44818 with their destination address (IP_PKTINFO) and
-    hands each broadcast to the device endpoints it concerns."""
+    hands each broadcast to the device endpoints it concerns, each after its own random delay."""
 
     def __init__(self, loop: asyncio.AbstractEventLoop, endpoints: list[DeviceDatagramProtocol]) -> None:
         self.loop = loop
+        self._rng = random.Random()
+        self._pending: set[asyncio.TimerHandle] = set()
         self.endpoints = [(endpoint, broadcast_addresses(endpoint.device)) for endpoint in endpoints]
         self.sock = udp_socket("0.0.0.0")
         self.sock.setsockopt(socket.SOL_SOCKET, socket.SO_BROADCAST, 1)
@@ -105,8 +124,19 @@ class DiscoveryResponder:
                     endpoint.device.recorder.udp(addr, (str(destination), ENIP_PORT), data)  # the broadcast, once
                     recorded = True
                 if destination in broadcasts:
-                    endpoint.answer(data, addr)
+                    self._answer_later(endpoint, data, addr)
+
+    def _answer_later(self, endpoint: DeviceDatagramProtocol, data: bytes, addr: tuple[str, int]) -> None:
+        def answer() -> None:
+            self._pending.discard(handle)
+            endpoint.answer(data, addr)
+
+        handle = self.loop.call_later(response_delay_s(data, self._rng), answer)
+        self._pending.add(handle)
 
     def close(self) -> None:
+        for handle in self._pending:
+            handle.cancel()
+        self._pending.clear()
         self.loop.remove_reader(self.sock.fileno())
         self.sock.close()
