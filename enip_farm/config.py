@@ -94,9 +94,9 @@ class ImplicitConfig(_Strict):
 class LimitsConfig(_Strict):
     """What one device accepts at once; the farm's own guards, not the module's (unpublished)."""
 
-    max_tcp_connections: int = Field(1024, ge=1, le=65535, description="TCP connections at once; more are "
+    max_tcp_connections: int = Field(8192, ge=1, le=65535, description="TCP connections at once; more are "
                                      "closed at once (one log line, rate-limited)")
-    max_sessions: int = Field(1024, ge=1, le=65535, description="registered sessions at once; more get "
+    max_sessions: int = Field(8192, ge=1, le=65535, description="registered sessions at once; more get "
                               "encapsulation status 0x0002 (insufficient memory)")
 
 
