@@ -12,6 +12,7 @@ from __future__ import annotations
 import os
 import socket
 import subprocess
+import tempfile
 from collections.abc import Callable, Iterator
 from typing import Any
 
@@ -23,6 +24,9 @@ from tests.helpers import ROOT
 # Subprocesses (`python -m enip_farm`, pytest of the README example) import the tree under test,
 # not whatever copy is installed, whatever their working directory.
 os.environ["PYTHONPATH"] = os.pathsep.join(filter(None, [str(ROOT), os.environ.get("PYTHONPATH")]))
+# Hypothesis (tests/test_fuzz.py) keeps no example database (its settings say so) and caches what
+# it learns of the source outside the tree, never in .hypothesis/ under the working directory.
+os.environ.setdefault("HYPOTHESIS_STORAGE_DIRECTORY", os.path.join(tempfile.gettempdir(), "enip-farm-hypothesis"))
 
 
 def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
