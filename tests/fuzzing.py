@@ -223,7 +223,7 @@ class SessionMirror:
         self.closed = False  # an UnregisterSession or an oversize header ended the connection
         self.frames = 0  # complete frames (or oversize headers) taken
         self.replies = 0
-        self.connections: set[int] = set()  # O->T ids the farm handed out in Forward Open replies
+        self.connections: dict[int, None] = {}  # O->T ids handed out in Forward Open replies, in order
         self.last_connected: dict[int, tuple[int, bytes]] = {}  # id -> (sequence count, its reply)
         self.cip_statuses: dict[int, int] = {}  # general status -> replies (for the report)
         self.statuses: dict[tuple[int, int], int] = {}  # (command, encapsulation status) -> replies
@@ -327,7 +327,7 @@ class SessionMirror:
                 cip = items[1][1]
                 reply_data = cip[4 + 2 * cip[3] :]
                 expect(len(reply_data) >= 26, "Forward Open reply data")
-                self.connections.add(U32.unpack_from(reply_data)[0])
+                self.connections[U32.unpack_from(reply_data)[0]] = None
             return None
         connected = connected_request(body)
         if connected is None:
@@ -373,6 +373,8 @@ CLASS, INSTANCE, MEMBER, POINT, ATTRIBUTE = 0, 1, 2, 3, 4
 CLASSES = (0x01, 0x02, 0x04, 0x06, 0xF5, 0xF6)
 SERVICES = (0x01, 0x02, 0x05, 0x0A, 0x0E, 0x10, 0x4E, 0x52, 0x54, 0x5B)
 INSTANCES = (0, 1, 2, 100, 101, 198, 199)
+#: (class, instance, highest attribute) of the objects a DSQC1030 has.
+TARGETS = ((0x01, 1, 7), (0x02, 1, 2), (0x04, 100, 4), (0x04, 101, 4), (0x06, 1, 1), (0xF5, 1, 13), (0xF6, 1, 10))
 
 
 class FrameGenerator:
@@ -550,6 +552,14 @@ class FrameGenerator:
             path = logical(CLASS, 4) + logical(INSTANCE, instance) + (logical(ATTRIBUTE, 3) if service in (
                 0x0E, 0x10) else b"")
             return bytes((service, len(path) // 2)) + path + (self.raw(0, 4) if service in (0x10, 0x02) else b"")
+        if roll < 0.75:  # an attribute of an object the device has, as a configuration tool asks
+            class_id, instance, attributes = self.pick(*TARGETS)
+            service = self.pick(0x0E, 0x0E, 0x0E, 0x01, 0x10, 0x02, 0x05, 0x4B)
+            path = logical(CLASS, class_id) + logical(INSTANCE, self.pick(instance, instance, instance, 0))
+            if service in (0x0E, 0x10):
+                path += logical(ATTRIBUTE, rng.randint(1, attributes + 1))
+            data = self.raw(0, 8) if service in (0x10, 0x02, 0x05) or rng.random() < 0.05 else b""
+            return bytes((service, len(path) // 2)) + path + data
         service = self.pick(*SERVICES) if rng.random() < 0.8 else rng.getrandbits(8)
         path = self.request_path()
         words = len(path) // 2 if rng.random() < 0.95 else rng.getrandbits(8)
@@ -591,7 +601,7 @@ class FrameGenerator:
             kind = UNCONNECTED_DATA if rng.random() < 0.97 else self.pick(CONNECTED_DATA, rng.getrandbits(16))
             return head + self.items((address, b""), (kind, self.cip_request(triads)))
         if command == SEND_UNIT_DATA:
-            known = sorted(mirror.connections)
+            known = list(mirror.connections)  # in the order opened: choices do not depend on the ids drawn
             connection_id = self.pick(*known) if known and rng.random() < 0.9 else rng.getrandbits(32)
             count = self.sequence.get(connection_id, 0)
             count = (count + self.pick(1, 1, 1, 0, 2)) & 0xFFFF  # 0: a retransmission
@@ -642,10 +652,11 @@ class SessionRun:
     every reply checked by a `SessionMirror`; now and then the device's timer turned and its T->O
     packets checked. `inputs` counts the frames fed."""
 
-    def __init__(self, rng: random.Random, device: Device, now: int, max_depth: int = 3) -> None:
+    def __init__(self, rng: random.Random, device: Device, now: int, max_depth: int = 3,
+                 peer_host: str = "127.0.0.9") -> None:
         self.rng = rng
         self.device = device
-        self.session = EncapsulationSession(device, "127.0.0.9")
+        self.session = EncapsulationSession(device, peer_host)
         self.mirror = SessionMirror()
         profile = device.profile
         self.generator = FrameGenerator(rng, (profile.vendor_id, profile.device_type, profile.product_code,
@@ -795,7 +806,7 @@ class TableFuzzer:
 
     def datagram(self) -> None:
         rng, pick = self.rng, self.generator.pick
-        io = sorted((c for c in self.table.connections.values() if c.is_io), key=lambda c: c.o_t_id)
+        io = [c for c in self.table.connections.values() if c.is_io]
         if rng.random() < 0.1:
             data, host = self.generator.raw(0, 40), pick(*HOSTS)
             connection = None
