@@ -228,16 +228,20 @@ class SessionMirror:
         self.cip_statuses: dict[int, int] = {}  # general status -> replies (for the report)
         self.statuses: dict[tuple[int, int], int] = {}  # (command, encapsulation status) -> replies
 
-    def feed(self, chunk: bytes, replies: list[bytes]) -> None:
+    def feed(self, chunk: bytes, replies: list[bytes], limit: int | None = None) -> int:
+        """The chunk and the replies that `receive(chunk, now, limit)` gave for it (at most `limit`
+        frames taken, the rest left for later calls); the number of frames taken."""
         expect(not self.closed or not replies, "a reply after the connection ended")
         if self.closed:
-            return
+            return 0
         pending = iter(replies)
         buffer = self.buffer + chunk
-        while len(buffer) >= 24 and not self.closed:
+        taken = 0
+        while len(buffer) >= 24 and not self.closed and (limit is None or taken < limit):
             command, length, handle, _, context, options = HEADER.unpack_from(buffer)
             if length > MAX_LENGTH:
                 self.frames += 1
+                taken += 1
                 self._check(next(pending, None), buffer[:24], b"", oversize=True)
                 self.closed = True
                 buffer = b""
@@ -246,6 +250,7 @@ class SessionMirror:
                 break
             header, body, buffer = buffer[:24], buffer[24 : 24 + length], buffer[24 + length :]
             self.frames += 1
+            taken += 1
             if options or command == NOP:
                 continue  # no reply: options other than 0 are discarded (Vol. 2, 2-3.6), NOP never answered
             if command == UNREGISTER and handle and handle == self.handle:
@@ -255,6 +260,15 @@ class SessionMirror:
             self._check(next(pending, None), header, body)
         self.buffer = buffer
         expect(next(pending, None) is None, "more replies than frames that call for one")
+        return taken
+
+    @property
+    def backlog(self) -> bool:
+        """A whole frame (or an oversize header) buffered and not taken yet."""
+        if self.closed or len(self.buffer) < 24:
+            return False
+        length = U16.unpack_from(self.buffer, 2)[0]
+        return length > MAX_LENGTH or len(self.buffer) >= 24 + length
 
     def _check(self, reply: bytes | None, header: bytes, body: bytes, oversize: bool = False) -> None:
         command, _, handle, _, context, _ = HEADER.unpack(header)
@@ -524,6 +538,8 @@ class FrameGenerator:
         """One message-router request: mostly well-formed, often addressed to something that exists."""
         rng = self.rng
         roll = rng.random()
+        if depth == 0 and roll < 0.005:
+            return self.nested_chain(triads)
         if roll < 0.05:
             return self.raw(1, 24)
         if roll < 0.15:
@@ -564,6 +580,20 @@ class FrameGenerator:
         path = self.request_path()
         words = len(path) // 2 if rng.random() < 0.95 else rng.getrandbits(8)
         return bytes((service, words & 0xFF)) + path + (self.raw(0, 8) if rng.random() < 0.6 else b"")
+
+    def nested_chain(self, triads: list[tuple[int, int, int]]) -> bytes:
+        """A request wrapped in Multiple Service Packets and Unconnected Sends up to 300 deep (the
+        abuse of issue 10: each level must cost little and end in a reply, not a traceback)."""
+        rng = self.rng
+        message = self.cip_request(triads, self.max_depth)
+        for _ in range(rng.randint(5, 300)):
+            if rng.random() < 0.5:
+                message = b"\x0A\x02" + logical(CLASS, 2) + logical(INSTANCE, 1) + struct.pack("<HH", 1, 4) + message
+            else:
+                message = (b"\x52\x02" + logical(CLASS, 6) + logical(INSTANCE, 1)
+                           + struct.pack("<BBH", 0x0A, 0x0E, len(message)) + message + b"\x00" * (len(message) & 1)
+                           + b"\x01\x00\x01\x00")
+        return message
 
     def sockaddr_item(self) -> bytes:
         rng = self.rng
@@ -665,9 +695,18 @@ class SessionRun:
         self.inputs = 0
 
     def feed(self, data: bytes) -> None:
-        replies = self.session.receive(data, self.now)
-        self.mirror.feed(data, replies)
-        expect(self.session.closing == self.mirror.closed, "the session and the mirror disagree on closing")
+        """`receive` the data, with a limit on the frames handled per call now and then (as the
+        server takes turns between connections), then the backlog until none is left."""
+        limit = None if self.rng.random() < 0.6 else self.rng.randint(1, 3)
+        while True:
+            replies = self.session.receive(data, self.now, limit)
+            taken = self.mirror.feed(data, replies, limit)
+            expect(self.session.closing == self.mirror.closed, "the session and the mirror disagree on closing")
+            expect(self.session.backlog == self.mirror.backlog, "the session and the mirror disagree on the backlog")
+            expect(not taken or self.session.last_frame_at == self.now, "last_frame_at not the time of the frame")
+            if not self.session.backlog:
+                return
+            data = b""
 
     def run(self, frames: int) -> None:
         rng = self.rng
@@ -755,6 +794,7 @@ class TableFuzzer:
         self.closed: set[int] = set()  # O->T ids of connections that closed (ids are never reused)
         self.sequences: dict[tuple[int, tuple[str, int]], tuple[object, int]] = {}  # stream -> last sequence
         self.operations: dict[str, int] = {}
+        self.ports = rng.random() < 0.9  # the device always says the source port; a unit test may not
 
     def step(self) -> None:
         rng = self.rng
@@ -821,8 +861,10 @@ class TableFuzzer:
             data = struct.pack("<HHHIIHHH", 2, 0x8002, 8, connection_id, sequence, 0x00B1, 2 + len(payload),
                                sequence & 0xFFFF) + payload
             host = connection.originator_host if connection and rng.random() < 0.9 else pick(*HOSTS)
+        port = pick(2222, 2222, 2222, 50000, 50001) if self.ports else None
         before = bytes(self.table.assemblies["output"].data)
-        taken = self.table.receive_datagram(data, host, self.now)
+        first_port = connection.o_t_port if connection else None
+        taken = self.table.receive_datagram(data, host, self.now, port)
         self.count(f"datagram {'taken' if taken else 'dropped'}")
         if taken:
             decoded = reference_decode_io_packet(data)
@@ -831,6 +873,8 @@ class TableFuzzer:
             owner = self.table.connections.get(decoded[0])
             expect(owner is not None and owner.originator_host == host and owner.last_received == self.now,
                    "a datagram taken for no open connection of that originator")
+            expect(first_port is None or port is None or port == first_port, "O->T taken from another port")
+            expect(owner is None or port is None or owner.o_t_port == port, "O->T port not kept")
         else:
             expect(bytes(self.table.assemblies["output"].data) == before, "a dropped datagram changed the outputs")
 
@@ -893,6 +937,8 @@ class TableFuzzer:
         users: dict[tuple[int, tuple[str, int]], int] = {}
         for c in connections.values():
             if c.is_io:
+                expect(c.t_o_address == ("239.192.1.0", 2222) if c.multicast else c.t_o_address[0] == c.originator_host,
+                       f"T->O to {c.t_o_address} for an originator at {c.originator_host}")
                 key = (c.t_o_id, c.t_o_address)
                 users[key] = users.get(key, 0) + 1
         expect({key: p.users for key, p in table.productions.items()} == users,

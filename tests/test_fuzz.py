@@ -140,6 +140,23 @@ def test_session_send_rr_data_any_cip(profile: DeviceProfile, requests: list[tup
     assert mirror.replies == 1 + len(requests)
 
 
+@budget(300)
+@given(st.lists(st.booleans(), max_size=300), cip_requests, st.lists(st.integers(0, 4_000), max_size=3))
+def test_session_nesting_any_depth(profile: DeviceProfile, wrappers: list[bool], message: bytes,
+                                   cuts: list[int]) -> None:
+    """A request in Multiple Service Packets (True) and Unconnected Sends (False), any depth: a
+    well-formed reply, nothing logged."""
+    for msp in wrappers:
+        if msp:
+            message = b"\x0A\x02" + logical(0, 2) + logical(1, 1) + struct.pack("<HH", 1, 4) + message
+        else:
+            message = (b"\x52\x02" + logical(0, 6) + logical(1, 1) + struct.pack("<BBH", 0x0A, 0x0E, len(message))
+                       + message + b"\x00" * (len(message) & 1) + b"\x01\x00\x01\x00")
+    body = struct.pack("<IHHHHHH", 0, 0, 2, 0, 0, 0xB2, len(message)) + message
+    stream = REGISTER_FRAME + HEADER.pack(SEND_RR_DATA, len(body), FIRST_HANDLE, 0, b"nesting!", 0) + body
+    assert feed_session(profile, split(stream, cuts)).replies == 2
+
+
 def structure_aware_session(profile: DeviceProfile, rng: random.Random, frames: int) -> SessionRun:
     run = SessionRun(rng, Device(profile), T0)
     with logged_errors() as errors:
