@@ -107,7 +107,7 @@ header_fields = st.tuples(
 )
 
 
-@budget(1_500)
+@budget(1_000)
 @given(st.lists(header_fields, max_size=8), st.lists(st.integers(0, 2_000), max_size=6))
 def test_session_valid_headers(profile: DeviceProfile, frames: list[tuple], cuts: list[int]) -> None:
     stream = REGISTER_FRAME + b"".join(
@@ -127,7 +127,7 @@ cip_requests = st.tuples(
 ).map(lambda r: bytes((r[0], len(r[1]) // 2 if r[2] is None else r[2])) + r[1] + r[3])
 
 
-@budget(1_500)
+@budget(1_000)
 @given(st.lists(st.tuples(cip_requests, st.binary(min_size=8, max_size=8)), min_size=1, max_size=6),
        st.lists(st.integers(0, 2_000), max_size=4))
 def test_session_send_rr_data_any_cip(profile: DeviceProfile, requests: list[tuple[bytes, bytes]],
