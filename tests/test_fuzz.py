@@ -9,8 +9,8 @@
 - `decode_io_packet` (protocol/connection.py) against an independent decoder, and its round trip.
 
 The budget is fixed and reproducible: `derandomize=True`, no example database (nothing is written
-to the tree), about 30 000 examples (about 70 000 frames and table operations) in about 40 s on 2
-cores. ENIP_FARM_FUZZ_SCALE=10 multiplies every budget for a longer local run; bench/fuzz.py is
+to the tree): about 14 500 examples, about 130 000 frames, table operations and packets, about
+30 s on 2 cores. ENIP_FARM_FUZZ_SCALE=10 multiplies every budget for a longer local run; bench/fuzz.py is
 the tool for millions of inputs.
 """
 
