@@ -215,7 +215,8 @@ class ConnectionTable:
             run = not payload or bool(payload[0] & 1)
             image = None
         connection.last_sequence = packet.sequence
-        connection.o_t_port = port
+        if connection.o_t_port is None:
+            connection.o_t_port = port
         connection.last_received = now
         connection.received += 1
         connection.run = run
