@@ -14,7 +14,7 @@ from enip_farm.config import FarmConfig
 from enip_farm.device.device import Device
 from enip_farm.device.events import Event
 from enip_farm.device.faults import Fault, FaultKind
-from enip_farm.device.signals import SignalMap, parse_signal
+from enip_farm.device.signals import SignalError, SignalMap, SignalRange, parse_signal
 
 T = TypeVar("T")
 
@@ -87,16 +87,30 @@ class DeviceHandle:
 
     def set(self, values: dict[str, int | list[int]] | None = None, **signals: int | list[int]) -> None:
         """Set signals as a sensor (inputs) or a forcing test (outputs) would: set(DI3=1, AI1=1200)
-        or set({"DI1-4": [1, 0, 1, 1]}). All signals of one image change in one locked step."""
-        pending: dict[str, list] = {"input": [], "output": []}
-        for name, value in {**(values or {}), **signals}.items():
+        or set({"DI1-4": [1, 0, 1, 1]}). All or nothing (see `update`)."""
+        self.update(signals={**(values or {}), **signals})
+
+    def update(self, inputs: bytes | None = None, outputs: bytes | None = None,
+               signals: Mapping[str, int | list[int]] | None = None) -> None:
+        """Replace whole images and/or set signals, all or nothing: every change is first tried on
+        copies of the images, so a bad signal name, value or image size (ValueError naming it)
+        writes nothing; then each image changes in one locked step."""
+        edits: dict[str, list[Callable[[bytearray], object]]] = {"input": [], "output": []}
+        for role, data in (("input", inputs), ("output", outputs)):
+            if data is not None:
+                edits[role].append(lambda image, data=data, field=f"{role}s": _replace(image, data, field))
+        for name, value in (signals or {}).items():
             signal = parse_signal(name)
             self.signals.check(signal)
-            pending[signal.role].append((signal, value if isinstance(value, list) else [value] * signal.count))
-        for role, changes in pending.items():
-            if changes:
-                self.device.write_image(role, lambda image, changes=changes: [
-                    self.signals.write(signal, image, list(vals)) for signal, vals in changes])
+            values = list(value) if isinstance(value, list) else [value] * signal.count
+            _check_values(signal, values)
+            edits[signal.role].append(lambda image, signal=signal, values=values:
+                                      self.signals.write(signal, image, values))
+        changes = {role: _chain(steps) for role, steps in edits.items() if steps}
+        for role, change in changes.items():  # validate everything before writing anything
+            change(bytearray(self.device.inputs if role == "input" else self.device.outputs))
+        for role, change in changes.items():
+            self.device.write_image(role, change)
 
     def wait_for(self, predicate: Callable[[DeviceHandle], bool], timeout: float = 5.0) -> None:
         """Block until predicate(handle) is true; raise TimeoutError after `timeout` seconds."""
@@ -135,8 +149,9 @@ class DeviceHandle:
     # -- faults -------------------------------------------------------------------------------------
 
     def inject(self, kind: FaultKind | str, duration_s: float | None = None, **params: Any) -> None:
-        """Inject a fault now (see device/faults.py), for `duration_s` or until cleared."""
-        self.farm.run(self.farm.inject_fault(self.name, Fault(FaultKind(kind), duration_s=duration_s, **params)))
+        """Inject a fault now (see device/faults.py), for `duration_s` or until cleared. A parameter
+        out of range raises `FaultError` (a ValueError) naming it, and nothing is injected."""
+        self.farm.run(self.farm.inject_fault(self.name, Fault(kind, duration_s=duration_s, **params)))
 
     def clear_faults(self, kind: FaultKind | str | None = None) -> None:
         self.farm.run(self.farm.clear_faults(self.name, FaultKind(kind) if kind else None))
@@ -144,3 +159,24 @@ class DeviceHandle:
     @property
     def faults(self) -> list[dict]:
         return [fault.describe() for fault in self.device.faults.active.values()]
+
+
+def _replace(image: bytearray, data: bytes, field: str) -> None:
+    if len(data) != len(image):
+        raise ValueError(f"{field}: the image is {len(image)} bytes, got {len(data)}")
+    image[:] = data
+
+
+def _chain(steps: list[Callable[[bytearray], object]]) -> Callable[[bytearray], None]:
+    def change(image: bytearray) -> None:
+        for step in steps:
+            step(image)
+    return change
+
+
+def _check_values(signal: SignalRange, values: list) -> None:
+    for value in values:
+        if not isinstance(value, int):
+            raise SignalError(f"{signal}: values are integers, got {value!r}")
+        if signal.digital and value not in (0, 1):
+            raise SignalError(f"{signal}: a digital signal is 0 or 1, got {value!r}")

@@ -1,35 +1,35 @@
 """The farm's HTTP API (FastAPI, served by uvicorn on the farm's own event loop).
 
 GET /devices, GET /devices/{name}, GET and PUT /devices/{name}/io, POST and DELETE
-/devices/{name}/faults, GET /events (server-sent events), GET /metrics (Prometheus), and the
-OpenAPI schema at /openapi.json. Bound to anything but localhost, every request needs
-`Authorization: Bearer <token>`.
+/devices/{name}/faults, GET /events (server-sent events, control/stream.py), GET /metrics
+(Prometheus), and the OpenAPI schema at /openapi.json and /docs. Bound to anything but localhost,
+every request needs `Authorization: Bearer <token>`. Host, token and body size are checked before
+FastAPI sees a request (control/guard.py). Fault parameters are checked by `Fault` itself
+(device/faults.py); an image write is all or nothing (`DeviceHandle.update`).
 """
 
 from __future__ import annotations
 
 import asyncio
 import contextlib
-import hmac
-import json
-from collections.abc import AsyncIterator, Iterator
+from collections.abc import Iterator
 from typing import Annotated, Any
 
 import uvicorn
-from fastapi import Depends, FastAPI, HTTPException, Query, Request
-from fastapi.responses import PlainTextResponse, StreamingResponse
+from fastapi import FastAPI, HTTPException, Query
+from fastapi.exceptions import RequestValidationError
+from fastapi.responses import PlainTextResponse
 from prometheus_client import CollectorRegistry, generate_latest
 from prometheus_client.exposition import CONTENT_TYPE_LATEST
 from pydantic import BaseModel, Field
 
+from enip_farm.control.guard import Guard
 from enip_farm.control.handle import FarmControl
 from enip_farm.control.metrics import FarmCollector
-from enip_farm.device.events import Event
-from enip_farm.device.faults import Fault, FaultKind
-from enip_farm.device.signals import SignalError
+from enip_farm.control.stream import EventHub, EventStream
+from enip_farm.device.faults import Fault, FaultError, FaultKind
 
 LOCALHOST = frozenset({"127.0.0.1", "localhost", "::1"})
-_EVENT_QUEUE = 10000
 
 
 class IoWrite(BaseModel):
@@ -42,11 +42,11 @@ class IoWrite(BaseModel):
 
 class FaultRequest(BaseModel):
     kind: FaultKind
-    delay_ms: float = 0.0
-    max_delay_ms: float | None = None
+    delay_ms: float = Field(0.0, description="delay: ms to hold each reply, 0..60000")
+    max_delay_ms: float | None = Field(None, description="delay: each reply waits a random time up to this, 0..60000")
     service: int | None = Field(None, description="status: the CIP service code, e.g. 14 for Get Attribute Single")
-    status: int | None = Field(None, description="status: the general status to answer with")
-    duration_s: float | None = Field(None, description="end the fault by itself after this long")
+    status: int | None = Field(None, description="status: the general status to answer with, 0..255")
+    duration_s: float | None = Field(None, description="end the fault by itself after this long (> 0)")
 
 
 def _io(farm: FarmControl, name: str) -> dict[str, Any]:
@@ -80,116 +80,81 @@ def _device(farm: FarmControl, name: str, detail: bool = False) -> dict[str, Any
     return out
 
 
-def create_app(farm: FarmControl, token: str | None = None) -> FastAPI:
+def create_app(farm: FarmControl, hub: EventHub | None = None) -> FastAPI:
+    """The API's routes; `HttpApi` serves them behind `Guard` (Host, token, body size)."""
     app = FastAPI(title="enip-farm", description="Drive and observe a farm of virtual EtherNet/IP devices.")
     registry = CollectorRegistry()
     registry.register(FarmCollector(farm.devices.values()))
-
-    def authorize(request: Request) -> None:
-        if token is None:
-            return
-        given = request.headers.get("authorization", "")
-        if not hmac.compare_digest(given.encode(), f"Bearer {token}".encode()):
-            raise HTTPException(401, "a bearer token is required", headers={"WWW-Authenticate": "Bearer"})
+    hub = hub if hub is not None else EventHub(farm.devices.values())
 
     def known(name: str) -> str:
         if name not in farm.devices:
             raise HTTPException(404, f"no device named {name!r}")
         return name
 
-    @app.get("/devices", dependencies=[Depends(authorize)])
+    @app.get("/devices")
     def devices() -> list[dict[str, Any]]:
         return [_device(farm, name) for name in farm.devices]
 
-    @app.get("/devices/{name}", dependencies=[Depends(authorize)])
+    @app.get("/devices/{name}")
     def device(name: str) -> dict[str, Any]:
         return _device(farm, known(name), detail=True)
 
-    @app.get("/devices/{name}/io", dependencies=[Depends(authorize)])
+    @app.get("/devices/{name}/io")
     def get_io(name: str) -> dict[str, Any]:
         return _io(farm, known(name))
 
-    @app.put("/devices/{name}/io", dependencies=[Depends(authorize)])
+    @app.put("/devices/{name}/io")
     def put_io(name: str, body: IoWrite) -> dict[str, Any]:
-        device = farm.devices[known(name)]
+        """All or nothing: if any part is refused (422 naming it), nothing is written."""
+        handle = farm[known(name)]
         try:
-            if body.inputs is not None:
-                device.write_image("input", lambda image: _assign(image, bytes.fromhex(body.inputs)))
-            if body.outputs is not None:
-                device.write_image("output", lambda image: _assign(image, bytes.fromhex(body.outputs)))
-            if body.signals:
-                farm[name].set(body.signals)
-        except (SignalError, ValueError, KeyError) as error:
+            handle.update(inputs=_hex("inputs", body.inputs), outputs=_hex("outputs", body.outputs),
+                          signals=body.signals)
+        except (ValueError, KeyError) as error:
             raise HTTPException(422, str(error)) from None
         return _io(farm, name)
 
-    @app.post("/devices/{name}/faults", status_code=201, dependencies=[Depends(authorize)])
+    @app.post("/devices/{name}/faults", status_code=201)
     async def inject(name: str, body: FaultRequest) -> list[dict]:
+        known(name)
         try:
             fault = Fault(**body.model_dump())
-        except ValueError as error:
-            raise HTTPException(422, str(error)) from None
-        await farm.inject_fault(known(name), fault)
+        except FaultError as error:
+            raise RequestValidationError([{"type": "value_error", "loc": ("body", error.field), "msg": str(error),
+                                           "input": error.value}]) from None
+        await farm.inject_fault(name, fault)
         return farm[name].faults
 
-    @app.delete("/devices/{name}/faults", dependencies=[Depends(authorize)])
+    @app.delete("/devices/{name}/faults")
     async def clear(name: str, kind: FaultKind | None = None) -> dict[str, list[str]]:
         cleared = await farm.clear_faults(known(name), kind)
         return {"cleared": [k.value for k in cleared]}
 
-    @app.get("/events", dependencies=[Depends(authorize)])
+    @app.get("/events", responses={200: {"content": {"text/event-stream": {}}},
+                                    503: {"description": "too many event streams are open"}})
     async def events(device: Annotated[list[str], Query()] = [],  # noqa: B006 (FastAPI copies defaults)
-                     kind: Annotated[list[str], Query()] = []) -> StreamingResponse:  # noqa: B006
-        """Server-sent events: one `data:` line of JSON per event, as they happen."""
+                     kind: Annotated[list[str], Query()] = []) -> EventStream:  # noqa: B006
+        """Server-sent events: one `data:` line of JSON per event, as they happen; `event: lost` with
+        a count where a slow reader's queue overflowed. 503 when too many streams are open."""
         for name in device:
             known(name)
-        chosen = [farm.devices[n] for n in device] or list(farm.devices.values())
-        return StreamingResponse(_stream(chosen, set(kind)), media_type="text/event-stream")
+        return EventStream(hub, device, kind)
 
-    @app.get("/metrics", response_class=PlainTextResponse, dependencies=[Depends(authorize)])
+    @app.get("/metrics", response_class=PlainTextResponse)
     def metrics() -> PlainTextResponse:
         return PlainTextResponse(generate_latest(registry), media_type=CONTENT_TYPE_LATEST)
 
     return app
 
 
-def _assign(image: bytearray, data: bytes) -> None:
-    if len(data) != len(image):
-        raise ValueError(f"image is {len(image)} bytes, got {len(data)}")
-    image[:] = data
-
-
-async def _stream(devices: list, kinds: set[str]) -> AsyncIterator[str]:
-    loop = asyncio.get_running_loop()
-    queue: asyncio.Queue[Event | int] = asyncio.Queue()
-    lost = 0
-
-    def deliver(event: Event) -> None:  # may run in the cyclic I/O thread
-        if not kinds or event.kind in kinds:
-            loop.call_soon_threadsafe(put, event)
-
-    def put(event: Event) -> None:
-        nonlocal lost
-        if queue.qsize() >= _EVENT_QUEUE:
-            lost += 1  # a slow reader: say how many were lost, never drop silently
-        else:
-            if lost:
-                queue.put_nowait(lost)
-                lost = 0
-            queue.put_nowait(event)
-
-    unsubscribes = [device.observe(deliver) for device in devices]
+def _hex(field: str, text: str | None) -> bytes | None:
+    if text is None:
+        return None
     try:
-        yield ": enip-farm event stream\n\n"
-        while True:
-            item = await queue.get()
-            if isinstance(item, int):
-                yield f"event: lost\ndata: {json.dumps({'lost': item})}\n\n"
-            else:
-                yield f"data: {json.dumps(item.as_dict())}\n\n"
-    finally:
-        for unsubscribe in unsubscribes:
-            unsubscribe()
+        return bytes.fromhex(text)
+    except ValueError as error:
+        raise ValueError(f"{field}: {error}") from None
 
 
 class _EmbeddedServer(uvicorn.Server):
@@ -206,8 +171,10 @@ class HttpApi:
             raise ValueError(f"the HTTP API on {host} needs a token (--token or ENIP_FARM_TOKEN); "
                              "only localhost is served without one")
         self.host = host
-        self.app = create_app(farm, token)
-        self.server = _EmbeddedServer(uvicorn.Config(self.app, host=host, port=port, log_level="warning",
+        self.hub = EventHub(farm.devices.values())
+        self.app = create_app(farm, self.hub)
+        self.server = _EmbeddedServer(uvicorn.Config(Guard(self.app, host, token), host=host, port=port,
+                                                     log_level="warning",
                                                      lifespan="off", access_log=False))
         self.task: asyncio.Task | None = None
 
@@ -229,6 +196,7 @@ class HttpApi:
         return f"http://{self.host}:{self.port}"
 
     async def stop(self) -> None:
+        self.hub.close()
         self.server.should_exit = True
         self.server.force_exit = True
         if self.task is not None:

@@ -12,14 +12,52 @@
 | identity | the product code changes, so electronic keys stop matching |
 
 A fault lasts until cleared, or for `duration_s`. Clearing restores normal behaviour at once.
+
+Parameters are checked here, once, for the Python API and the HTTP API alike (a `FaultError`, a
+ValueError naming the field): `delay_ms` and `max_delay_ms` finite, 0..60 000 ms, `max_delay_ms`
+not below `delay_ms`; `service` and `status` 0..0xFF (a CIP service code and general status);
+`duration_s` finite and > 0.
 """
 
 from __future__ import annotations
 
+import math
 import random
 import time
 from dataclasses import asdict, dataclass, field
 from enum import Enum
+
+MAX_DELAY_MS = 60_000.0  # one minute: longer than any client's timeout, short enough to end on its own
+
+
+class FaultError(ValueError):
+    """A fault parameter out of range; `field` names it."""
+
+    def __init__(self, field: str, message: str, value: object = None) -> None:
+        super().__init__(f"{field}: {message}")
+        self.field = field
+        self.value = value
+
+
+def _number(field: str, value: object) -> float:
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        raise FaultError(field, f"must be a number, got {value!r}", value)
+    if not math.isfinite(value):
+        raise FaultError(field, f"must be finite, got {value!r}", value)
+    return float(value)
+
+
+def _delay(field: str, value: object) -> float:
+    number = _number(field, value)
+    if not 0 <= number <= MAX_DELAY_MS:
+        raise FaultError(field, f"must be 0..{MAX_DELAY_MS:.0f} ms, got {value!r}", value)
+    return number
+
+
+def _byte(field: str, value: object, what: str) -> int:
+    if isinstance(value, bool) or not isinstance(value, int) or not 0 <= value <= 0xFF:
+        raise FaultError(field, f"must be {what} 0..255 (0x00..0xFF), got {value!r}", value)
+    return value
 
 
 class FaultKind(str, Enum):
@@ -44,11 +82,31 @@ class Fault:
     started: float = field(default_factory=time.monotonic)
 
     def __post_init__(self) -> None:
-        self.kind = FaultKind(self.kind)
-        if self.kind is FaultKind.STATUS and (self.service is None or self.status is None):
-            raise ValueError("a status fault needs a service and a status")
+        try:
+            self.kind = FaultKind(self.kind)
+        except ValueError:
+            kinds = ", ".join(k.value for k in FaultKind)
+            raise FaultError("kind", f"{self.kind!r} is not one of {kinds}", self.kind) from None
+        self.delay_ms = _delay("delay_ms", self.delay_ms)
+        if self.max_delay_ms is not None:
+            self.max_delay_ms = _delay("max_delay_ms", self.max_delay_ms)
+            if self.max_delay_ms < self.delay_ms:
+                raise FaultError("max_delay_ms", f"must not be below delay_ms ({self.delay_ms:g}), "
+                                 f"got {self.max_delay_ms:g}", self.max_delay_ms)
+        if self.service is not None:
+            _byte("service", self.service, "a CIP service code")
+        if self.status is not None:
+            _byte("status", self.status, "a CIP general status")
+        if self.duration_s is not None:
+            self.duration_s = _number("duration_s", self.duration_s)
+            if self.duration_s <= 0:
+                raise FaultError("duration_s", f"must be > 0, got {self.duration_s:g}", self.duration_s)
+        if self.kind is FaultKind.STATUS:
+            for name in ("service", "status"):
+                if getattr(self, name) is None:
+                    raise FaultError(name, "a status fault needs a service and a status")
         if self.kind is FaultKind.DELAY and self.delay_ms <= 0 and not self.max_delay_ms:
-            raise ValueError("a delay fault needs delay_ms (and optionally max_delay_ms)")
+            raise FaultError("delay_ms", "a delay fault needs delay_ms > 0 (and optionally max_delay_ms)", 0)
 
     def reply_delay(self) -> float:
         """Seconds to hold one reply back."""
