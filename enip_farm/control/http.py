@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import math
 from collections.abc import Iterator
 from typing import Annotated, Any
 
@@ -122,7 +123,7 @@ def create_app(farm: FarmControl, hub: EventHub | None = None) -> FastAPI:
             fault = Fault(**body.model_dump())
         except FaultError as error:
             raise RequestValidationError([{"type": "value_error", "loc": ("body", error.field), "msg": str(error),
-                                           "input": error.value}]) from None
+                                           "input": _json_safe(error.value)}]) from None
         await farm.inject_fault(name, fault)
         return farm[name].faults
 
@@ -146,6 +147,10 @@ def create_app(farm: FarmControl, hub: EventHub | None = None) -> FastAPI:
         return PlainTextResponse(generate_latest(registry), media_type=CONTENT_TYPE_LATEST)
 
     return app
+
+
+def _json_safe(value: object) -> object:
+    return repr(value) if isinstance(value, float) and not math.isfinite(value) else value
 
 
 def _hex(field: str, text: str | None) -> bytes | None:

@@ -71,7 +71,8 @@ class Subscriber:
         self.kinds = kinds
         self.size = size
         self.queue: deque[_Item] = deque()
-        self.lost = 0
+        self.lost = 0  # not yet told
+        self.lost_total = 0
         self._lost_after = 0  # queued events that precede the lost ones
         self.ready = asyncio.Event()
         self.closed: str | None = None  # why the stream ends: "disconnected", "stopped"
@@ -96,6 +97,7 @@ class Subscriber:
         if not self.lost:
             self._lost_after = len(self.queue)
         self.lost += count
+        self.lost_total += count
 
     def take(self) -> str:
         """Up to BATCH queued events as one piece of the stream, with the lost count in its place."""

@@ -1,0 +1,301 @@
+"""The HTTP API against hostile or careless clients: fault parameters range-checked (422 naming the
+field, the same checks for the Python API), all-or-nothing image writes, a body-size limit, the
+Host header against DNS rebinding, the token on every path, and the event stream's bounded queues,
+subscriber cap and stalled readers. Everything talks to the real server on loopback."""
+
+from __future__ import annotations
+
+import json
+import math
+import socket
+import time
+from collections.abc import Callable
+
+import httpx
+import pytest
+
+from enip_farm.config import parse_config
+from enip_farm.control.guard import MAX_BODY, allowed_hosts, host_name
+from enip_farm.device.faults import MAX_DELAY_MS, Fault, FaultError
+from enip_farm.pytest_plugin import AddressPool
+
+DEADLINE_S = 30.0  # generous: conditions end the waits as soon as they hold
+
+
+def wait_until(condition: Callable[[], bool], what: str, timeout: float = DEADLINE_S) -> None:
+    deadline = time.monotonic() + timeout
+    while not condition():
+        if time.monotonic() > deadline:
+            raise AssertionError(f"not within {timeout} s: {what}")
+        time.sleep(0.01)
+
+
+def raw(port: int, request: bytes, host: str = "127.0.0.1", rcvbuf: int | None = None) -> socket.socket:
+    sock = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
+    if rcvbuf is not None:
+        sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, rcvbuf)
+    sock.settimeout(DEADLINE_S)
+    sock.connect((host, port))
+    sock.sendall(request)
+    return sock
+
+
+def read_until(sock: socket.socket, marker: bytes, limit: int = 1 << 20) -> bytes:
+    data = b""
+    while marker not in data:
+        chunk = sock.recv(65536)
+        if not chunk or len(data) > limit:
+            break
+        data += chunk
+    return data
+
+
+def read_all(sock: socket.socket) -> bytes:
+    data = b""
+    while chunk := sock.recv(65536):
+        data += chunk
+    return data
+
+
+# -- fault parameters ----------------------------------------------------------------------------------
+
+BAD_FAULTS = [
+    ('{"kind": "delay", "delay_ms": Infinity}', "delay_ms"),
+    ('{"kind": "delay", "delay_ms": NaN}', "delay_ms"),
+    ('{"kind": "delay", "delay_ms": 1e999}', "delay_ms"),
+    ('{"kind": "delay", "delay_ms": -1}', "delay_ms"),
+    ('{"kind": "delay", "delay_ms": 60001}', "delay_ms"),
+    ('{"kind": "delay", "delay_ms": 10, "max_delay_ms": 5}', "max_delay_ms"),
+    ('{"kind": "delay", "max_delay_ms": -Infinity}', "max_delay_ms"),
+    ('{"kind": "status", "service": 14, "status": 300}', "status"),
+    ('{"kind": "status", "service": 256, "status": 8}', "service"),
+    ('{"kind": "status", "service": -1, "status": 8}', "service"),
+    ('{"kind": "status", "service": 14}', "status"),
+    ('{"kind": "drop", "duration_s": 0}', "duration_s"),
+    ('{"kind": "drop", "duration_s": NaN}', "duration_s"),
+    ('{"kind": "drop", "duration_s": -5}', "duration_s"),
+    ('{"kind": "sideways"}', "kind"),
+]
+
+
+def test_fault_parameters_are_checked_in_one_place() -> None:
+    for body, field in BAD_FAULTS:
+        with pytest.raises(FaultError) as refused:
+            Fault(**json.loads(body))
+        assert refused.value.field == field and str(refused.value).startswith(f"{field}: "), body
+    with pytest.raises(FaultError, match="service: must be a CIP service code"):
+        Fault("status", service=True, status=8)
+    with pytest.raises(FaultError, match="delay_ms: must be a number"):
+        Fault("delay", delay_ms="5")
+    assert Fault("delay", delay_ms=MAX_DELAY_MS).reply_delay() == 60.0
+    assert Fault("status", service=0, status=0xFF).status == 0xFF
+
+
+def test_bad_fault_parameters_get_422_naming_the_field(enip_farm) -> None:
+    farm = enip_farm(name="io", model="DSQC1030", http=True)
+    url = f"http://127.0.0.1:{farm.http.port}/devices/io/faults"
+    for body, field in BAD_FAULTS:
+        response = httpx.post(url, content=body, headers={"Content-Type": "application/json"})
+        assert response.status_code == 422, (body, response.text)
+        (error,) = response.json()["detail"]
+        assert error["loc"] == ["body", field], (body, error)  # pydantic's own (kind) or Fault's, alike
+    assert farm["io"].faults == []  # nothing was injected
+    assert httpx.post(url, json={"kind": "status", "service": 0x0E, "status": 0xFF}).status_code == 201
+    assert farm["io"].faults[0]["status"] == 0xFF
+
+
+def test_python_api_refuses_the_same_parameters(enip_farm) -> None:
+    io = enip_farm(name="io", model="DSQC1030")["io"]
+    with pytest.raises(ValueError, match="delay_ms: must be finite"):
+        io.inject("delay", delay_ms=math.inf)
+    with pytest.raises(ValueError, match="status: must be a CIP general status 0..255"):
+        io.inject("status", service=0x0E, status=300)
+    with pytest.raises(ValueError, match="duration_s: must be > 0"):
+        io.inject("offline", duration_s=0)
+    assert io.faults == []
+
+
+# -- all-or-nothing writes ---------------------------------------------------------------------------------
+
+
+def test_a_refused_write_writes_nothing(enip_farm) -> None:
+    farm = enip_farm(name="io", model="DSQC1030", addons=["DSQC1032"], http=True)
+    io = farm["io"]
+    url = f"http://127.0.0.1:{farm.http.port}/devices/io/io"
+    io.set(DI2=1, DO2=1, AI1=7)
+    before = io.inputs, io.outputs
+    refused = [
+        ({"signals": {"DI1": 1, "DO1": 1, "AI2": 40000}}, "AI2"),  # the last one does not fit an INT
+        ({"signals": {"DO1": 1, "AO1": 5, "DI99": 1}}, "DI99"),  # no such signal
+        ({"signals": {"DI1": 2}}, "DI1"),  # digital signals are 0 or 1
+        ({"signals": {"DI1-4": [1, 1]}}, "DI1-4"),  # four values expected
+        ({"inputs": "00" * len(before[0]), "outputs": "zz"}, "outputs"),  # not hex
+        ({"outputs": "00" * len(before[1]), "inputs": "00"}, "inputs"),  # the wrong size
+    ]
+    for body, named in refused:
+        response = httpx.put(url, json=body)
+        assert response.status_code == 422 and named in response.json()["detail"], (body, response.text)
+        assert (io.inputs, io.outputs) == before, body
+    with pytest.raises(ValueError, match="AO1"):
+        io.set(DI1=1, DO1=1, AO1=1 << 20)
+    assert (io.inputs, io.outputs) == before
+    both = httpx.put(url, json={"signals": {"DI1": 1, "DO1": 1, "AO1": -5}}).json()
+    signals = both["signals"]
+    assert signals["DI"][:2] == [1, 1] and signals["DO"][:2] == [1, 1] and signals["AO"][0] == -5
+
+
+# -- the guard: body size, Host, token ----------------------------------------------------------------------
+
+
+def test_body_size_limit(enip_farm) -> None:
+    farm = enip_farm(name="io", model="DSQC1030", http=True)
+    port = farm.http.port
+    head = b"PUT /devices/io/io HTTP/1.1\r\nHost: 127.0.0.1\r\nContent-Type: application/json\r\n"
+    # a declared 100 MiB body is refused before any of it is sent
+    with raw(port, head + b"Content-Length: %d\r\n\r\n" % (100 << 20)) as sock:
+        reply = read_all(sock)
+    assert reply.startswith(b"HTTP/1.1 413 ") and b"over 1048576 bytes" in reply
+    # a chunked body is refused as soon as it passes the limit
+    chunk = b"%x\r\n%s\r\n" % (65536, b" " * 65536)
+    with raw(port, head + b"Transfer-Encoding: chunked\r\n\r\n" + chunk * (MAX_BODY // 65536 + 1)) as sock:
+        reply = read_until(sock, b"\r\n\r\n")
+    assert reply.startswith(b"HTTP/1.1 413 "), reply[:200]
+    # a body within the limit is read whole
+    padded = json.dumps({"signals": {"DI1": 1}}).encode().ljust(MAX_BODY - 10)
+    response = httpx.put(f"http://127.0.0.1:{port}/devices/io/io", content=padded,
+                         headers={"Content-Type": "application/json"})
+    assert response.status_code == 200 and farm["io"].get("DI1") == 1
+
+
+def test_host_names() -> None:
+    assert host_name("LocalHost.:8044") == "localhost" and host_name("[::1]:80") == "::1"
+    assert host_name("127.0.0.1") == "127.0.0.1" and host_name("evil.example:8044") == "evil.example"
+    assert allowed_hosts("127.0.0.1") == {"127.0.0.1", "localhost", "::1"}
+    assert allowed_hosts("127.0.9.9") == {"127.0.9.9", "127.0.0.1", "localhost", "::1"}
+    assert allowed_hosts("192.0.2.7") == {"192.0.2.7"}
+    assert allowed_hosts("0.0.0.0") is None and allowed_hosts("::") is None
+
+
+def test_host_header_must_name_the_api(enip_farm) -> None:
+    farm = enip_farm(name="io", model="DSQC1030", http=True)
+    url = f"http://127.0.0.1:{farm.http.port}/devices"
+    for host in ("localhost", f"localhost:{farm.http.port}", "127.0.0.1", f"[::1]:{farm.http.port}"):
+        assert httpx.get(url, headers={"Host": host}).status_code == 200, host
+    for host in ("rebound.example", f"rebound.example:{farm.http.port}", "127.0.0.1.evil.example"):
+        response = httpx.get(url, headers={"Host": host})
+        assert response.status_code == 421 and "is not this API's address" in response.json()["detail"], host
+
+
+@pytest.mark.integration
+def test_token_guards_every_path_and_any_scheme_case(free_address: AddressPool) -> None:
+    from enip_farm.farm import Farm
+
+    config = parse_config({"devices": [{"name": "io", "address": free_address(), "model": "DSQC1030"}],
+                           "discovery": False})
+    host = free_address()
+    farm = Farm(config, http=(host, 0), token="s3cret")
+    with farm.running_in_thread():
+        base = f"http://{host}:{farm.http.port}"
+        for path in ("/docs", "/openapi.json", "/redoc", "/devices", "/no/such/path"):
+            response = httpx.get(base + path)
+            assert response.status_code == 401 and response.headers["www-authenticate"] == "Bearer", path
+        for scheme in ("Bearer", "bearer", "BEARER"):
+            assert httpx.get(base + "/openapi.json", headers={"Authorization": f"{scheme} s3cret"}).status_code == 200
+        assert httpx.get(base + "/docs", headers={"Authorization": "bearer s3cret"}).status_code == 200
+        for wrong in ("Bearer s3cre", "Basic s3cret", "s3cret", "Bearer"):
+            assert httpx.get(base + "/devices", headers={"Authorization": wrong}).status_code == 401, wrong
+        # the Host check comes first, and holds with a token too
+        assert httpx.get(base + "/devices", headers={"Host": "rebound.example",
+                                                     "Authorization": "Bearer s3cret"}).status_code == 421
+
+
+# -- the event stream ----------------------------------------------------------------------------------------
+
+
+def _subscribe(port: int, query: str = "", rcvbuf: int | None = None) -> socket.socket:
+    sock = raw(port, f"GET /events{query} HTTP/1.1\r\nHost: 127.0.0.1\r\n\r\n".encode(), rcvbuf=rcvbuf)
+    head = read_until(sock, b"enip-farm event stream")
+    assert head.startswith(b"HTTP/1.1 200 "), head
+    return sock
+
+
+def test_subscriber_cap_and_a_freed_slot(enip_farm) -> None:
+    farm = enip_farm(name="io", model="DSQC1030", http=True)
+    hub, port = farm.http.hub, farm.http.port
+    hub.max_subscribers = 2
+    first, second = _subscribe(port), _subscribe(port)
+    refused = httpx.get(f"http://127.0.0.1:{port}/events")
+    assert refused.status_code == 503 and "2 event streams are open" in refused.json()["detail"]
+    first.close()
+    wait_until(lambda: len(hub.subscribers) == 1, "the closed stream's slot is free")
+    third = _subscribe(port)
+    second.close()
+    third.close()
+    wait_until(lambda: not hub.subscribers, "every slot is free")
+    assert all(not device._observers or all(o != hub.deliver for o in device._observers)
+               for device in farm.devices.values())  # nobody listens: the devices carry no observer of the hub
+
+
+def test_keepalive_on_an_idle_stream(enip_farm) -> None:
+    farm = enip_farm(name="io", model="DSQC1030", http=True)
+    farm.http.hub.keepalive_s = 0.05
+    with _subscribe(farm.http.port, "?kind=nothing-ever") as sock:
+        assert b": keep-alive" in read_until(sock, b": keep-alive")
+
+
+def test_a_reader_that_stops_loses_counted_events_and_slows_nobody(enip_farm) -> None:
+    farm = enip_farm(name="io", model="DSQC1030", http=True)
+    hub, port, device = farm.http.hub, farm.http.port, farm.devices["io"]
+    hub.queue_size = 64
+    sent = 0
+    with _subscribe(port, "?kind=burst", rcvbuf=4096) as sock:
+        (subscriber,) = hub.subscribers
+        deadline = time.monotonic() + DEADLINE_S
+        # from this thread, as the Python API would: record() never waits for the stream
+        while not (subscriber.lost_total and len(subscriber.queue) == hub.queue_size):  # full: the stream waits
+            assert time.monotonic() < deadline and sent < 100_000, "the stream never stalled"
+            for _ in range(100):
+                device.record("burst", f"{sent:06} " + "x" * 2000)
+                sent += 1
+            time.sleep(0.001)  # lets the loop hand the batch out
+        assert httpx.get(f"http://127.0.0.1:{port}/devices/io", timeout=DEADLINE_S).status_code == 200
+        # the reader comes back: every event is either delivered, in order, or counted as lost
+        delivered, lost, buffer = [], 0, b""
+        while len(delivered) + lost < sent:
+            chunk = sock.recv(1 << 16)
+            assert chunk, "the stream ended early"
+            buffer += chunk
+            *blocks, buffer = buffer.split(b"\n\n")
+            for block in blocks:
+                if b"event: lost" in block:
+                    lost += json.loads(block.rsplit(b"data: ", 1)[1])["lost"]
+                elif b"data: " in block:
+                    delivered.append(int(json.loads(block.split(b"data: ", 1)[1])["detail"][:6]))
+    assert lost > 0 and len(delivered) + lost == sent
+    assert delivered == sorted(delivered) and delivered[0] == 0
+
+
+def test_a_stalled_stream_is_closed(enip_farm) -> None:
+    farm = enip_farm(name="io", model="DSQC1030", http=True)
+    hub, device = farm.http.hub, farm.devices["io"]
+    hub.stall_s = 0.2
+    with _subscribe(farm.http.port, rcvbuf=4096):
+        deadline = time.monotonic() + DEADLINE_S
+        while hub.subscribers:
+            assert time.monotonic() < deadline, "the stalled stream is still open"
+            for _ in range(50):
+                device.record("burst", "x" * 2000)
+            time.sleep(0.01)
+
+
+@pytest.mark.integration
+def test_stopping_the_farm_ends_open_streams(free_address: AddressPool) -> None:
+    from enip_farm.farm import Farm
+
+    config = parse_config({"devices": [{"name": "io", "address": free_address(), "model": "DSQC1030"}],
+                           "discovery": False})
+    farm = Farm(config, http=("127.0.0.1", 0))
+    with farm.running_in_thread():
+        sock = _subscribe(farm.http.port)
+    with sock:
+        assert read_all(sock).endswith(b"0\r\n\r\n")  # the chunked stream was ended, then the connection
