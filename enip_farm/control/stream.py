@@ -3,16 +3,18 @@ most `max_subscribers` streams, each with its own bounded queue.
 
 Producers are whatever thread changes a device: the farm's loop (requests, faults), the cyclic
 I/O thread (image changes), callers of the Python API. `Device.observe` calls `EventHub.deliver`
-in that thread; it appends the event to one bounded deque and asks the loop, at most once per
-turn, to hand the batch out. It never blocks, never formats and never touches a subscriber.
+in that thread, which appends the event to one bounded deque and returns: it never blocks, never
+formats, never wakes the loop and never touches a subscriber. The hub has observers on the
+devices only while someone subscribes.
 
-On the loop each subscriber takes what its filter selects into its own queue of `queue_size`
-events; a full queue counts the rest in `lost`, and the stream says `event: lost` with the count
-where they would have been. A client that does not read leaves its stream waiting in `send`;
-nothing else waits for it, and it costs the farm a filter test and a counter per event. A stream
-whose client has taken nothing for `stall_s` seconds is closed, so that clients that never read
-cannot hold the subscriber slots for ever. An idle stream carries a comment every `keepalive_s`
-seconds, so that a vanished client is noticed.
+While streams are open, the hub ticks on the loop every `tick_s` (20 ms) and hands the batch out:
+each subscriber takes what its filter selects into its own queue of `queue_size` events; a full
+queue counts the rest in `lost`, and the stream says `event: lost` with the count where they would
+have been. A stream therefore wakes and writes at most once a tick, whatever the event rate.
+A client that does not read leaves its stream waiting in `send`; nothing else waits for it, and
+it costs the farm a filter and a counter per tick. A stream whose `send` has waited `stall_s`
+(60 s) is closed, so that clients that never read cannot hold the subscriber slots for ever; an
+idle stream carries a comment every `keepalive_s` (15 s), so that a vanished client is noticed.
 """
 
 from __future__ import annotations
@@ -34,10 +36,11 @@ log = logging.getLogger(__name__)
 
 MAX_SUBSCRIBERS = 32
 QUEUE_SIZE = 4096  # events per subscriber, about 1 MB of text
-PENDING_SIZE = 16384  # events between two turns of the loop, across all devices
+PENDING_SIZE = 65536  # events between two ticks, across all devices
+TICK_S = 0.02
 KEEPALIVE_S = 15.0
 STALL_S = 60.0
-BATCH = 256  # events per write
+BATCH = 1024  # events per write
 
 
 class TooManySubscribers(Exception):
@@ -51,22 +54,22 @@ class _Item:
 
     def __init__(self, event: Event) -> None:
         self.event = event
-        self._text: str | None = None
+        self._text: bytes | None = None
 
-    def text(self) -> str:
+    def text(self) -> bytes:
         if self._text is None:
-            self._text = f"data: {json.dumps(self.event.as_dict())}\n\n"
+            self._text = f"data: {json.dumps(self.event.as_dict())}\n\n".encode()
         return self._text
 
 
-def _lost(count: int) -> str:
-    return f"event: lost\ndata: {json.dumps({'lost': count})}\n\n"
+def _lost(count: int) -> bytes:
+    return f"event: lost\ndata: {json.dumps({'lost': count})}\n\n".encode()
 
 
 class Subscriber:
     """One stream's filter, queue and lost count; used on the loop only."""
 
-    def __init__(self, devices: frozenset[str] | None, kinds: frozenset[str] | None, size: int) -> None:
+    def __init__(self, devices: frozenset[str] | None, kinds: frozenset[str] | None, size: int, now: float) -> None:
         self.devices = devices
         self.kinds = kinds
         self.size = size
@@ -75,22 +78,27 @@ class Subscriber:
         self.lost_total = 0
         self._lost_after = 0  # queued events that precede the lost ones
         self.ready = asyncio.Event()
-        self.closed: str | None = None  # why the stream ends: "disconnected", "stopped"
+        self.closed: str | None = None  # why the stream ends: "disconnected", "stopped", "stalled"
+        self.task: asyncio.Task | None = None
+        self.sending_since: float | None = None
+        self.written_at = now
 
     def offer(self, batch: list[_Item], overflow: int) -> None:
-        devices, kinds, queue = self.devices, self.kinds, self.queue
-        room = self.size - len(queue)
-        for item in batch:
-            event = item.event
-            if (devices is None or event.device in devices) and (kinds is None or event.kind in kinds):
-                if room > 0:
-                    queue.append(item)
-                    room -= 1
-                else:
-                    self._lose(1)
+        devices, kinds = self.devices, self.kinds
+        if devices is None and kinds is None:
+            chosen = batch
+        else:
+            chosen = [item for item in batch if (devices is None or item.event.device in devices)
+                      and (kinds is None or item.event.kind in kinds)]
+        room = self.size - len(self.queue)
+        if len(chosen) <= room:
+            self.queue.extend(chosen)
+        else:
+            self.queue.extend(chosen[:room])
+            self._lose(len(chosen) - room)
         if overflow:
             self._lose(overflow)
-        if queue or self.lost:
+        if self.queue or self.lost:
             self.ready.set()
 
     def _lose(self, count: int) -> None:
@@ -99,7 +107,7 @@ class Subscriber:
         self.lost += count
         self.lost_total += count
 
-    def take(self) -> str:
+    def take(self) -> bytes:
         """Up to BATCH queued events as one piece of the stream, with the lost count in its place."""
         parts = []
         for _ in range(min(BATCH, len(self.queue))):
@@ -111,7 +119,7 @@ class Subscriber:
         if self.lost and self._lost_after <= 0:
             parts.append(_lost(self.lost))
             self.lost = 0
-        return "".join(parts)
+        return b"".join(parts)
 
     def close(self, why: str) -> None:
         self.closed = self.closed or why
@@ -120,34 +128,28 @@ class Subscriber:
 
 class EventHub:
     def __init__(self, devices: Iterable[Device], max_subscribers: int = MAX_SUBSCRIBERS,
-                 queue_size: int = QUEUE_SIZE, keepalive_s: float = KEEPALIVE_S, stall_s: float = STALL_S) -> None:
+                 queue_size: int = QUEUE_SIZE, keepalive_s: float = KEEPALIVE_S, stall_s: float = STALL_S,
+                 tick_s: float = TICK_S) -> None:
         self.devices = list(devices)
         self.max_subscribers = max_subscribers
         self.queue_size = queue_size
         self.keepalive_s = keepalive_s
         self.stall_s = stall_s
+        self.tick_s = tick_s
         self.subscribers: set[Subscriber] = set()
         self._pending: deque[Event] = deque()
         self._overflow = 0  # events the pending deque had no room for (counted approximately across threads)
-        self._scheduled = False
-        self._loop: asyncio.AbstractEventLoop | None = None
         self._unobserve: list = []
+        self._timer: asyncio.TimerHandle | None = None
 
     # -- any thread --------------------------------------------------------------------------------
 
     def deliver(self, event: Event) -> None:
-        """The devices' observer: cheap, never blocks (it runs in the thread that made the change)."""
-        pending = self._pending
-        if len(pending) >= PENDING_SIZE:
+        """The devices' observer: a length test and an append (it runs in the thread that made the change)."""
+        if len(self._pending) < PENDING_SIZE:
+            self._pending.append(event)
+        else:
             self._overflow += 1
-            return
-        pending.append(event)
-        if not self._scheduled:  # reset by _distribute before it takes the batch: nothing is left behind
-            self._scheduled = True
-            try:
-                self._loop.call_soon_threadsafe(self._distribute)  # type: ignore[union-attr]
-            except RuntimeError:  # the loop has closed: the farm has stopped
-                pass
 
     # -- on the loop -------------------------------------------------------------------------------
 
@@ -155,10 +157,12 @@ class EventHub:
         if len(self.subscribers) >= self.max_subscribers:
             raise TooManySubscribers(f"{len(self.subscribers)} event streams are open, the most this farm serves "
                                      f"({self.max_subscribers}); close one and try again")
-        self._loop = asyncio.get_running_loop()
-        subscriber = Subscriber(frozenset(devices) or None, frozenset(kinds) or None, self.queue_size)
+        loop = asyncio.get_running_loop()
+        subscriber = Subscriber(frozenset(devices) or None, frozenset(kinds) or None, self.queue_size, loop.time())
+        subscriber.task = asyncio.current_task()
         if not self.subscribers:  # no observers while nobody listens: the hot paths pay nothing
             self._unobserve = [device.observe(self.deliver) for device in self.devices]
+            self._timer = loop.call_later(self.tick_s, self._tick, loop)
         self.subscribers.add(subscriber)
         return subscriber
 
@@ -169,19 +173,32 @@ class EventHub:
                 unobserve()
             self._unobserve = []
             self._pending.clear()
+            if self._timer is not None:
+                self._timer.cancel()
+                self._timer = None
 
     def close(self) -> None:
         """End every stream (the API is stopping)."""
         for subscriber in list(self.subscribers):
             subscriber.close("stopped")
 
-    def _distribute(self) -> None:
-        self._scheduled = False
+    def _tick(self, loop: asyncio.AbstractEventLoop) -> None:
         pending = self._pending
-        batch = [_Item(pending.popleft()) for _ in range(len(pending))]
-        overflow, self._overflow = self._overflow, 0
-        for subscriber in self.subscribers:
-            subscriber.offer(batch, overflow)
+        if pending or self._overflow:
+            batch = [_Item(pending.popleft()) for _ in range(len(pending))]  # producers only append
+            overflow, self._overflow = self._overflow, 0
+            for subscriber in self.subscribers:
+                subscriber.offer(batch, overflow)
+        now = loop.time()
+        for subscriber in list(self.subscribers):
+            if subscriber.sending_since is not None:
+                if now - subscriber.sending_since > self.stall_s and subscriber.closed is None:
+                    subscriber.closed = "stalled"
+                    if subscriber.task is not None:
+                        subscriber.task.cancel()
+            elif now - subscriber.written_at > self.keepalive_s:
+                subscriber.ready.set()
+        self._timer = loop.call_later(self.tick_s, self._tick, loop) if self.subscribers else None
 
 
 class EventStream(Response):
@@ -208,37 +225,32 @@ class EventStream(Response):
         try:
             await send({"type": "http.response.start", "status": 200, "headers": [
                 (b"content-type", b"text/event-stream; charset=utf-8"), (b"cache-control", b"no-cache")]})
-            text = ": enip-farm event stream\n\n"
+            text = b": enip-farm event stream\n\n"
             while subscriber.closed is None:
+                subscriber.sending_since = loop.time()
                 try:
-                    await asyncio.wait_for(send({"type": "http.response.body", "body": text.encode(),
-                                                 "more_body": True}), hub.stall_s)
-                except asyncio.TimeoutError:
+                    await send({"type": "http.response.body", "body": text, "more_body": True})
+                except asyncio.CancelledError:
+                    if subscriber.closed != "stalled":
+                        raise
+                    asyncio.current_task().uncancel()  # type: ignore[union-attr]  # our own cancel: handled
                     client = scope.get("client") or ("?", 0)
                     log.warning("event stream to %s:%s closed: its client took nothing for %g s",
                                 client[0], client[1], hub.stall_s)
                     return
-                text = await _next(subscriber, loop, hub.keepalive_s)
+                subscriber.sending_since = None
+                subscriber.written_at = loop.time()
+                await subscriber.ready.wait()
+                subscriber.ready.clear()
+                text = subscriber.take() or b": keep-alive\n\n"
+                if subscriber.queue or subscriber.lost:
+                    subscriber.ready.set()  # more than one write's worth was waiting
             if subscriber.closed == "stopped":
                 with contextlib.suppress(asyncio.TimeoutError):
                     await asyncio.wait_for(send({"type": "http.response.body", "body": b"", "more_body": False}), 1)
         finally:
             watcher.cancel()
             hub.unsubscribe(subscriber)
-
-
-async def _next(subscriber: Subscriber, loop: asyncio.AbstractEventLoop, keepalive_s: float) -> str:
-    if not subscriber.ready.is_set():
-        timer = loop.call_later(keepalive_s, subscriber.ready.set)
-        try:
-            await subscriber.ready.wait()
-        finally:
-            timer.cancel()
-    subscriber.ready.clear()
-    text = subscriber.take()
-    if subscriber.queue or subscriber.lost:
-        subscriber.ready.set()  # more than one batch was waiting
-    return text or ": keep-alive\n\n"
 
 
 async def _watch(receive: Receive, subscriber: Subscriber) -> None:
