@@ -1,46 +1,72 @@
 """The compose file's tester: read every device of the cell with pycomm3 and print a summary.
 
-    python docker/tester.py /etc/enip-farm/cell.yaml
-Exit status 0 only if every device answered ListIdentity and its assemblies could be read.
+    python docker/tester.py /etc/enip-farm/cell.yaml [--passes 3]
+For every device: ListIdentity (UDP), then its input and output assemblies (Get Attribute Single
+of class 4, instances 101 and 100, over TCP). Devices that fail are tried again, up to `--passes`
+passes one second apart. Exit status 0 only if every device answered all three.
 """
 
 from __future__ import annotations
 
+import argparse
 import sys
+import time
 
 from pycomm3 import CIPDriver, Services
 
 from enip_farm.config import load_config
 from enip_farm.device.build import build_profiles
 from enip_farm.device.catalogue import shipped_catalogue
+from enip_farm.device.profile import DeviceProfile
 
 
-def read(address: str, instance: int) -> bytes | None:
-    with CIPDriver(address) as driver:
-        reply = driver.generic_message(service=Services.get_attribute_single, class_code=4, instance=instance,
-                                       attribute=3, connected=False, route_path=False)
+def read(driver: CIPDriver, instance: int) -> bytes | None:
+    reply = driver.generic_message(service=Services.get_attribute_single, class_code=4, instance=instance,
+                                   attribute=3, connected=False, route_path=False)
     return None if reply.error else reply.value
 
 
-def main(path: str) -> int:
-    failures = 0
+def check(profile: DeviceProfile) -> tuple[bool, str]:
+    """One device: (answered everything, its line of the summary)."""
+    address = profile.address
+    try:
+        identity = CIPDriver.list_identity(address) or {}  # a classmethod taking the path
+        with CIPDriver(address) as driver:
+            inputs = read(driver, 101) if profile.input_size else b""
+            outputs = read(driver, 100) if profile.output_size else b""
+    except Exception as error:  # one failing device must not hide the others
+        return False, f"{profile.name:12} {address:16} error: {error}"
+    ok = bool(identity) and inputs is not None and outputs is not None
+    return ok, (f"{profile.name:12} {address:16} {identity.get('product_name', '-'):10} "
+                f"{'-' if inputs is None else inputs.hex():26} {'-' if outputs is None else outputs.hex()}")
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("config", nargs="?", default="/etc/enip-farm/cell.yaml")
+    parser.add_argument("--passes", type=int, default=3)
+    args = parser.parse_args(argv)
+    profiles = build_profiles(load_config(args.config), shipped_catalogue())
+    lines: dict[str, str] = {}
+    pending = list(profiles)
+    for attempt in range(max(1, args.passes)):
+        if attempt:
+            time.sleep(1.0)
+        failed = []
+        for profile in pending:
+            ok, lines[profile.name] = check(profile)
+            if not ok:
+                failed.append(profile)
+        pending = failed
+        if not pending:
+            break
     print(f"{'NAME':12} {'ADDRESS':16} {'PRODUCT':10} {'INPUTS':26} OUTPUTS")
-    for profile in build_profiles(load_config(path), shipped_catalogue()):
-        address = profile.address
-        try:
-            identity = CIPDriver.list_identity(CIPDriver(address), address) or {}
-            inputs = read(address, 101) if profile.input_size else b""
-            outputs = read(address, 100) if profile.output_size else b""
-            ok = bool(identity) and inputs is not None and outputs is not None
-        except Exception as error:  # one failing device must not hide the others
-            identity, inputs, outputs, ok = {"product_name": f"error: {error}"}, None, None, False
-        failures += not ok
-        print(f"{profile.name:12} {address:16} {identity.get('product_name', '-'):10} "
-              f"{(inputs or b'').hex():26} {(outputs or b'').hex()}")
-    total = len(load_config(path).devices)
-    print(f"{total - failures}/{total} devices answered")
-    return 1 if failures else 0
+    for profile in profiles:
+        print(lines[profile.name])
+    total = len(profiles)
+    print(f"{total - len(pending)}/{total} devices answered identity, inputs and outputs", flush=True)
+    return 1 if pending else 0
 
 
 if __name__ == "__main__":
-    sys.exit(main(sys.argv[1] if len(sys.argv) > 1 else "/etc/enip-farm/cell.yaml"))
+    sys.exit(main())
