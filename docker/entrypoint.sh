@@ -4,10 +4,13 @@
 # `farm` where it exists. Needs NET_ADMIN.
 #   ENIP_FARM_IFACE         interface for the aliases (default: the default route's, else eth0)
 #   ENIP_FARM_ALIASES_ONLY  1: add the aliases and exit (the tests run this inside a namespace)
+#   ENIP_FARM_ADDRESS_FILE  where to list the addresses for docker/healthcheck.sh
+#                           (default /run/enip-farm.addresses)
+#   ENIP_FARM_SHARD         I/N: serve that slice when the command gives no --shard (compose)
 set -eu
 
 config=/etc/enip-farm/cell.yaml
-shard=""
+shard=${ENIP_FARM_SHARD:-}
 previous=""
 for arg in "$@"; do
     case "$previous" in
@@ -26,13 +29,17 @@ else
     addresses=$(enip-farm addresses --config "$config")
 fi
 
+address_file=${ENIP_FARM_ADDRESS_FILE:-/run/enip-farm.addresses}
+: > "$address_file.new"
 count=0
 for address in $addresses; do
+    echo "$address" >> "$address_file.new"
     if ! ip -o addr show dev "$iface" | grep -q " inet $address/"; then
         ip addr add "$address/32" dev "$iface"
     fi
     count=$((count + 1))
 done
+mv "$address_file.new" "$address_file"
 echo "enip-farm: $count device addresses on $iface" >&2
 
 if [ "${ENIP_FARM_ALIASES_ONLY:-0}" = 1 ]; then

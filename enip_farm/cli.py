@@ -72,8 +72,9 @@ def main() -> None:
 @click.option("--token", envvar="ENIP_FARM_TOKEN", default=None, help="bearer token for the HTTP API")
 @click.option("--workers", type=click.IntRange(1, 256), default=1, show_default=True,
               help="processes, each serving a slice of the devices (worker i's HTTP API on PORT + i)")
-@click.option("--shard", "shard_spec", default=None, metavar="I/N",
-              help="serve only slice I of N (N farms started from one config, e.g. one per host)")
+@click.option("--shard", "shard_spec", envvar="ENIP_FARM_SHARD", default=None, metavar="I/N",
+              help="serve only slice I of N (N farms started from one config, e.g. one per host; "
+                   "or ENIP_FARM_SHARD)")
 @click.option("--record", type=click.Path(dir_okay=False, path_type=Path), default=None,
               help="write every TCP and UDP exchange to this pcap file")
 def serve(config_path: Path | None, log_level: str, http: str | None, token: str | None, workers: int,
@@ -247,7 +248,7 @@ def fault(first: str, second: str | None, third: str | None, delay_ms: float, ma
 
 @main.command()
 @click.option("--config", "config_path", type=click.Path(path_type=Path), default=None)
-@click.option("--shard", "shard_spec", default=None, metavar="I/N")
+@click.option("--shard", "shard_spec", envvar="ENIP_FARM_SHARD", default=None, metavar="I/N")
 def addresses(config_path: Path | None, shard_spec: str | None) -> None:
     """Print the device addresses a farm would bind, one per line (the container entrypoint adds
     them as aliases)."""
@@ -257,7 +258,7 @@ def addresses(config_path: Path | None, shard_spec: str | None) -> None:
 
 @main.command()
 @click.option("--config", "config_path", type=click.Path(path_type=Path), default=None)
-@click.option("--shard", "shard_spec", default=None, metavar="I/N")
+@click.option("--shard", "shard_spec", envvar="ENIP_FARM_SHARD", default=None, metavar="I/N")
 @click.option("--timeout", type=float, default=2.0, show_default=True)
 def probe(config_path: Path | None, shard_spec: str | None, timeout: float) -> None:
     """Send ListIdentity (UDP) to every device of a config; exit 0 only if all answer."""
@@ -304,11 +305,27 @@ def probe(config_path: Path | None, shard_spec: str | None, timeout: float) -> N
 @click.option("--subnet", default="192.168.125.0/24", show_default=True)
 @click.option("--container-range", default="192.168.125.240/28", show_default=True,
               help="where Docker may place containers (keep the devices' addresses outside it)")
-def compose(config_path: Path, shards: int, subnet: str, container_range: str) -> None:
+@click.option("--api-port", type=click.IntRange(0, 65535), default=8044, show_default=True,
+              help="farm i's HTTP API on the host's 127.0.0.1:PORT+i-1 (0: not published)")
+@click.option("-o", "--output", type=click.Path(dir_okay=False, path_type=Path), default=None,
+              help="write the compose file here (paths in it are relative to its directory); default: stdout")
+def compose(config_path: Path, shards: int, subnet: str, container_range: str, api_port: int,
+            output: Path | None) -> None:
     """Print a compose file: one farm container per shard and a tester that reads every device."""
     from enip_farm.compose import compose_file
 
-    click.echo(compose_file(_load(config_path), config_path.name, shards, subnet, container_range), nl=False)
+    source = Path(__file__).resolve().parents[1]  # a source checkout builds the image; an install uses it
+    compose_dir = output.resolve().parent if output else Path.cwd()
+    try:
+        text = compose_file(_load(config_path), config_path, compose_dir, shards, subnet, container_range, api_port,
+                            source if (source / "docker" / "Dockerfile").is_file() else None)
+    except ValueError as error:
+        raise click.BadParameter(str(error), param_hint="--shards/--container-range") from None
+    if output:
+        output.write_text(text)
+        click.echo(f"wrote {output}", err=True)
+    else:
+        click.echo(text, nl=False)
 
 
 # -- captures ------------------------------------------------------------------------------------
