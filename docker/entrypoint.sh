@@ -7,6 +7,7 @@
 #   ENIP_FARM_ADDRESS_FILE  where to list the addresses for docker/healthcheck.sh
 #                           (default /run/enip-farm.addresses)
 #   ENIP_FARM_SHARD         I/N: serve that slice when the command gives no --shard (compose)
+#   ENIP_FARM_TOKEN         the HTTP API's bearer token; empty or unset: one is made up and logged
 set -eu
 
 config=/etc/enip-farm/cell.yaml
@@ -45,6 +46,11 @@ echo "enip-farm: $count device addresses on $iface" >&2
 if [ "${ENIP_FARM_ALIASES_ONLY:-0}" = 1 ]; then
     exit 0
 fi
+if [ -z "${ENIP_FARM_TOKEN:-}" ]; then
+    ENIP_FARM_TOKEN=$(od -An -N16 -tx1 /dev/urandom | tr -d ' \n')
+    echo "enip-farm: no ENIP_FARM_TOKEN given; this container's HTTP API token: $ENIP_FARM_TOKEN" >&2
+fi
+export ENIP_FARM_TOKEN
 if [ "$(id -u)" = 0 ] && id farm >/dev/null 2>&1; then
     exec setpriv --reuid=farm --regid=farm --init-groups enip-farm "$@"
 fi
