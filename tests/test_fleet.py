@@ -4,6 +4,8 @@ for real inside a network namespace this test creates)."""
 
 from __future__ import annotations
 
+import ipaddress
+import json
 import os
 import shutil
 import signal
@@ -13,10 +15,12 @@ import sys
 import time
 from pathlib import Path
 
+import httpx
 import psutil
 import pytest
+import yaml
 
-from enip_farm.compose import compose_file
+from enip_farm.compose import compose_file, pool_size
 from enip_farm.config import ConfigError, load_config, parse_config
 from enip_farm.fleet import shard, split
 from enip_farm.protocol.encapsulation import Command, encode_frame
@@ -98,6 +102,58 @@ def test_workers_start_serve_and_stop(free_address: AddressPool, tmp_path: Path)
 
 
 @pytest.mark.system
+def test_one_http_port_drives_the_devices_of_every_worker(free_address: AddressPool, tmp_path: Path) -> None:
+    first = _block(free_address)
+    config = tmp_path / "cell.yaml"
+    config.write_text(f"devices:\n  - {{name: 'io{{n}}', address: {first}, count: 6, model: DSQC1030}}\n"
+                      "discovery: false\n")
+    names = [f"io{n}" for n in range(1, 7)]
+    with serving(["serve", "--config", str(config), "--workers", "3", "--http", "0", "--token", "s3cret"],
+                 table_rows=6) as (server, _):
+        (line,) = [line for line in read_lines(server.stderr, 2) if line.startswith("HTTP API on ")]
+        api = line.split()[3]
+        env = {**os.environ, "ENIP_FARM_API": api, "ENIP_FARM_TOKEN": "s3cret"}
+        workers = psutil.Process(server.pid).children()
+        owners = {name: next(i for i, part in enumerate(split(load_config(config), 3))
+                             if name in {d.name for d in part.devices}) for name in names}
+        assert len(set(owners.values())) == 3
+        for name in names:  # the CLI client reaches every worker's devices through the one port
+            result = subprocess.run([*CLI, "io", "set", name, "DI3=1"], capture_output=True, text=True, env=env,
+                                    timeout=STARTUP_S)
+            assert result.returncode == 0 and result.stdout.startswith("inputs  0400"), result.stderr
+        auth = {"Authorization": "Bearer s3cret"}
+        with httpx.Client(base_url=api, headers=auth, timeout=STARTUP_S) as client:
+            assert [d["name"] for d in client.get("/devices").json()] == names
+            assert all(client.get(f"/devices/{n}/io").json()["signals"]["DI"][2] == 1 for n in names)
+            assert client.get("/devices/nope").status_code == 404
+            metrics = client.get("/metrics").text
+            assert metrics.count("# HELP enip_farm_tcp_connections_total") == 1
+            assert all(f'enip_farm_tcp_connections_total{{device="{n}"}}' in metrics for n in names)
+            with client.stream("GET", "/events", params={"kind": "fault injected"}) as stream:
+                lines = stream.iter_lines()
+                assert next(lines).startswith(": ")
+                for name in ("io1", "io6"):
+                    injected = client.post(f"/devices/{name}/faults", json={"kind": "delay", "delay_ms": 1})
+                    assert injected.status_code == 201
+                seen = set()
+                for text in lines:  # bounded by the client's timeout; ends once both were seen
+                    if text.startswith("data: "):
+                        seen.add(json.loads(text[6:])["device"])
+                    if seen == {"io1", "io6"}:
+                        break
+                assert seen == {"io1", "io6"}
+        assert httpx.get(f"{api}/devices", timeout=STARTUP_S).status_code == 401  # the workers check the token
+        for name in names:  # read back over EtherNet/IP: the writes reached the devices themselves
+            with RawClient(str(ipaddress.IPv4Address(first) + names.index(name))) as c:
+                c.register()
+                assert c.get(4, 101, 3).data == b"\x04\x00"
+        server.send_signal(signal.SIGTERM)
+        assert server.wait(timeout=STARTUP_S) == 0
+    _, alive = psutil.wait_procs(workers, timeout=STARTUP_S)
+    assert not alive
+
+
+@pytest.mark.system
 def test_a_failing_worker_stops_them_all(free_address: AddressPool, tmp_path: Path) -> None:
     config = tmp_path / "cell.yaml"
     config.write_text(f"devices:\n  - {{name: a, address: {free_address()}, model: DSQC1030}}\n"
@@ -126,13 +182,43 @@ def test_compose_file_is_the_generators_output_and_validates() -> None:
     docker = ROOT / "docker"
     # compose data (subnets written into the file), not targets
     subnet, containers = "192.168.125.0/24", "192.168.125.240/28"
-    generated = compose_file(load_config(docker / "cell.yaml"), "cell.yaml", 2, subnet, containers)
+    generated = compose_file(load_config(docker / "cell.yaml"), docker / "cell.yaml", docker, 2, subnet, containers,
+                             source=ROOT)
     assert (docker / "compose.yaml").read_text() == generated
     if shutil.which("docker-compose") is None:
         pytest.skip("docker-compose (Debian) is not installed; .ci/run installs it")
     result = subprocess.run(["docker-compose", "-f", "compose.yaml", "config", "-q"], cwd=docker,
                             capture_output=True, text=True, timeout=120)
     assert result.returncode == 0, result.stderr
+
+
+def test_compose_refuses_more_shards_than_the_container_pool_holds(tmp_path: Path) -> None:
+    config = load_config(ROOT / "docker" / "cell.yaml")
+    subnet, containers = "192.168.125.0/24", "192.168.125.240/28"  # compose data, not targets
+    assert pool_size(ipaddress.IPv4Network(subnet), ipaddress.IPv4Network(containers)) == 14
+    thirteen = yaml.safe_load(compose_file(config, ROOT / "docker" / "cell.yaml", ROOT / "docker", 13, subnet,
+                                           containers))
+    assert len([s for s in thirteen["services"] if s.startswith("farm")]) == 13
+    with pytest.raises(ValueError, match="at most 13 shards"):
+        compose_file(config, ROOT / "docker" / "cell.yaml", ROOT / "docker", 14, subnet, containers)
+    wider = compose_file(config, ROOT / "docker" / "cell.yaml", ROOT / "docker", 14, subnet, "192.168.125.224/27")
+    assert "farm14:" in wider
+
+
+def test_compose_mounts_the_config_relative_to_the_compose_file(tmp_path: Path) -> None:
+    config = load_config(ROOT / "docker" / "cell.yaml")
+    subnet, containers = "192.168.125.0/24", "192.168.125.240/28"  # compose data, not targets
+    elsewhere = tmp_path / "lab" / "compose"
+    document = yaml.safe_load(compose_file(config, ROOT / "docker" / "cell.yaml", elsewhere, 2, subnet, containers,
+                                           source=ROOT))
+    farm = document["services"]["farm1"]
+    host_path = farm["volumes"][0].split(":")[0]
+    assert (elsewhere / host_path).resolve() == (ROOT / "docker" / "cell.yaml").resolve()
+    assert (elsewhere / farm["build"]["context"]).resolve() == ROOT.resolve()
+    assert farm["restart"] == "unless-stopped" and farm["environment"]["ENIP_FARM_SHARD"] == "1/2"
+    assert farm["healthcheck"]["test"] == ["CMD", "/opt/enip-farm/docker/healthcheck.sh"]
+    assert farm["ports"] == ["127.0.0.1:8044:8044"] and "--http" in farm["command"]
+    assert "restart" not in document["services"]["tester"]  # it runs once
 
 
 @pytest.mark.system
