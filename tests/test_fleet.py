@@ -233,43 +233,64 @@ def test_dockerfile_lints_clean() -> None:
 
 @pytest.mark.system
 @pytest.mark.skipif(os.geteuid() != 0 or shutil.which("ip") is None, reason="network namespaces need root")
-def test_entrypoint_adds_aliases_and_serves_inside_a_namespace(tmp_path: Path) -> None:
-    namespace = f"enipfarm{os.getpid()}"
+def test_two_hosts_serve_one_cell_by_shard_and_reach_each_others_devices(tmp_path: Path) -> None:
+    """Two network namespaces joined by a veth pair stand in for two hosts (or containers) on the
+    cell's subnet: each runs docker/entrypoint.sh with its shard (one from --shard, one from
+    ENIP_FARM_SHARD), which adds its devices' addresses as aliases and serves them; each host's
+    healthcheck passes, each probes the other's devices, and the tester reads the whole cell."""
     config = ROOT / "docker" / "cell.yaml"
     entrypoint = str(ROOT / "docker" / "entrypoint.sh")
-    run = ["ip", "netns", "exec", namespace]
-    env = {**os.environ, "ENIP_FARM_IFACE": "dummy0", "PATH": f"{Path(sys.executable).parent}:{os.environ['PATH']}"}
-    subprocess.run(["ip", "netns", "add", namespace], check=True)
+    hosts = {"a": f"enipfarm{os.getpid()}a", "b": f"enipfarm{os.getpid()}b"}
+    shards = {"a": "1/2", "b": "2/2"}
+    own = {h: [str(d.address) for d in shard(load_config(config), shards[h]).devices] for h in hosts}
+    path = f"{Path(sys.executable).parent}:{os.environ['PATH']}"
+    env = {h: {**os.environ, "PATH": path, "ENIP_FARM_IFACE": f"veth{h}",
+               "ENIP_FARM_ADDRESS_FILE": str(tmp_path / f"{h}.addresses")} for h in hosts}
+    env["b"]["ENIP_FARM_SHARD"] = shards["b"]
+    serve = {"a": ["serve", "--config", str(config), "--shard", shards["a"]], "b": ["serve", "--config", str(config)]}
+
+    def run(host: str, *command: str, extra: dict[str, str] | None = None) -> subprocess.CompletedProcess:
+        return subprocess.run(["ip", "netns", "exec", hosts[host], *command], capture_output=True, text=True,
+                              timeout=2 * STARTUP_S, env={**env[host], **(extra or {})})
+
+    for namespace in hosts.values():
+        subprocess.run(["ip", "netns", "add", namespace], check=True, timeout=STARTUP_S)
+    farms: list[subprocess.Popen] = []
     try:
-        # a veth pair inside the namespace stands in for the container's eth0
-        for command in (["ip", "link", "set", "lo", "up"],
-                        ["ip", "link", "add", "dummy0", "type", "veth", "peer", "name", "dummy1"],
-                        ["ip", "addr", "add", "192.168.125.240/24", "dev", "dummy0"],  # in the netns only
-                        ["ip", "link", "set", "dummy0", "up"], ["ip", "link", "set", "dummy1", "up"]):
-            subprocess.run([*run, *command], check=True)
-        serve = ["serve", "--config", str(config), "--shard", "1/2"]
-        aliases = subprocess.run([*run, entrypoint, *serve], env={**env, "ENIP_FARM_ALIASES_ONLY": "1"},
-                                 capture_output=True, text=True, timeout=120)
+        subprocess.run(["ip", "link", "add", "vetha", "netns", hosts["a"], "type", "veth", "peer", "name", "vethb",
+                        "netns", hosts["b"]], check=True, timeout=STARTUP_S)
+        for host, address in (("a", "192.168.125.240/24"), ("b", "192.168.125.241/24")):  # in the netns only
+            for command in (["ip", "link", "set", "lo", "up"], ["ip", "addr", "add", address, "dev", f"veth{host}"],
+                            ["ip", "link", "set", f"veth{host}", "up"]):
+                assert run(host, *command).returncode == 0
+        aliases = run("a", entrypoint, *serve["a"], extra={"ENIP_FARM_ALIASES_ONLY": "1"})
         assert aliases.returncode == 0, aliases.stderr
-        shown = subprocess.run([*run, "ip", "-o", "addr", "show", "dev", "dummy0"], capture_output=True,
-                               text=True, check=True).stdout
-        expected = [str(d.address) for d in shard(load_config(config), "1/2").devices]
-        assert all(f"inet {address}/32" in shown for address in expected)
-        assert all(line.split()[3].split("/")[0] in [*expected, "192.168.125.240"]  # netns: only this shard
+        shown = run("a", "ip", "-o", "addr", "show", "dev", "vetha").stdout
+        assert all(f"inet {address}/32" in shown for address in own["a"])
+        assert all(line.split()[3].split("/")[0] in [*own["a"], "192.168.125.240"]  # netns: only this shard
                    for line in shown.splitlines() if " inet " in line)
-        # again: idempotent, then serve for real inside the namespace and probe from there
-        farm = subprocess.Popen([*run, entrypoint, *serve], env=env, stdout=subprocess.PIPE,
-                                stderr=subprocess.PIPE, text=True)
-        try:
+        for host in hosts:  # again for a (idempotent), then serve for real on both
+            farms.append(subprocess.Popen(["ip", "netns", "exec", hosts[host], entrypoint, *serve[host]], env=env[host],
+                                          stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True))
+        for farm in farms:
             assert read_lines(farm.stdout, 1)[0].startswith("NAME")
-            probe = subprocess.run([*run, *CLI, "probe", "--config", str(config), "--shard", "1/2", "--timeout",
-                                    str(STARTUP_S)], capture_output=True, text=True, timeout=2 * STARTUP_S, env=env)
+        for host in hosts:
+            health = run(host, str(ROOT / "docker" / "healthcheck.sh"))
+            assert health.returncode == 0 and f"{len(own[host])} devices accept" in health.stdout, health.stderr
+        for host, other in (("a", "b"), ("b", "a")):  # each host probes the other's devices
+            probe = run(host, *CLI, "probe", "--config", str(config), "--shard", shards[other],
+                        "--timeout", str(STARTUP_S))
             assert probe.returncode == 0, probe.stdout + probe.stderr
-            assert f"{len(expected)}/{len(expected)} devices answered" in probe.stdout
+            assert f"{len(own[other])}/{len(own[other])} devices answered" in probe.stdout
+        tester = run("a", sys.executable, str(ROOT / "docker" / "tester.py"), str(config))
+        total = len(load_config(config).devices)
+        assert tester.returncode == 0 and f"{total}/{total} devices answered" in tester.stdout, tester.stdout
+        for farm in farms:
             farm.terminate()
             assert farm.wait(timeout=STARTUP_S) == 0
-        finally:
+    finally:
+        for farm in farms:
             farm.kill()  # only if still running
             farm.communicate(timeout=STARTUP_S)
-    finally:
-        subprocess.run(["ip", "netns", "delete", namespace], check=False, timeout=STARTUP_S)
+        for namespace in hosts.values():
+            subprocess.run(["ip", "netns", "delete", namespace], check=False, timeout=STARTUP_S)
