@@ -294,3 +294,89 @@ def test_two_hosts_serve_one_cell_by_shard_and_reach_each_others_devices(tmp_pat
             farm.communicate(timeout=STARTUP_S)
         for namespace in hosts.values():
             subprocess.run(["ip", "netns", "delete", namespace], check=False, timeout=STARTUP_S)
+
+
+def _docker_base() -> str:
+    """The base image to build on: python:3.11-slim where it is there or can be pulled, else the
+    stand-in docker/ci.sh builds; skips the test when there is no engine or no base."""
+    if shutil.which("docker") is None or shutil.which("docker-compose") is None:
+        pytest.skip("docker and docker-compose are not installed (.ci/run installs Debian's docker.io)")
+    if subprocess.run(["docker", "info"], capture_output=True, timeout=STARTUP_S).returncode != 0:
+        pytest.skip("no Docker engine runs (.ci/run starts one: dockerd --storage-driver vfs --iptables=false "
+                    "--ip-masq=false --bridge=none)")
+    for base in ("python:3.11-slim",):
+        if subprocess.run(["docker", "image", "inspect", base], capture_output=True, timeout=STARTUP_S).returncode == 0:
+            return base
+    stand_ins = subprocess.run(["docker", "images", "--format", "{{.Repository}}:{{.Tag}}", "enip-farm-base"],
+                               capture_output=True, text=True, timeout=STARTUP_S).stdout.split()
+    if stand_ins:
+        return stand_ins[0]  # the newest
+    pulled = subprocess.run(["docker", "pull", "-q", "python:3.11-slim"], capture_output=True, timeout=120)
+    if pulled.returncode == 0:
+        return "python:3.11-slim"
+    pytest.skip("no base image: python:3.11-slim cannot be pulled and `bash docker/ci.sh` has not built its stand-in")
+
+
+def _two_free_ports() -> int:
+    """A port P on 127.0.0.1 with P + 1 free too (for two farms' published APIs)."""
+    for _ in range(50):
+        with socket.socket() as first, socket.socket() as second:
+            first.bind(("127.0.0.1", 0))
+            port = first.getsockname()[1]
+            try:
+                second.bind(("127.0.0.1", port + 1))
+            except OSError:
+                continue
+            return port
+    raise AssertionError("no two consecutive free ports")
+
+
+@pytest.mark.system
+def test_compose_fleet_comes_up_healthy_and_its_api_drives_a_device(tmp_path: Path) -> None:
+    """docker-compose for real: a cell of 4 devices in 2 farm containers on the test's own bridge
+    network (10.251.77.0/24, which the test creates and removes), a config outside docker/, the
+    farms healthy, `enip-farm io set` through a published API with a token, the input read back from
+    the host over EtherNet/IP, and the tester's 4/4."""
+    base = _docker_base()
+    config = tmp_path / "lab" / "cell.yaml"
+    config.parent.mkdir()
+    config.write_text("devices:\n  - {name: 'io{n}', address: 10.251.77.10, count: 4, model: DSQC1030}\n")
+    port = _two_free_ports()
+    compose = tmp_path / "compose.yaml"
+    compose.write_text(compose_file(load_config(config), config, tmp_path, 2, "10.251.77.0/24", "10.251.77.240/28",
+                                    api_port=port, source=ROOT))
+    project = f"enipfarmtest{os.getpid()}"
+    command = ["docker-compose", "-p", project, "-f", str(compose)]
+    env = {**os.environ, "ENIP_FARM_BASE": base, "ENIP_FARM_TOKEN": "t0ken"}
+
+    def docker_compose(*args: str, timeout: float = 300) -> subprocess.CompletedProcess:
+        return subprocess.run([*command, *args], capture_output=True, text=True, env=env, timeout=timeout)
+
+    try:
+        built = docker_compose("build", "-q", "farm1", timeout=900)
+        assert built.returncode == 0, built.stdout[-2000:] + built.stderr[-2000:]
+        up = docker_compose("up", "-d", "--no-build", "farm1", "farm2")
+        assert up.returncode == 0, up.stderr
+        containers = docker_compose("ps", "-q").stdout.split()
+        deadline = time.monotonic() + 120  # ends as soon as both are healthy
+        while time.monotonic() < deadline:
+            health = subprocess.run(["docker", "inspect", "-f", "{{.State.Health.Status}}", *containers],
+                                    capture_output=True, text=True, timeout=STARTUP_S).stdout.split()
+            if health == ["healthy", "healthy"]:
+                break
+            time.sleep(0.5)
+        assert health == ["healthy", "healthy"], docker_compose("logs").stdout[-3000:]
+        parts = split(load_config(config), 2)
+        owner = next(i for i, part in enumerate(parts) if "io3" in {d.name for d in part.devices})
+        api = f"http://127.0.0.1:{port + owner}"
+        assert httpx.get(f"{api}/devices", timeout=STARTUP_S).status_code == 401  # not localhost: a token
+        result = subprocess.run([*CLI, "io", "set", "io3", "DI3=1", "--api", api, "--token", "t0ken"],
+                                capture_output=True, text=True, timeout=STARTUP_S)
+        assert result.returncode == 0, result.stderr
+        with RawClient("10.251.77.12") as c:  # io3, across the test's bridge network
+            c.register()
+            assert c.get(4, 101, 3).data == b"\x04\x00"
+        tester = docker_compose("run", "--rm", "--no-deps", "tester")
+        assert tester.returncode == 0 and "4/4 devices answered" in tester.stdout, tester.stdout + tester.stderr
+    finally:
+        docker_compose("down", "-t", "5", timeout=120)
