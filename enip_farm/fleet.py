@@ -1,10 +1,17 @@
-"""Splitting a cell across processes and hosts: `serve --workers N` and `--shard I/N`.
+"""Splitting a cell across processes and hosts: `serve --workers N` and `--shard I/N`; and
+FleetClient, the device handle's calls for a farm or fleet that runs elsewhere (its HTTP API).
 
 Devices joined by wires or rules stay in one slice (they are applied in one process); otherwise
 slices are balanced by device count, in configuration order.
 """
 
 from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from typing import Any
+
+import httpx
 
 from enip_farm.config import FarmConfig
 
@@ -57,3 +64,99 @@ def shard(config: FarmConfig, spec: str) -> FarmConfig:
     if index >= len(parts):
         raise ValueError(f"--shard {spec}: the cell has fewer device groups than shards")
     return parts[index]
+
+
+class RemoteDevice:
+    """One device of a running farm or fleet, driven through its HTTP API, with the calls of the
+    pytest fixture's handle: `.set(DI3=1)`, `.get("DO5")`, `.inputs`, `.outputs`, `.wait_for(...)`,
+    `.inject(kind, ...)`, `.clear_faults()`, `.faults`."""
+
+    def __init__(self, client: FleetClient, name: str) -> None:
+        self._client = client
+        self.name = name
+
+    def _io(self) -> dict[str, Any]:
+        return self._client.request("GET", f"/devices/{self.name}/io")
+
+    @property
+    def address(self) -> str:
+        return self._client.request("GET", f"/devices/{self.name}")["address"]
+
+    @property
+    def inputs(self) -> bytes:
+        return bytes.fromhex(self._io()["inputs"])
+
+    @property
+    def outputs(self) -> bytes:
+        return bytes.fromhex(self._io()["outputs"])
+
+    def set_inputs(self, data: bytes) -> None:
+        self._client.request("PUT", f"/devices/{self.name}/io", json={"inputs": data.hex()})
+
+    def get(self, name: str) -> int | list[int]:
+        """`DI3` (one value) or `DO1-8` (a list), as RobotWare names the signals."""
+        return _signal(self._io()["signals"], name)
+
+    def set(self, values: dict[str, int | list[int]] | None = None, **signals: int | list[int]) -> None:
+        self._client.request("PUT", f"/devices/{self.name}/io", json={"signals": {**(values or {}), **signals}})
+
+    def wait_for(self, predicate: Callable[[RemoteDevice], bool], timeout: float = 5.0,
+                 interval: float = 0.05) -> None:
+        """Poll until `predicate(device)` holds, else TimeoutError after `timeout` seconds."""
+        deadline = time.monotonic() + timeout
+        while not predicate(self):
+            if time.monotonic() >= deadline:
+                raise TimeoutError(f"{self.name}: condition not met within {timeout} s")
+            time.sleep(interval)
+
+    def inject(self, kind: str, duration_s: float | None = None, **params: Any) -> None:
+        self._client.request("POST", f"/devices/{self.name}/faults", json={"kind": kind, "duration_s": duration_s,
+                                                                          **params})
+
+    def clear_faults(self, kind: str | None = None) -> None:
+        self._client.request("DELETE", f"/devices/{self.name}/faults", params={"kind": kind} if kind else None)
+
+    @property
+    def faults(self) -> list[dict]:
+        return self._client.request("GET", f"/devices/{self.name}")["faults"]
+
+
+class FleetClient:
+    """A running farm's or fleet's HTTP API (`serve --http`, `serve --workers N --http`, a
+    container's published port) as a Python client: `FleetClient(url, token)["io1"].set(DI3=1)`."""
+
+    def __init__(self, api: str, token: str | None = None, timeout: float = 10.0) -> None:
+        headers = {"Authorization": f"Bearer {token}"} if token else {}
+        self._http = httpx.Client(base_url=api.rstrip("/"), headers=headers, timeout=timeout)
+
+    def request(self, method: str, path: str, **options: Any) -> Any:
+        response = self._http.request(method, path, **options)
+        response.raise_for_status()
+        return response.json()
+
+    def names(self) -> list[str]:
+        return [device["name"] for device in self.request("GET", "/devices")]
+
+    def __getitem__(self, name: str) -> RemoteDevice:
+        return RemoteDevice(self, name)
+
+    def close(self) -> None:
+        self._http.close()
+
+    def __enter__(self) -> FleetClient:
+        return self
+
+    def __exit__(self, *_: object) -> None:
+        self.close()
+
+
+def _signal(signals: dict[str, list[int]], name: str) -> int | list[int]:
+    kind = name.rstrip("0123456789-")
+    first, _, last = name[len(kind):].partition("-")
+    if kind not in signals or not first.isdigit() or (last and not last.isdigit()):
+        raise KeyError(f"no signal {name!r} (kinds: {', '.join(signals)})")
+    low, high = int(first), int(last or first)
+    values = signals[kind][low - 1 : high]
+    if low < 1 or len(values) != high - low + 1:
+        raise KeyError(f"no signal {name!r}: {kind} has {len(signals[kind])}")
+    return values if last else values[0]

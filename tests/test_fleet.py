@@ -22,7 +22,7 @@ import yaml
 
 from enip_farm.compose import compose_file, pool_size
 from enip_farm.config import ConfigError, load_config, parse_config
-from enip_farm.fleet import shard, split
+from enip_farm.fleet import FleetClient, shard, split
 from enip_farm.protocol.encapsulation import Command, encode_frame
 from enip_farm.pytest_plugin import AddressPool
 from tests.helpers import CLI, ROOT, STARTUP_S, RawClient, read_lines, serving
@@ -143,10 +143,22 @@ def test_one_http_port_drives_the_devices_of_every_worker(free_address: AddressP
                         break
                 assert seen == {"io1", "io6"}
         assert httpx.get(f"{api}/devices", timeout=STARTUP_S).status_code == 401  # the workers check the token
+        with FleetClient(api, "s3cret") as fleet:  # the fixture handle's calls, for a fleet elsewhere
+            assert fleet.names() == names
+            fleet["io5"].set({"DI1-2": [1, 1]})
+            fleet["io5"].wait_for(lambda device: device.get("DI1-3") == [1, 1, 1], timeout=STARTUP_S)
+            assert fleet["io5"].inputs == b"\x07\x00" and fleet["io2"].get("DI3") == 1
+            fleet["io2"].inject("delay", delay_ms=1)
+            assert [f["kind"] for f in fleet["io2"].faults] == ["delay"]
+            fleet["io2"].clear_faults()
+            assert fleet["io2"].faults == []
+            with pytest.raises(KeyError):
+                fleet["io2"].get("DI99")
+        inputs = {name: b"\x07\x00" if name == "io5" else b"\x04\x00" for name in names}
         for name in names:  # read back over EtherNet/IP: the writes reached the devices themselves
             with RawClient(str(ipaddress.IPv4Address(first) + names.index(name))) as c:
                 c.register()
-                assert c.get(4, 101, 3).data == b"\x04\x00"
+                assert c.get(4, 101, 3).data == inputs[name]
         server.send_signal(signal.SIGTERM)
         assert server.wait(timeout=STARTUP_S) == 0
     _, alive = psutil.wait_procs(workers, timeout=STARTUP_S)
