@@ -5,7 +5,8 @@ them all), prints the devices once, forwards SIGINT/SIGTERM and exits 0 when all
 With --http [HOST:]PORT the parent serves one HTTP API for the whole fleet there: each worker
 serves its slice's API on a port of 127.0.0.1 it picks (with the same token), and the parent
 routes a request for a device to the worker that serves it; GET /devices, /events and /metrics
-merge every worker's answer. The token is checked by the workers, on every request.
+merge every worker's answer. The token is checked by the parent (with the farm API's Host and
+body-size guard) and again by the workers.
 """
 
 from __future__ import annotations
@@ -29,6 +30,7 @@ from starlette.responses import JSONResponse, Response, StreamingResponse
 from starlette.routing import Route
 
 from enip_farm.config import FarmConfig, parse_config
+from enip_farm.control.guard import Guard
 from enip_farm.control.http import LOCALHOST
 from enip_farm.farm import BindError, Farm, freeze_heap, new_event_loop
 from enip_farm.fleet import split
@@ -227,10 +229,11 @@ class _RouterServer(uvicorn.Server):
 
 
 @contextlib.contextmanager
-def serving_router(app: Starlette, host: str, port: int) -> Iterator[_RouterServer]:
-    """Serve `app` on (host, port) from a thread until the block ends."""
-    server = _RouterServer(uvicorn.Config(app, host=host, port=port, log_level="warning", access_log=False,
-                                          lifespan="on", timeout_graceful_shutdown=2))
+def serving_router(app: Starlette, host: str, port: int, token: str | None) -> Iterator[_RouterServer]:
+    """Serve `app` on (host, port) from a thread until the block ends, behind the farm API's own
+    Guard (Host, token, body size), so the fleet's port refuses what a farm's port refuses."""
+    server = _RouterServer(uvicorn.Config(Guard(app, host, token), host=host, port=port, log_level="warning",
+                                          access_log=False, lifespan="on", timeout_graceful_shutdown=2))
     thread = threading.Thread(target=server.run, name="enip-farm-fleet-api", daemon=True)
     thread.start()
     try:
@@ -300,7 +303,7 @@ def serve_workers(config: FarmConfig, count: int, http: tuple[str, int] | None, 
                 router = None
                 if http:
                     try:
-                        router = stack.enter_context(serving_router(create_router(owners, apis), *http))
+                        router = stack.enter_context(serving_router(create_router(owners, apis), *http, token))
                     except OSError as error:
                         click.echo(str(error), err=True)
                         status = 1

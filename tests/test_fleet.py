@@ -142,7 +142,9 @@ def test_one_http_port_drives_the_devices_of_every_worker(free_address: AddressP
                     if seen == {"io1", "io6"}:
                         break
                 assert seen == {"io1", "io6"}
-        assert httpx.get(f"{api}/devices", timeout=STARTUP_S).status_code == 401  # the workers check the token
+        assert httpx.get(f"{api}/devices", timeout=STARTUP_S).status_code == 401  # the farm API's guard, too
+        assert httpx.get(f"{api}/devices", headers={**auth, "Host": "rebound.example"},
+                         timeout=STARTUP_S).status_code == 421
         with FleetClient(api, "s3cret") as fleet:  # the fixture handle's calls, for a fleet elsewhere
             assert fleet.names() == names
             fleet["io5"].set({"DI1-2": [1, 1]})
