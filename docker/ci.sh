@@ -32,6 +32,8 @@ if ! docker image inspect "$base" >/dev/null 2>&1 && ! timeout 120 docker pull -
         rm -rf "$work"/rootfs/usr/share/{doc,man,info,locale}/* "$work"/rootfs/var/cache/apt/archives/*.deb \
             "$work"/rootfs/var/lib/apt/lists/*
         tar -C "$work/rootfs" -c . | docker import -c 'CMD ["python3"]' - "$base" >/dev/null
+        # stand-ins for an older pyproject.toml are of no more use
+        docker images --format '{{.Repository}}:{{.Tag}}' enip-farm-base | grep -vxF "$base" | xargs -r docker rmi >/dev/null 2>&1 || true
         rm -rf "$work"
         trap - EXIT
     fi
