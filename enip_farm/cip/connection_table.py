@@ -99,9 +99,20 @@ class ConnectionTable:
 
     def get_timer(self) -> int | None:
         """The earliest time something is due: a T->O packet or a supervision deadline."""
-        times = [p.due for p in self.productions.values()]
-        times += [c.deadline for c in self.connections.values()]
-        return min(times, default=None)
+        earliest = None
+        for production in self.productions.values():
+            due = production.due
+            if earliest is None or due < earliest:
+                earliest = due
+        for connection in self.connections.values():
+            deadline = connection.deadline
+            if earliest is None or deadline < earliest:
+                earliest = deadline
+        return earliest
+
+    def supervision_due(self, now: int) -> bool:
+        """Whether `handle_timer(now)` would close a connection."""
+        return any(connection.deadline <= now for connection in self.connections.values())
 
     # -- Forward Open, Forward Close -------------------------------------------------------------
 

@@ -305,12 +305,13 @@ class Device:
         if self.faults.io_stopped:
             self.counters["o_t_dropped_io_stopped"] += 1
             return False
+        table = self.table
         with self.lock:
             before = self._snapshot()
-            taken = self.table.receive_datagram(data, source[0], now, source[1])
-            connections = self.table.pop_events()
+            taken = table.receive_datagram(data, source[0], now, source[1])
+            connections = table.pop_events() if table.has_events else ()
             after = self._snapshot()
-        if before != after or connections:
+        if connections or before != after:
             self._publish(before, after, (), connections)
         return taken
 
@@ -318,17 +319,21 @@ class Device:
         """Supervise the connections and send the T->O packets due at `now`; the next time
         something is due. Packets are sent inside the lock, so none leaves after the Forward Close
         (or timeout) that ends its connection has been handled."""
+        table = self.table
         with self.lock:
-            before = self._snapshot()
-            self.table.handle_timer(now)
-            due = self.table.datagrams_to_send(now)
+            expiring = table.supervision_due(now)
+            if expiring:  # a timeout may change the outputs: look before and after
+                before = self._snapshot()
+                table.handle_timer(now)
+            due = table.datagrams_to_send(now)
             if due and not self.faults.io_stopped:
                 for packet, address in due:
                     send(packet, address)
-            connections = self.table.pop_events()
-            after = self._snapshot()
-            timer = self.table.get_timer()
-        if connections:
+            if expiring:
+                connections = table.pop_events()
+                after = self._snapshot()
+            timer = table.get_timer()
+        if expiring and connections:
             self._publish(before, after, (), connections)
         return timer
 
