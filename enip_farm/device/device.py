@@ -305,14 +305,15 @@ class Device:
         if self.faults.io_stopped:
             self.counters["o_t_dropped_io_stopped"] += 1
             return False
-        table = self.table
-        with self.lock:
-            before = self._snapshot()
+        table, output = self.table, self._output
+        with self.lock:  # O->T changes the outputs only: the inputs need no snapshot
+            old = bytes(output.data) if output is not None else b""
             taken = table.receive_datagram(data, source[0], now, source[1])
             connections = table.pop_events() if table.has_events else ()
-            after = self._snapshot()
-        if connections or before != after:
-            self._publish(before, after, (), connections)
+            changed = output is not None and output.data != old
+            new = bytes(output.data) if changed else old
+        if connections or changed:
+            self._publish((old, b""), (new, b""), (), connections)
         return taken
 
     def service_io(self, now: int, send: SendDatagram) -> int | None:
