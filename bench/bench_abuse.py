@@ -30,6 +30,8 @@ import tempfile
 import time
 from pathlib import Path
 
+from enip_client import recv_exact, register
+
 from enip_farm.protocol.cip import encode_request, encode_unconnected_send
 from enip_farm.protocol.commands import encode_send_rr_data
 from enip_farm.protocol.encapsulation import Command, encode_frame
@@ -45,21 +47,7 @@ PHASES = ("none", "pipelining", "no-reading", "slowloris", "nesting", "sse")
 
 
 def connect(host: str) -> tuple[socket.socket, int]:
-    sock = socket.create_connection((host, PORT), timeout=5)
-    sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
-    sock.sendall(REGISTER)
-    reply = recv_exact(sock, 28)
-    return sock, int.from_bytes(reply[4:8], "little")
-
-
-def recv_exact(sock: socket.socket, size: int) -> bytes:
-    data = b""
-    while len(data) < size:
-        chunk = sock.recv(size - len(data))
-        if not chunk:
-            raise ConnectionError("closed")
-        data += chunk
-    return data
+    return register(host)
 
 
 def nested(depth: int) -> bytes:

@@ -26,6 +26,8 @@ import tempfile
 import time
 from pathlib import Path
 
+from enip_client import recv_exact, register
+
 from enip_farm.protocol.commands import encode_send_rr_data
 from enip_farm.protocol.encapsulation import Command, encode_frame
 
@@ -44,22 +46,9 @@ def cpu_seconds(pid: int) -> float:
     return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
 
 
-def recv_exact(sock: socket.socket, size: int) -> bytes:
-    data = b""
-    while len(data) < size:
-        chunk = sock.recv(size - len(data))
-        if not chunk:
-            raise ConnectionError("closed")
-        data += chunk
-    return data
-
-
 def connect(host: str) -> tuple[socket.socket, bytes, bytes]:
     """A registered connection and its Get and Set frames (which carry its session handle)."""
-    sock = socket.create_connection((host, PORT), timeout=5)
-    sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
-    sock.sendall(REGISTER)
-    handle = int.from_bytes(recv_exact(sock, 28)[4:8], "little")
+    sock, handle = register(host)
     return sock, encode_send_rr_data(GET_MESSAGE, handle), encode_send_rr_data(SET_MESSAGE, handle)
 
 

@@ -28,8 +28,9 @@ import sys
 import time
 from pathlib import Path
 
+from enip_client import recv_exact, register
+
 from enip_farm.protocol.commands import encode_send_rr_data
-from enip_farm.protocol.encapsulation import Command, encode_frame
 
 FARM_HOST = "127.0.202.1"
 PORT = 44818
@@ -50,22 +51,10 @@ with farm.running_in_thread():
 """
 
 
-def recv_exact(sock: socket.socket, size: int) -> bytes:
-    data = b""
-    while len(data) < size:
-        chunk = sock.recv(size - len(data))
-        if not chunk:
-            raise ConnectionError("closed")
-        data += chunk
-    return data
-
-
 def request_rate(seconds: float) -> float:
     """Get Attribute Single round trips per second on one registered connection, for `seconds`."""
-    with socket.create_connection((FARM_HOST, PORT), timeout=5) as sock:
-        sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
-        sock.sendall(encode_frame(Command.REGISTER_SESSION, b"\x01\x00\x00\x00"))
-        handle = int.from_bytes(recv_exact(sock, 28)[4:8], "little")
+    sock, handle = register(FARM_HOST)
+    with sock:
         get = encode_send_rr_data(bytes.fromhex("0E 03 20 04 24 64 30 03"), handle)
         done, start = 0, time.perf_counter()
         while time.perf_counter() - start < seconds and done < 10_000_000:
