@@ -6,7 +6,7 @@ With --http [HOST:]PORT the parent serves one HTTP API for the whole fleet there
 serves its slice's API on a port of 127.0.0.1 it picks (with the same token), and the parent
 routes a request for a device to the worker that serves it; GET /devices, /events and /metrics
 merge every worker's answer. The token is checked by the parent (with the farm API's Host and
-body-size guard) and again by the workers.
+body-size guard) and again by the workers (enip_farm/fleet_api.py).
 """
 
 from __future__ import annotations
@@ -17,29 +17,19 @@ import multiprocessing
 import queue
 import signal
 import sys
-import threading
-from collections.abc import AsyncIterator, Callable, Iterator
+from collections.abc import Callable
 from typing import Any
 
 import click
-import httpx
-import uvicorn
-from starlette.applications import Starlette
-from starlette.requests import Request
-from starlette.responses import JSONResponse, Response, StreamingResponse
-from starlette.routing import Route
 
 from enip_farm.config import FarmConfig, parse_config
-from enip_farm.control.guard import Guard
 from enip_farm.control.http import LOCALHOST
 from enip_farm.farm import BindError, Farm, freeze_heap, new_event_loop
 from enip_farm.fleet import split
+from enip_farm.fleet_api import RouterServer, create_router, router_port, serving_router
 from enip_farm.table import TABLE_HEADER, device_table
 
 _START_TIMEOUT = 120.0
-_FORWARD_TIMEOUT = 30.0
-_HOP_HEADERS = frozenset({"connection", "keep-alive", "transfer-encoding", "content-length", "content-encoding",
-                          "host", "upgrade", "te", "trailer", "proxy-authorization", "proxy-authenticate"})
 
 
 def _worker(index: int, config_data: dict[str, Any], http: bool, token: str | None,
@@ -69,190 +59,6 @@ def _worker(index: int, config_data: dict[str, Any], http: bool, token: str | No
         loop.run_until_complete(run())
     finally:
         loop.close()
-
-
-# -- one HTTP API for the fleet ------------------------------------------------------------------
-
-
-def _merge_metrics(texts: list[str]) -> str:
-    """Prometheus text of several workers as one exposition: each family once (HELP and TYPE from
-    the first worker that has it), with every worker's samples (their `device` labels differ)."""
-    families: dict[str, tuple[list[str], list[str]]] = {}
-    for text in texts:
-        fresh: set[str] = set()
-        current: tuple[list[str], list[str]] | None = None
-        for line in text.splitlines():
-            if line.startswith(("# HELP ", "# TYPE ")):
-                name = line.split(" ", 3)[2]
-                if name not in families:
-                    families[name] = ([], [])
-                    fresh.add(name)
-                current = families[name]
-                if name in fresh:
-                    current[0].append(line)
-            elif line and not line.startswith("#") and current is not None:
-                current[1].append(line)
-    return "".join("\n".join([*header, *samples]) + "\n" for header, samples in families.values())
-
-
-def create_router(owners: dict[str, int], apis: list[str]) -> Starlette:
-    """The fleet's HTTP API: `owners` maps each device (in configuration order) to the index of the
-    worker serving it, `apis[i]` is worker i's base URL. Requests are forwarded with their
-    Authorization header; the workers answer (and check the token)."""
-    order = {name: position for position, name in enumerate(owners)}
-    clients: dict[str, httpx.AsyncClient] = {}  # per router instance, made on its own event loop
-
-    def client() -> httpx.AsyncClient:
-        if "client" not in clients:
-            clients["client"] = httpx.AsyncClient(timeout=_FORWARD_TIMEOUT)
-        return clients["client"]
-
-    def headers_of(request: Request) -> dict[str, str]:
-        return {k: v for k, v in request.headers.items() if k.lower() not in _HOP_HEADERS}
-
-    def response_of(reply: httpx.Response) -> Response:
-        headers = {k: v for k, v in reply.headers.items() if k.lower() not in _HOP_HEADERS}
-        return Response(reply.content, status_code=reply.status_code, headers=headers)
-
-    async def forward(request: Request, worker: int) -> Response:
-        reply = await client().request(request.method, apis[worker] + request.url.path,
-                                       params=request.query_params.multi_items(), headers=headers_of(request),
-                                       content=await request.body())
-        return response_of(reply)
-
-    async def gather(request: Request, workers: list[int]) -> list[httpx.Response] | Response:
-        replies = await asyncio.gather(*(client().get(apis[i] + request.url.path, headers=headers_of(request),
-                                                      params=request.query_params.multi_items())
-                                         for i in workers))
-        failed = [reply for reply in replies if reply.status_code != 200]
-        return response_of(failed[0]) if failed else list(replies)
-
-    async def devices(request: Request) -> Response:
-        replies = await gather(request, list(range(len(apis))))
-        if isinstance(replies, Response):
-            return replies
-        merged = [device for reply in replies for device in reply.json()]
-        merged.sort(key=lambda device: order.get(device.get("name"), len(order)))
-        return JSONResponse(merged)
-
-    async def device(request: Request) -> Response:
-        name = request.path_params["name"]
-        if name not in owners:
-            return JSONResponse({"detail": f"no device named {name!r}"}, status_code=404)
-        return await forward(request, owners[name])
-
-    async def metrics(request: Request) -> Response:
-        replies = await gather(request, list(range(len(apis))))
-        if isinstance(replies, Response):
-            return replies
-        return Response(_merge_metrics([reply.text for reply in replies]),
-                        media_type=replies[0].headers.get("content-type", "text/plain"))
-
-    async def events(request: Request) -> Response:
-        names = request.query_params.getlist("device")
-        for name in names:
-            if name not in owners:
-                return JSONResponse({"detail": f"no device named {name!r}"}, status_code=404)
-        kinds = [("kind", kind) for kind in request.query_params.getlist("kind")]
-        workers = sorted({owners[name] for name in names}) if names else list(range(len(apis)))
-        streams = []
-        for worker in workers:
-            params = [("device", n) for n in names if owners[n] == worker] + kinds
-            reply = await client().send(client().build_request("GET", apis[worker] + "/events", params=params,
-                                                               headers=headers_of(request)), stream=True)
-            streams.append(reply)
-            if reply.status_code != 200:
-                await reply.aread()
-                for opened in streams:
-                    await opened.aclose()
-                return response_of(reply)
-        return StreamingResponse(_merged_events(streams), media_type="text/event-stream")
-
-    async def other(request: Request) -> Response:  # /openapi.json, /docs: every worker has the same
-        return await forward(request, 0)
-
-    @contextlib.asynccontextmanager
-    async def lifespan(_: Starlette) -> AsyncIterator[None]:
-        yield
-        if "client" in clients:
-            await clients.pop("client").aclose()
-
-    methods = ["GET", "PUT", "POST", "DELETE", "PATCH"]
-    return Starlette(routes=[
-        Route("/devices", devices, methods=["GET"]),
-        Route("/devices/{name}", device, methods=methods),
-        Route("/devices/{name}/{rest:path}", device, methods=methods),
-        Route("/metrics", metrics, methods=["GET"]),
-        Route("/events", events, methods=["GET"]),
-        Route("/{rest:path}", other, methods=methods),
-    ], lifespan=lifespan)
-
-
-async def _merged_events(streams: list[httpx.Response]) -> AsyncIterator[bytes]:
-    """Server-sent events of several workers as one stream, event by event (blank-line framed)."""
-    merged: asyncio.Queue[bytes | None] = asyncio.Queue()
-
-    async def pump(stream: httpx.Response) -> None:
-        buffer = b""
-        try:
-            async for chunk in stream.aiter_bytes():
-                buffer += chunk
-                while b"\n\n" in buffer:
-                    event, buffer = buffer.split(b"\n\n", 1)
-                    await merged.put(event + b"\n\n")
-        finally:
-            await merged.put(None)
-
-    tasks = [asyncio.ensure_future(pump(stream)) for stream in streams]
-    try:
-        yield b": enip-farm fleet event stream\n\n"
-        running = len(tasks)
-        while running:
-            item = await merged.get()
-            if item is None:
-                running -= 1
-            elif not item.startswith(b": enip-farm event stream"):
-                yield item
-    finally:
-        for task in tasks:
-            task.cancel()
-        for stream in streams:
-            await stream.aclose()
-
-
-class _RouterServer(uvicorn.Server):
-    """uvicorn in a thread of the parent; the parent, not uvicorn, owns the process's signals."""
-
-    @contextlib.contextmanager
-    def capture_signals(self) -> Iterator[None]:
-        yield
-
-
-@contextlib.contextmanager
-def serving_router(app: Starlette, host: str, port: int, token: str | None) -> Iterator[_RouterServer]:
-    """Serve `app` on (host, port) from a thread until the block ends, behind the farm API's own
-    Guard (Host, token, body size), so the fleet's port refuses what a farm's port refuses."""
-    server = _RouterServer(uvicorn.Config(Guard(app, host, token), host=host, port=port, log_level="warning",
-                                          access_log=False, lifespan="on", timeout_graceful_shutdown=2))
-    thread = threading.Thread(target=server.run, name="enip-farm-fleet-api", daemon=True)
-    thread.start()
-    try:
-        deadline = _START_TIMEOUT
-        while not server.started and thread.is_alive() and deadline > 0:
-            thread.join(0.05)
-            deadline -= 0.05
-        if not server.started:
-            raise OSError(f"the fleet's HTTP API could not listen on {host}:{port}")
-        yield server
-    finally:
-        server.should_exit = True
-        server.force_exit = True  # open event streams end with the router
-        thread.join(10)
-
-
-def _router_port(server: _RouterServer) -> int:
-    sockets = server.servers[0].sockets if server.servers else []
-    return sockets[0].getsockname()[1] if sockets else 0
 
 
 def serve_workers(config: FarmConfig, count: int, http: tuple[str, int] | None, token: str | None) -> int:
@@ -315,12 +121,12 @@ def serve_workers(config: FarmConfig, count: int, http: tuple[str, int] | None, 
 
 
 def _run(config: FarmConfig, processes: list, tables: dict[int, str], http: tuple[str, int] | None,
-         router: _RouterServer | None, stopping: Callable[[], bool]) -> int:
+         router: RouterServer | None, stopping: Callable[[], bool]) -> int:
     """Every worker listens: print the table and wait for a signal or a worker's end."""
     click.echo("\n".join([TABLE_HEADER, *(tables[i] for i in sorted(tables))]))
     click.echo(f"{len(config.devices)} devices in {len(processes)} workers. Ctrl-C to stop.", err=True)
     if http and router is not None:
-        click.echo(f"HTTP API on http://{http[0]}:{_router_port(router)} (the devices of all {len(processes)} "
+        click.echo(f"HTTP API on http://{http[0]}:{router_port(router)} (the devices of all {len(processes)} "
                    "workers)", err=True)
     while not stopping() and all(p.is_alive() for p in processes):
         for process in processes:

@@ -756,7 +756,7 @@ def check_service_io(device: Device, now: int) -> None:
 # -- the connection table ----------------------------------------------------------------------------
 
 
-HOSTS = ("127.0.0.9", "127.0.0.10", "10.0.0.1")
+HOSTS = ("127.0.0.9", "127.0.0.10", "10.0.0.1")  # source addresses handed to the table in-process, never sent to
 OWNER, INPUT_ONLY, LISTEN_ONLY = ConnectionKind.EXCLUSIVE_OWNER, ConnectionKind.INPUT_ONLY, ConnectionKind.LISTEN_ONLY
 
 

@@ -33,6 +33,7 @@ from enip_farm.cip.connection import Connection, ConnectionKind, Production
 from enip_farm.protocol.commands import SocketAddress, encode_sockaddr
 from enip_farm.protocol.connection import ConnectionTriad, ForwardOpenRequest, decode_io_packet, encode_io_packet
 from enip_farm.protocol.cpf import ItemType
+from enip_farm.protocol.session import ReplyItems
 
 _HALF = 0x80000000
 #: Identity status (Vol. 1, table 5-2.4): bit 0 owned; bits 4-7 extended device status.
@@ -44,7 +45,7 @@ _IO_IDLE = 0x0070  # I/O connections established, all idle
 
 class Opened(NamedTuple):
     connection: Connection
-    reply_items: tuple[tuple[int, bytes], ...]  # e.g. the multicast group (0x8001) of Vol. 2, 3-3.9.4
+    reply_items: ReplyItems  # e.g. the multicast group (0x8001) of Vol. 2, 3-3.9.4
 
 
 class ConnectionEvent(NamedTuple):
@@ -122,7 +123,7 @@ class ConnectionTable:
             return connection
         self.connections[connection.o_t_id] = connection
         self._by_triad[connection.triad] = connection
-        items: tuple[tuple[int, bytes], ...] = ()
+        items: ReplyItems = ()
         if connection.is_io:
             if connection.kind is ConnectionKind.EXCLUSIVE_OWNER:
                 self.assemblies["output"].owned = True
@@ -149,10 +150,6 @@ class ConnectionTable:
         """The TCP connection of a session ended: its class-3 connections end with it."""
         for connection in [c for c in self.connections.values() if c.owner is session]:
             self.close(connection, "TCP connection closed", now)
-
-    def close_all(self, reason: str, now: int) -> None:
-        for connection in list(self.connections.values()):
-            self.close(connection, reason, now)
 
     def close(self, connection: Connection, reason: str, now: int, timed_out: bool = False) -> None:
         if connection.closed:

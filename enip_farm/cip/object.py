@@ -10,7 +10,7 @@ from typing import NamedTuple
 
 from enip_farm.protocol.cip import Service
 from enip_farm.protocol.epath import RequestPath
-from enip_farm.protocol.session import MessageContext
+from enip_farm.protocol.session import MessageContext, ReplyItems
 from enip_farm.protocol.status import GeneralStatus
 
 UINT = struct.Struct("<H")
@@ -22,10 +22,6 @@ class Attribute(NamedTuple):
 
     get: Callable[[], bytes]
     set: Callable[[bytes], int] | None = None
-
-
-#: CPF items that travel beside a reply (type id, data), e.g. a Forward Open's T->O socket address.
-ReplyItems = tuple[tuple[int, bytes], ...]
 
 
 class ServiceResult(NamedTuple):

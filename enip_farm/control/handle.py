@@ -11,7 +11,7 @@ from collections.abc import Callable, Coroutine, Mapping
 from typing import Any, Protocol, TypeVar, runtime_checkable
 
 from enip_farm.config import FarmConfig
-from enip_farm.device.device import Device
+from enip_farm.device.device import Device, replace_image
 from enip_farm.device.events import Event
 from enip_farm.device.faults import Fault, FaultKind
 from enip_farm.device.signals import SignalError, SignalMap, SignalRange, parse_signal
@@ -98,7 +98,7 @@ class DeviceHandle:
         edits: dict[str, list[Callable[[bytearray], object]]] = {"input": [], "output": []}
         for role, data in (("input", inputs), ("output", outputs)):
             if data is not None:
-                edits[role].append(lambda image, data=data, field=f"{role}s": _replace(image, data, field))
+                edits[role].append(lambda image, data=data, field=f"{role}s": replace_image(image, data, field))
         for name, value in (signals or {}).items():
             signal = parse_signal(name)
             self.signals.check(signal)
@@ -159,12 +159,6 @@ class DeviceHandle:
     @property
     def faults(self) -> list[dict]:
         return [fault.describe() for fault in self.device.faults.active.values()]
-
-
-def _replace(image: bytearray, data: bytes, field: str) -> None:
-    if len(data) != len(image):
-        raise ValueError(f"{field}: the image is {len(image)} bytes, got {len(data)}")
-    image[:] = data
 
 
 def _chain(steps: list[Callable[[bytearray], object]]) -> Callable[[bytearray], None]:

@@ -202,7 +202,7 @@ class Device:
 
     def set_inputs(self, data: bytes) -> None:
         """Set the input image as a sensor would (not subject to `writable_inputs`)."""
-        self.write_image("input", lambda image: _replace(image, data, self.name))
+        self.write_image("input", lambda image: replace_image(image, data, self.name))
 
     def write_image(self, role: str, change: Callable[[bytearray], object]) -> None:
         """Change an image in one locked step: `change` edits a copy, which replaces the image only
@@ -348,7 +348,8 @@ def describe(connection: Connection) -> str:
             f"from {connection.originator_host}, RPI {connection.o_t_rpi}/{connection.t_o_rpi} us")
 
 
-def _replace(image: bytearray, data: bytes, name: str) -> None:
+def replace_image(image: bytearray, data: bytes, what: str) -> None:
+    """A `write_image` change that replaces the whole image; ValueError (naming `what`) on a size mismatch."""
     if len(data) != len(image):
-        raise ValueError(f"{name}: image is {len(image)} bytes, got {len(data)}")
+        raise ValueError(f"{what}: the image is {len(image)} bytes, got {len(data)}")
     image[:] = data

@@ -57,8 +57,10 @@ class MessageContext(NamedTuple):
 
 _new_context = functools.partial(tuple.__new__, MessageContext)  # MessageContext(...) without its Python __new__
 
-#: A reply message and the CPF items (type id, data) that go beside it.
-ReplyWithItems = tuple[bytes, tuple[tuple[int, bytes], ...]]
+#: CPF items (type id, data) that go beside a reply, e.g. a Forward Open's T->O socket address.
+ReplyItems = tuple[tuple[int, bytes], ...]
+#: A reply message and the items that go beside it.
+ReplyWithItems = tuple[bytes, ReplyItems]
 
 
 class Target(Protocol):
@@ -81,7 +83,7 @@ class Target(Protocol):
         ...
 
     def handle_connected(self, connection_id: int, sequence_count: int, message: bytes,
-                         context: MessageContext) -> tuple[int, bytes, tuple[tuple[int, bytes], ...]] | None:
+                         context: MessageContext) -> tuple[int, bytes, ReplyItems] | None:
         """A class-3 request on one of this session's connections: (T->O connection id, reply,
         items), or None when the connection is not this session's."""
         ...

@@ -140,7 +140,6 @@ class DeviceIo:
         self.sock = sock
         self.thread = thread
         self.scheduled: int | None = None  # the wake-up the thread holds for this device (ns)
-        self.send_errors = 0
         self._unsubscribe = device.observe(self._observe)
 
     def _observe(self, event: Event) -> None:
@@ -173,7 +172,6 @@ class DeviceIo:
         try:
             self.sock.sendto(packet, destination)
         except OSError as error:
-            self.send_errors += 1
             self.device.counters["t_o_send_errors"] += 1
             log.debug("%s: T->O send failed: %s", self.device.name, error)
             return
