@@ -179,6 +179,8 @@ def _print_io(io: dict) -> None:
     click.echo(f"inputs  {io['inputs']}\noutputs {io['outputs']}")
     for kind, values in io["signals"].items():
         click.echo(f"{kind:7} " + " ".join(f"{kind}{i}={v}" for i, v in enumerate(values, 1)))
+    for name, value in io.get("named", {}).items():
+        click.echo(f"{name} = {value}")
 
 
 @main.group()
@@ -201,12 +203,12 @@ def io_get(device: str, api: str, token: str | None) -> None:
 @_api_option
 @_token_option
 def io_set(device: str, assignments: tuple[str, ...], api: str, token: str | None) -> None:
-    """Set signals, e.g. `enip-farm io set io1 DI3=1 AI1=1200`."""
-    signals: dict[str, int] = {}
+    """Set signals, e.g. `enip-farm io set io1 DI3=1 AI1=1200` or `io set cell1 diGripperClosed=1`."""
+    signals: dict[str, int | float] = {}
     for assignment in assignments:
         name, _, value = assignment.partition("=")
         try:
-            signals[name] = int(value, 0)
+            signals[name] = int(value, 0) if "." not in value else float(value)
         except ValueError:
             raise click.BadParameter(f"{assignment!r}: expected SIGNAL=VALUE") from None
     _print_io(_request("PUT", api, f"/devices/{device}/io", token, json={"signals": signals}))  # type: ignore[arg-type]

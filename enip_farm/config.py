@@ -100,6 +100,26 @@ class LimitsConfig(_Strict):
                               "encapsulation status 0x0002 (insufficient memory)")
 
 
+class SignalConfig(_Strict):
+    """A named signal, as RobotWare's EIO_SIGNAL entry gives it (`enip-farm eio import` writes these)."""
+
+    name: str = Field(pattern=r"^[A-Za-z][A-Za-z0-9_]{0,63}$")
+    type: Literal["DI", "DO", "GI", "GO", "AI", "AO"]
+    device_map: str = Field(description='0-based bit positions in the input (DI/GI/AI) or output (DO/GO/AO) '
+                            'image, least significant first: "3", "8-15", "0-7,16-23"')
+    invert: bool = Field(False, description="DI/DO: the physical bit is the inverse of the value")
+    enc_type: Literal["UNSIGNED", "TWO_COMP"] = Field("UNSIGNED", description="AI/AO encoding of the raw value")
+    min_log: float | None = None
+    max_log: float | None = None
+    min_phys: float | None = None
+    max_phys: float | None = None
+    min_phys_limit: float | None = None
+    max_phys_limit: float | None = None
+    min_bit_val: float | None = None
+    max_bit_val: float | None = None
+    extra: dict[str, str] = Field({}, description="other EIO_SIGNAL attributes, kept as they were")
+
+
 class DeviceConfig(_Strict):
     name: str = Field(pattern=r"^[A-Za-z0-9_.{}-]{1,64}$")
     address: IPv4Address
@@ -119,6 +139,7 @@ class DeviceConfig(_Strict):
         120, ge=0, le=3600, description="TCP/IP object attribute 13: a TCP connection with no whole request "
         "for this long is closed (0 = never)")
     limits: LimitsConfig = LimitsConfig()
+    signals: list[SignalConfig] = Field([], description="named signals (RobotWare EIO_SIGNAL) beside DI1.., DO1..")
     _entry: int = PrivateAttr(0)
 
     @field_validator("model")
@@ -145,6 +166,11 @@ class DeviceConfig(_Strict):
             raise ValueError("the only placeholder in a name is {n}")
         if int(self.address) + self.count - 1 > 0xFFFFFFFF:
             raise ValueError("the addresses run past 255.255.255.255")
+        seen: dict[str, str] = {}
+        for signal in self.signals:
+            if signal.name.casefold() in seen:
+                raise ValueError(f"signals {seen[signal.name.casefold()]!r} and {signal.name!r} have the same name")
+            seen[signal.name.casefold()] = signal.name
         return self
 
     def expand(self) -> list[DeviceConfig]:

@@ -1,5 +1,6 @@
 """The Python API of one running device: its I/O as bytes, as RobotWare-style signals (DI1.., DO1..,
-AI1.., AO1..), waiting for a condition, counters, events, faults and an output-change hook.
+AI1.., AO1.., and the device's named signals such as diGripperClosed or goProgramNo), waiting for a
+condition, counters, events, faults and an output-change hook.
 Thread-safe: images are written under the device lock, so concurrent callers lose no write."""
 
 from __future__ import annotations
@@ -14,7 +15,8 @@ from enip_farm.config import FarmConfig
 from enip_farm.device.device import Device, replace_image
 from enip_farm.device.events import Event
 from enip_farm.device.faults import Fault, FaultKind
-from enip_farm.device.signals import SignalError, SignalMap, SignalRange, parse_signal
+from enip_farm.device.named_signals import NamedSignal
+from enip_farm.device.signals import Signal, SignalError, SignalMap
 
 T = TypeVar("T")
 
@@ -78,20 +80,27 @@ class DeviceHandle:
 
     # -- signals ------------------------------------------------------------------------------------
 
-    def get(self, name: str) -> int | list[int]:
-        """One signal's value (DI3 -> 0/1, AI2 -> INT), or a list for a range (DI1-8)."""
-        signal = parse_signal(name)
-        image = self.device.inputs if signal.role == "input" else self.device.outputs
-        values = self.signals.read(signal, image)
-        return values[0] if signal.count == 1 else values
+    def get(self, name: str) -> int | float | list[int]:
+        """One signal's value (DI3 -> 0/1, AI2 -> INT, goProgramNo -> the integer over its bits, a
+        scaled analog signal -> its logical value), or a list for a range (DI1-8)."""
+        signal = self.signals.lookup(name)
+        return self.signals.value(signal, self.device.inputs if signal.role == "input" else self.device.outputs)
 
-    def set(self, values: dict[str, int | list[int]] | None = None, **signals: int | list[int]) -> None:
-        """Set signals as a sensor (inputs) or a forcing test (outputs) would: set(DI3=1, AI1=1200)
-        or set({"DI1-4": [1, 0, 1, 1]}). All or nothing (see `update`)."""
+    def set(self, values: Mapping[str, int | float | list[int]] | None = None,
+            **signals: int | float | list[int]) -> None:
+        """Set signals as a sensor (inputs) or a forcing test (outputs) would: set(DI3=1, AI1=1200),
+        set(diGripperClosed=1) or set({"DI1-4": [1, 0, 1, 1]}). All or nothing (see `update`)."""
         self.update(signals={**(values or {}), **signals})
 
+    def signal_table(self) -> list[dict[str, Any]]:
+        """Every signal with its value: numbered (DI1.., DO1.., AI1.., AO1..) first, then named."""
+        values = {**self.signals.values("input", self.device.inputs),
+                  **self.signals.values("output", self.device.outputs)}
+        return [{"name": info.name, "type": info.type, "role": info.role, "value": values[info.name]}
+                for info in self.signals.listing()]
+
     def update(self, inputs: bytes | None = None, outputs: bytes | None = None,
-               signals: Mapping[str, int | list[int]] | None = None) -> None:
+               signals: Mapping[str, int | float | list[int]] | None = None) -> None:
         """Replace whole images and/or set signals, all or nothing: every change is first tried on
         copies of the images, so a bad signal name, value or image size (ValueError naming it)
         writes nothing; then each image changes in one locked step."""
@@ -100,8 +109,7 @@ class DeviceHandle:
             if data is not None:
                 edits[role].append(lambda image, data=data, field=f"{role}s": replace_image(image, data, field))
         for name, value in (signals or {}).items():
-            signal = parse_signal(name)
-            self.signals.check(signal)
+            signal = self.signals.lookup(name)
             values = list(value) if isinstance(value, list) else [value] * signal.count
             _check_values(signal, values)
             edits[signal.role].append(lambda image, signal=signal, values=values:
@@ -168,7 +176,12 @@ def _chain(steps: list[Callable[[bytearray], object]]) -> Callable[[bytearray], 
     return change
 
 
-def _check_values(signal: SignalRange, values: list) -> None:
+def _check_values(signal: Signal, values: list) -> None:
+    if isinstance(signal, NamedSignal):
+        if len(values) != 1:
+            raise SignalError(f"{signal}: one value expected, got {len(values)}")
+        signal.encode(values[0])
+        return
     for value in values:
         if not isinstance(value, int):
             raise SignalError(f"{signal}: values are integers, got {value!r}")

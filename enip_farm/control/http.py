@@ -38,7 +38,8 @@ class IoWrite(BaseModel):
 
     inputs: str | None = Field(None, description="the whole input image, hex")
     outputs: str | None = Field(None, description="the whole output image, hex")
-    signals: dict[str, int | list[int]] = {}
+    signals: dict[str, int | float | list[int]] = Field({}, description="numbered (DI3, DO1-4) or named "
+                                                         "signals (diGripperClosed, goProgramNo)")
 
 
 class FaultRequest(BaseModel):
@@ -57,7 +58,8 @@ def _io(farm: FarmControl, name: str) -> dict[str, Any]:
         if count:
             values = handle.get(f"{kind}1-{count}")
             signals[kind] = values if isinstance(values, list) else [values]
-    return {"inputs": handle.inputs.hex(), "outputs": handle.outputs.hex(), "signals": signals}
+    named = {signal.name: handle.get(signal.name) for signal in handle.signals.named.values()}
+    return {"inputs": handle.inputs.hex(), "outputs": handle.outputs.hex(), "signals": signals, "named": named}
 
 
 def _device(farm: FarmControl, name: str, detail: bool = False) -> dict[str, Any]:

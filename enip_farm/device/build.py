@@ -16,8 +16,9 @@ from pydantic import ValidationError
 
 from enip_farm.config import ConfigError, DeviceConfig, FarmConfig, device_location, is_profile_path
 from enip_farm.device.catalogue import Catalogue
+from enip_farm.device.named_signals import NamedSignal, named_signal
 from enip_farm.device.profile import DeviceProfile, resolve
-from enip_farm.device.signals import SignalError, SignalMap, parse_endpoint
+from enip_farm.device.signals import SignalError, SignalMap, parse_endpoint, parse_signal, width
 
 
 def build_profiles(config: FarmConfig, catalogue: Catalogue) -> list[DeviceProfile]:
@@ -36,7 +37,10 @@ def build_profiles(config: FarmConfig, catalogue: Catalogue) -> list[DeviceProfi
         raise ConfigError("\n".join(problems))
     profiles = [resolve(device.model_copy(update={"model": models[device.model]}) if device.model in models
                         else device, catalogue) for device in config.devices]
-    problems = [f"{config.source}: {message}" for message in check_wiring(config, profiles)]
+    problems = list(dict.fromkeys(  # a `count` entry's devices share their problems
+        f"{config.source}: {device_location(device.entry)}, signals: {message}"
+        for device, profile in zip(config.devices, profiles, strict=True) for message in signal_problems(profile)))
+    problems += [f"{config.source}: {message}" for message in check_wiring(config, profiles)]
     if problems:
         raise ConfigError("\n".join(problems))
     return profiles
@@ -79,8 +83,33 @@ def _device_problems(device: DeviceConfig, model_name: str, catalogue: Catalogue
     for addon in device.addons:
         if addon not in catalogue.addons():
             problems.append(("addons", f"unknown add-on {addon!r}; known: {', '.join(catalogue.addons())}"))
+    for signal in device.signals:
+        try:
+            named_signal(signal)
+        except SignalError as error:
+            problems.append(("signals", str(error)))
     if not problems and device.addons and model is not None and model.assemblies is None:
         problems.append(("", f"model {model_name} takes no add-ons"))
+    return problems
+
+
+def signal_problems(profile: DeviceProfile) -> list[str]:
+    """One message per named signal that does not fit the device: a name that reads as a built-in
+    signal (DI3, AO1-2), or a bit beyond its image."""
+    problems = []
+    for signal in profile.signals:
+        try:
+            parse_signal(signal.name)
+        except SignalError:
+            pass
+        else:
+            problems.append(f"{signal.name}: the name reads as a built-in signal; choose another")
+            continue
+        size = profile.input_size if signal.role == "input" else profile.output_size
+        beyond = [bit for bit in signal.bits if bit >= 8 * size]
+        if beyond:
+            problems.append(f"{signal.name}: bit {beyond[0]} is beyond the {size}-byte {signal.role} image "
+                            f"(bits 0..{8 * size - 1})")
     return problems
 
 
@@ -100,7 +129,9 @@ def check_wiring(config: FarmConfig, profiles: list[DeviceProfile]) -> list[str]
             continue
         if source.signal.role != "output" or target.signal.role != "input":
             problems.append(f"wire {source} -> {target}: wires go from outputs (DO, AO) to inputs (DI, AI)")
-        elif source.signal.digital != target.signal.digital or source.signal.count != target.signal.count:
+        elif (source.signal.digital != target.signal.digital or source.signal.count != target.signal.count
+              or width(source.signal) != width(target.signal)
+              or _named_kind(source.signal) != _named_kind(target.signal)):
             problems.append(f"wire {source} -> {target}: both ends need the same kind and number of signals")
         else:
             edges.setdefault((source.device, "output"), set()).add((target.device, "input"))
@@ -119,6 +150,13 @@ def check_wiring(config: FarmConfig, profiles: list[DeviceProfile]) -> list[str]
         if cycle:
             problems.append("wiring cycle: " + " -> ".join(f"{d}.{r}s" for d, r in cycle))
     return problems
+
+
+def _named_kind(signal: object) -> str | None:
+    """G (group), A (analog) or D for a named signal whose value is not a numbered range's, else None."""
+    if isinstance(signal, NamedSignal) and not signal.digital:
+        return signal.type[0] + ("s" if signal.signed else "") + ("x" if signal.scale else "")
+    return None
 
 
 def _cycle(edges: dict[tuple[str, str], set[tuple[str, str]]]) -> list[tuple[str, str]] | None:

@@ -12,6 +12,7 @@ from dataclasses import dataclass
 
 from enip_farm.config import DeviceConfig, ImplicitConfig, LimitsConfig
 from enip_farm.device.catalogue import Catalogue, IoCounts
+from enip_farm.device.named_signals import NamedSignal, named_signal
 
 
 @dataclass(frozen=True)
@@ -59,6 +60,7 @@ class DeviceProfile:
     listen_only_point: int | None
     multicast_group: str
     replay: tuple = ()  # (service, path, data, reply) of a learned profile
+    signals: tuple[NamedSignal, ...] = ()  # named signals (EIO_SIGNAL), beside DI1.., DO1..
 
     def assembly(self, role: str) -> AssemblySpec | None:
         return next((a for a in self.assemblies if a.role == role), None)
@@ -154,4 +156,5 @@ def resolve(config: DeviceConfig, catalogue: Catalogue) -> DeviceProfile:
         multicast_group=str(config.implicit.multicast_group or default_multicast_group(address, str(config.netmask))),
         replay=tuple((e.service, bytes.fromhex(e.path), bytes.fromhex(e.data), bytes.fromhex(e.reply))
                      for e in model.replay),
+        signals=tuple(named_signal(signal) for signal in config.signals),
     )

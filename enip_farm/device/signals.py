@@ -1,6 +1,7 @@
 """Signal names as RobotWare gives them to a scalable I/O device: DI1..DIn and DO1..DOn (bits,
-1-based, across the base and its add-ons in slot order), AI1.. and AO1.. (one INT each), and
-`DEVICE.SIGNAL` endpoints across a cell. Where each signal lives in the assemblies follows the
+1-based, across the base and its add-ons in slot order), AI1.. and AO1.. (one INT each), the
+device's named signals (EIO_SIGNAL entries, `device/named_signals.py`), and `DEVICE.SIGNAL`
+endpoints across a cell. Where each numbered signal lives in the assemblies follows the
 catalogue's layout (`device/catalogue.yaml`)."""
 
 from __future__ import annotations
@@ -10,14 +11,11 @@ import struct
 from collections.abc import Mapping
 from typing import NamedTuple
 
+from enip_farm.device.named_signals import NamedSignal, SignalError
 from enip_farm.device.profile import DeviceProfile
 
 _NAME = re.compile(r"^(DI|DO|AI|AO)(\d+)(?:-(\d+))?$")
 _INT = struct.Struct("<h")
-
-
-class SignalError(ValueError):
-    pass
 
 
 class SignalRange(NamedTuple):
@@ -52,10 +50,25 @@ def parse_signal(text: str) -> SignalRange:
     return SignalRange(match[1], first, last)
 
 
+class SignalInfo(NamedTuple):
+    """One signal of a device as listings show it."""
+
+    name: str
+    type: str  # DI, DO, AI, AO (numbered) or DI, DO, GI, GO, AI, AO (named)
+    role: str  # "input" or "output"
+    digital: bool
+    bits: tuple[int, ...]  # 0-based bit positions in the image, least significant first
+
+
+Signal = SignalRange | NamedSignal
+
+
 class SignalMap:
-    """Byte offsets (and bits) of every signal of one device in its input and output assemblies."""
+    """Byte offsets (and bits) of every signal of one device in its input and output assemblies,
+    numbered (DI1..) and named."""
 
     def __init__(self, profile: DeviceProfile) -> None:
+        self.named = {signal.name.casefold(): signal for signal in profile.signals}
         self.bits: dict[str, list[tuple[int, int]]] = {"DI": [], "DO": []}
         self.words: dict[str, list[int]] = {"AI": [], "AO": []}
         for module in profile.modules:
@@ -69,6 +82,54 @@ class SignalMap:
             for i in range(io.ao):
                 self.words["AO"].append(module.output_offset + (io.do + 7) // 8 + 2 * i)
 
+    def lookup(self, text: str) -> Signal:
+        """A named signal (case-insensitive, as RAPID names are) or a numbered range (DI3, DO1-16);
+        SignalError naming `text` if the device has no such signal."""
+        named = self.named.get(text.strip().casefold())
+        if named is not None:
+            return named
+        try:
+            signal = parse_signal(text)
+        except SignalError:
+            raise SignalError(f"{text!r} is neither a signal of this device nor a name like DI3, DO1-16 "
+                              "or AI2") from None
+        self.check(signal)
+        return signal
+
+    def value(self, signal: Signal, image: bytes | bytearray) -> int | float | list[int]:
+        """A named signal's value, a numbered signal's value, or a list for a numbered range."""
+        if isinstance(signal, NamedSignal):
+            return signal.read(image)
+        values = self.read(signal, image)
+        return values[0] if signal.count == 1 else values
+
+    def values(self, role: str, image: bytes | bytearray) -> dict[str, int | float]:
+        """Every signal of one image by name: numbered first (DI1, DI2, ...), then named."""
+        out: dict[str, int | float] = {}
+        for kind in ("DI", "AI") if role == "input" else ("DO", "AO"):
+            count = self.count(kind)
+            if count:
+                for number, value in enumerate(self.read(SignalRange(kind, 1, count), image), 1):
+                    out[f"{kind}{number}"] = value
+        for signal in self.named.values():
+            if signal.role == role:
+                out[signal.name] = signal.read(image)
+        return out
+
+    def listing(self) -> list[SignalInfo]:
+        """Every signal of the device: numbered first, then named, in configuration order."""
+        out = []
+        for kind in ("DI", "DO", "AI", "AO"):
+            role = "input" if kind in ("DI", "AI") else "output"
+            if kind in self.bits:
+                out += [SignalInfo(f"{kind}{n}", kind, role, True, (8 * offset + bit,))
+                        for n, (offset, bit) in enumerate(self.bits[kind], 1)]
+            else:
+                out += [SignalInfo(f"{kind}{n}", kind, role, False, tuple(range(8 * offset, 8 * offset + 16)))
+                        for n, offset in enumerate(self.words[kind], 1)]
+        out += [SignalInfo(s.name, s.type, s.role, s.digital, s.bits) for s in self.named.values()]
+        return out
+
     def count(self, kind: str) -> int:
         return len(self.bits[kind]) if kind in self.bits else len(self.words[kind])
 
@@ -77,15 +138,23 @@ class SignalMap:
         if signal.last > available:
             raise SignalError(f"{signal}: this device has {available} {signal.kind} signals")
 
-    def read(self, signal: SignalRange, image: bytes | bytearray) -> list[int]:
+    def read(self, signal: Signal, image: bytes | bytearray) -> list:
+        """The values of a signal as a list (one item for a named signal)."""
+        if isinstance(signal, NamedSignal):
+            return [signal.read(image)]
         self.check(signal)
         span = slice(signal.first - 1, signal.last)
         if signal.digital:
             return [image[offset] >> bit & 1 for offset, bit in self.bits[signal.kind][span]]
         return [_INT.unpack_from(image, offset)[0] for offset in self.words[signal.kind][span]]
 
-    def write(self, signal: SignalRange, image: bytearray, values: list[int]) -> None:
+    def write(self, signal: Signal, image: bytearray, values: list) -> None:
         """Write values into an image in place (the caller holds the device lock)."""
+        if isinstance(signal, NamedSignal):
+            if len(values) != 1:
+                raise SignalError(f"{signal}: one value expected, got {len(values)}")
+            signal.write(image, values[0])
+            return
         self.check(signal)
         if len(values) != signal.count:
             raise SignalError(f"{signal}: {signal.count} values expected, got {len(values)}")
@@ -106,11 +175,18 @@ class SignalMap:
         return {kind: self.count(kind) for kind in ("DI", "DO", "AI", "AO")}
 
 
+def width(signal: Signal) -> int:
+    """How many bits a signal's value spans (wires join signals of the same width)."""
+    if isinstance(signal, NamedSignal):
+        return len(signal.bits)
+    return signal.count if signal.digital else 16 * signal.count
+
+
 class Endpoint(NamedTuple):
-    """A signal range of one device of a cell: DEVICE.DOn[-m], as wires and rules name them."""
+    """A signal of one device of a cell: DEVICE.DOn[-m] or DEVICE.NAME, as wires and rules name them."""
 
     device: str
-    signal: SignalRange
+    signal: Signal
 
     def __str__(self) -> str:
         return f"{self.device}.{self.signal}"
@@ -121,6 +197,7 @@ def parse_endpoint(text: str, devices: Mapping[str, SignalMap]) -> Endpoint:
     name, _, signal_text = text.rpartition(".")
     if name not in devices:
         raise SignalError(f"{text!r}: no device named {name!r}")
-    signal = parse_signal(signal_text)
-    devices[name].check(signal)
-    return Endpoint(name, signal)
+    try:
+        return Endpoint(name, devices[name].lookup(signal_text))
+    except SignalError as error:
+        raise SignalError(f"{text!r}: {error}") from None

@@ -1,0 +1,196 @@
+"""Named signals (RobotWare EIO_SIGNAL): device maps, group and analog values, the checks made when
+a configuration is built, and names in the Python API, the HTTP API, wires and rules."""
+
+from __future__ import annotations
+
+import httpx
+import pytest
+from pycomm3 import CIPDriver, Services
+
+from enip_farm.config import ConfigError, SignalConfig, parse_config
+from enip_farm.device.build import build_profiles
+from enip_farm.device.catalogue import shipped_catalogue
+from enip_farm.device.named_signals import SignalError, named_signal, parse_device_map
+from enip_farm.device.signals import SignalMap
+from enip_farm.pytest_plugin import AddressPool
+
+GRIPPER_SIGNALS = [
+    {"name": "diGripperClosed", "type": "DI", "device_map": "3"},
+    {"name": "diDoorOpen", "type": "DI", "device_map": "4", "invert": True},
+    {"name": "giPartType", "type": "GI", "device_map": "8-11"},
+    {"name": "goProgramNo", "type": "GO", "device_map": "8-15"},
+    {"name": "doClamp", "type": "DO", "device_map": "0"},
+]
+
+
+def signal(**fields: object) -> object:
+    return named_signal(SignalConfig.model_validate(fields))
+
+
+# -- device maps and values (unit) -------------------------------------------------------------------
+
+
+@pytest.mark.parametrize(("text", "bits"), [
+    ("3", (3,)), ("8-15", tuple(range(8, 16))), ("15-8", tuple(range(15, 7, -1))),
+    ("0-3, 9", (0, 1, 2, 3, 9)), ("0-7,16-23", (*range(8), *range(16, 24))),
+])
+def test_device_map(text: str, bits: tuple[int, ...]) -> None:
+    assert parse_device_map(text) == bits
+
+
+@pytest.mark.parametrize("text", ["", "a", "3-", "1,1", "0-3,2"])
+def test_bad_device_map(text: str) -> None:
+    with pytest.raises(SignalError, match="device map"):
+        parse_device_map(text)
+
+
+def test_group_is_unsigned_over_its_bits_least_significant_first() -> None:
+    go = signal(name="goProgramNo", type="GO", device_map="4-11")
+    image = bytearray(2)
+    go.write(image, 0xA5)
+    assert image == bytes([0x50, 0x0A])  # bits 4..11 hold 0xA5, bit 4 = its bit 0
+    assert go.read(image) == 0xA5
+    reversed_go = signal(name="goRev", type="GO", device_map="7-0")
+    image = bytearray(1)
+    reversed_go.write(image, 0x01)
+    assert image == b"\x80"  # the first listed bit (7) is the value's bit 0
+    with pytest.raises(SignalError, match=r"256 is out of range \(0..255\)"):
+        go.write(image, 256)
+    with pytest.raises(SignalError, match="out of range"):
+        go.write(image, -1)
+
+
+def test_invert_and_digital_values() -> None:
+    di = signal(name="diDoorOpen", type="DI", device_map="2", invert=True)
+    image = bytearray(1)
+    assert di.read(image) == 1  # bit clear = door open
+    di.write(image, 1)
+    assert image == b"\x00"
+    di.write(image, 0)
+    assert image == b"\x04"
+    with pytest.raises(SignalError, match="0 or 1"):
+        di.write(image, 2)
+    with pytest.raises(SignalError, match="numbers"):
+        di.write(image, True)
+
+
+def test_two_complement_and_scaled_analog() -> None:
+    ai = signal(name="aiTemp", type="AI", device_map="0-15", enc_type="TWO_COMP")
+    image = bytearray(2)
+    ai.write(image, -2)
+    assert image == b"\xfe\xff"
+    assert ai.read(image) == -2
+    with pytest.raises(SignalError, match=r"-32768..32767"):
+        ai.write(image, 40000)
+    ao = signal(name="aoSpeed", type="AO", device_map="0-15", min_log=0, max_log=10, min_bit_val=0,
+                max_bit_val=32767)
+    ao.write(image, 5.0)
+    assert int.from_bytes(image, "little") == 16384  # round(32767 / 2)
+    assert ao.read(image) == pytest.approx(5.0, abs=10 / 32767)
+    with pytest.raises(SignalError, match="out of range"):
+        ao.write(image, 11.0)
+
+
+def test_a_digital_signal_maps_one_bit() -> None:
+    with pytest.raises(SignalError, match="a DI maps one bit"):
+        signal(name="diTwo", type="DI", device_map="0-1")
+
+
+# -- configuration checks (unit) ---------------------------------------------------------------------
+
+
+def build(signals: list[dict], **device: object) -> list:
+    config = parse_config({"devices": [{"name": "io1", "address": "127.0.10.1", "model": "DSQC1030",
+                                        "signals": signals, **device}]})
+    return build_profiles(config, shipped_catalogue())
+
+
+def test_named_signals_are_part_of_the_profile() -> None:
+    [profile] = build(GRIPPER_SIGNALS)
+    names = [info.name for info in SignalMap(profile).listing()]
+    assert names[:16] == [f"DI{n}" for n in range(1, 17)]
+    assert names[-5:] == ["diGripperClosed", "diDoorOpen", "giPartType", "goProgramNo", "doClamp"]
+
+
+@pytest.mark.parametrize(("signals", "message"), [
+    ([{"name": "DI3", "type": "DI", "device_map": "0"}], "reads as a built-in signal"),
+    ([{"name": "goWide", "type": "GO", "device_map": "8-16"}], "bit 16 is beyond the 2-byte output image"),
+    ([{"name": "a", "type": "DI", "device_map": "0"}, {"name": "A", "type": "DO", "device_map": "0"}],
+     "the same name"),
+    ([{"name": "diTwo", "type": "DI", "device_map": "1-2"}], "maps one bit"),
+    ([{"name": "x", "type": "XI", "device_map": "1"}], "type"),
+])
+def test_bad_signals_are_refused_with_a_line_naming_them(signals: list[dict], message: str) -> None:
+    with pytest.raises(ConfigError) as error:
+        build(signals)
+    assert message in str(error.value)
+    assert "Traceback" not in str(error.value)
+
+
+def test_every_bad_signal_gets_its_line() -> None:
+    with pytest.raises(ConfigError) as error:
+        build([{"name": "DO1", "type": "DO", "device_map": "0"}, {"name": "giFar", "type": "GI", "device_map": "40"}])
+    lines = str(error.value).splitlines()
+    assert len(lines) == 2
+    assert "DO1" in lines[0] and "giFar" in lines[1]
+
+
+# -- names in the APIs (integration) -----------------------------------------------------------------
+
+
+def test_names_in_the_python_api_over_cip(enip_farm) -> None:
+    io = enip_farm(name="io1", model="DSQC1030", signals=GRIPPER_SIGNALS)["io1"]
+    io.set(diGripperClosed=1, giPartType=9)
+    assert io.get("diGripperClosed") == 1 and io.get("DI4") == 1 and io.get("giPartType") == 9
+    assert io.get("diDoorOpen") == 1  # inverted: bit 4 is clear
+    assert io.inputs == bytes([0x18 ^ 0x10 | 0x08, 0x09])  # DI4 (bit 3) set, DI5 (bit 4) clear, bits 8-11 = 9
+    with CIPDriver(io.address) as agent:
+        agent.generic_message(service=Services.set_attribute_single, class_code=4, instance=100, attribute=3,
+                              request_data=b"\x01\x2a", connected=False, route_path=False)
+    assert io.get("goProgramNo") == 42 and io.get("doClamp") == 1 and io.get("goprogramno") == 42
+    table = {row["name"]: row for row in io.signal_table()}
+    assert table["goProgramNo"] == {"name": "goProgramNo", "type": "GO", "role": "output", "value": 42}
+    assert table["DO1"]["value"] == 1
+    with pytest.raises(SignalError, match="out of range"):
+        io.set(giPartType=16)
+    with pytest.raises(SignalError, match="neither a signal of this device"):
+        io.get("diNoSuchThing")
+    assert io.get("giPartType") == 9  # the refused write changed nothing
+
+
+def test_names_in_the_http_api(enip_farm) -> None:
+    farm = enip_farm(name="io1", model="DSQC1030", signals=GRIPPER_SIGNALS, http=True)
+    with httpx.Client(base_url=f"http://127.0.0.1:{farm.http.port}") as client:
+        reply = client.put("/devices/io1/io", json={"signals": {"diGripperClosed": 1, "giPartType": 5}})
+        assert reply.status_code == 200
+        assert reply.json()["named"]["giPartType"] == 5
+        assert farm["io1"].get("DI4") == 1
+        bad = client.put("/devices/io1/io", json={"signals": {"giPartType": 99}})
+        assert bad.status_code == 422 and "giPartType" in bad.text
+
+
+def test_wires_and_rules_between_named_signals(free_address: AddressPool, enip_farm) -> None:
+    cell = {"devices": [
+        {"name": "plc", "address": free_address(), "model": "DSQC1030",
+         "signals": [{"name": "goRecipe", "type": "GO", "device_map": "0-7"},
+                     {"name": "doStart", "type": "DO", "device_map": "15"}]},
+        {"name": "robot", "address": free_address(), "model": "DSQC1030",
+         "signals": [{"name": "giRecipe", "type": "GI", "device_map": "8-15"},
+                     {"name": "diStarted", "type": "DI", "device_map": "0"}]}],
+        "wires": [{"from": "plc.goRecipe", "to": "robot.giRecipe"}],
+        "rules": [{"when": "plc.doStart", "set": "robot.diStarted"}]}
+    farm = enip_farm(cell)
+    farm["plc"].set(goRecipe=77, doStart=1)
+    assert farm["robot"].get("giRecipe") == 77
+    assert farm["robot"].get("diStarted") == 1
+    assert farm["robot"].inputs == bytes([0x01, 77])
+
+
+def test_a_wire_between_signals_of_different_widths_is_refused(free_address: AddressPool) -> None:
+    devices = [{"name": "a", "address": free_address(), "model": "DSQC1030",
+                "signals": [{"name": "goWide", "type": "GO", "device_map": "0-7"}]},
+               {"name": "b", "address": free_address(), "model": "DSQC1030",
+                "signals": [{"name": "giNarrow", "type": "GI", "device_map": "0-3"}]}]
+    with pytest.raises(ConfigError, match="same kind and number"):
+        build_profiles(parse_config({"devices": devices, "wires": [{"from": "a.goWide", "to": "b.giNarrow"}]}),
+                       shipped_catalogue())
