@@ -139,6 +139,9 @@ class DeviceConfig(_Strict):
         120, ge=0, le=3600, description="TCP/IP object attribute 13: a TCP connection with no whole request "
         "for this long is closed (0 = never)")
     limits: LimitsConfig = LimitsConfig()
+    reset_time_s: float = Field(
+        1.0, ge=0, le=3600, allow_inf_nan=False, description="Identity Reset: how long the device does not "
+        "answer (no TCP listener, UDP dropped) after it has replied, as a module restarts")
     signals: list[SignalConfig] = Field([], description="named signals (RobotWare EIO_SIGNAL) beside DI1.., DO1..")
     _entry: int = PrivateAttr(0)
 

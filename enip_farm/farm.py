@@ -1,6 +1,10 @@
 """A farm: configuration in, running devices out. Builds the devices (`device/build.py`, against the
 shipped catalogue unless given another), binds every device's TCP and UDP 44818 (and the discovery
-responder), and closes them all again."""
+responder), and closes them all again.
+
+When a device resets (Identity Reset, its "reset" event), the farm closes the device's TCP
+connections and listener once the reply has been written, and listens again when the device's
+reset window ends (`Device.end_reset`, asked at the window's deadline and never before)."""
 
 from __future__ import annotations
 
@@ -10,6 +14,7 @@ import gc
 import logging
 import resource
 import threading
+import time
 from collections.abc import Coroutine, Iterator
 from contextlib import contextmanager
 from pathlib import Path
@@ -23,12 +28,14 @@ from enip_farm.control.wiring import Wiring
 from enip_farm.device.build import build_profiles
 from enip_farm.device.catalogue import Catalogue, shipped_catalogue
 from enip_farm.device.device import ENIP_PORT, Device
+from enip_farm.device.events import Event
 from enip_farm.device.faults import Fault, FaultKind
 from enip_farm.server.implicit import IO_PORT, ImplicitIo
 from enip_farm.server.limits import TcpLimits
 from enip_farm.server.tcp import EncapsulationProtocol
 from enip_farm.server.udp import DeviceDatagramProtocol, DiscoveryResponder, udp_socket
 
+log = logging.getLogger(__name__)
 #: Sockets per device at rest: a TCP listener, UDP 44818 and UDP 2222; each client connection adds one.
 SOCKETS_PER_DEVICE = 3
 
@@ -108,6 +115,10 @@ class Farm:
         self._discovery: DiscoveryResponder | None = None
         self._implicit: ImplicitIo | None = None
         self._fault_timers: dict[tuple[str, FaultKind], asyncio.TimerHandle] = {}
+        self._reset_timers: dict[str, asyncio.TimerHandle] = {}
+        self._tasks: set[asyncio.Task] = set()
+        for device in self.devices.values():
+            device.observe(lambda event, d=device: self._on_device_event(d, event))
         self.loop: asyncio.AbstractEventLoop | None = None
         self.running = False
 
@@ -189,9 +200,10 @@ class Farm:
         for transport in self._datagram_transports:
             transport.close()
         self._datagram_transports.clear()
-        for timer in self._fault_timers.values():
+        for timer in [*self._fault_timers.values(), *self._reset_timers.values()]:
             timer.cancel()
         self._fault_timers.clear()
+        self._reset_timers.clear()
         for server in self._servers.values():
             server.close()
         for connection in list(self._connections):
@@ -226,14 +238,57 @@ class Farm:
         """Switch one fault (or all) off; normal behaviour returns without a restart."""
         device = self.devices[name]
         offline_ends = FaultKind.OFFLINE in device.faults.active and kind in (None, FaultKind.OFFLINE)
-        if offline_ends and self.running and name not in self._servers:
-            await self._listen(device)  # listening again before the fault is seen gone
+        if offline_ends and self.running and name not in self._servers and not device.resetting:
+            await self._listen(device)  # listening again before the fault is seen gone (a reset's end listens)
         cleared = device.faults.clear(kind)
         for k in cleared:
             self._cancel_timer(name, k)
         if cleared:
             device.record("fault cleared", ", ".join(k.value for k in cleared))
         return cleared
+
+    # -- Identity Reset --------------------------------------------------------------------------
+
+    def _on_device_event(self, device: Device, event: Event) -> None:
+        """A device's observer (any thread): a reset is handled on the loop, after the reply."""
+        if event.kind == "reset" and self.loop is not None and self.running:
+            self.loop.call_soon_threadsafe(self._begin_reset, device)
+
+    def _begin_reset(self, device: Device) -> None:
+        """On the loop, after the Reset's reply was written: the device's sessions end (its TCP
+        connections close) and it takes no connection until its reset window ends."""
+        if not self.running:
+            return
+        self._close_connections(device)
+        server = self._servers.pop(device.name, None)
+        if server is not None:
+            server.close()
+        self._arm_reset_end(device)
+
+    def _arm_reset_end(self, device: Device) -> None:
+        due = device.reset_window.due()
+        timer = self._reset_timers.pop(device.name, None)
+        if timer is not None:
+            timer.cancel()
+        if due is not None and self.loop is not None:
+            delay_s = max(due - time.monotonic_ns(), 0) / 1e9
+            self._reset_timers[device.name] = self.loop.call_later(delay_s, self._end_reset, device)
+
+    def _end_reset(self, device: Device) -> None:
+        self._reset_timers.pop(device.name, None)
+        if not device.end_reset(time.monotonic_ns()):
+            self._arm_reset_end(device)  # the timer came a little early: wait for the deadline itself
+            return
+        if self.running and not device.faults.offline and device.name not in self._servers:
+            task = self.loop.create_task(self._listen_after_reset(device))  # type: ignore[union-attr]
+            self._tasks.add(task)
+            task.add_done_callback(self._tasks.discard)
+
+    async def _listen_after_reset(self, device: Device) -> None:
+        try:
+            await self._listen(device)
+        except BindError as error:  # someone took the address meanwhile: say so, keep serving the others
+            log.error("%s (after its reset)", error)
 
     def _cancel_timer(self, name: str, kind: FaultKind) -> None:
         timer = self._fault_timers.pop((name, kind), None)

@@ -2,7 +2,8 @@
 connections themselves live in the device's sans-IO `ConnectionTable` (cip/connection_table.py).
 
 - Unconnected Send (0x52) addressed to this device: the embedded request is answered by the
-  message router and its reply returned as it is (3-5.5.2).
+  message router and its reply returned as it is (3-5.5.2); unless the device's profile says it
+  does not route (0x08, as a non-routing adapter such as OpENer answers).
 - Forward Open (0x54) and Large Forward Open (0x5B): admitted or refused by the table, each
   refusal with the extended status of table 3-5.33 (and the expected size for 0x0127/0x0128).
 - Forward Close (0x4E).
@@ -41,12 +42,13 @@ class ConnectionManager(CipClass):
     class_id = 0x06
     revision = 1
 
-    def __init__(self, router: MessageRouter, table: ConnectionTable) -> None:
+    def __init__(self, router: MessageRouter, table: ConnectionTable, unconnected_send: bool = True) -> None:
         super().__init__()
         self.router = router
         self.table = table
         self.instances[1] = CipInstance({})
-        self.handlers[Service.UNCONNECTED_SEND] = self.unconnected_send
+        if unconnected_send:
+            self.handlers[Service.UNCONNECTED_SEND] = self.unconnected_send
         self.handlers[Service.FORWARD_OPEN] = self.forward_open
         self.handlers[Service.LARGE_FORWARD_OPEN] = self.large_forward_open
         self.handlers[Service.FORWARD_CLOSE] = self.forward_close

@@ -1,15 +1,43 @@
 """Identity object, class 0x01 (CIP Networks Library Vol. 1, 5-2): vendor, device type, product
-code, revision, status, serial number and product name."""
+code, revision, status, serial number, product name and state (attributes 1-8), and the Reset
+service (0x05, 5-2.4.1).
+
+Reset's request data is an optional USINT, the reset type: 0 (the default, no data) emulates a
+power cycle; 1 returns to the out-of-box configuration, then emulates a power cycle. Other types
+(2, "all but the communication link parameters", is optional) get 0x20 (invalid parameter); more
+than one byte gets 0x15. The object only takes the request: it calls `reset(type)` and answers
+success; the device performs the reset once the reply is built, and the server sends that reply
+before it ends the device's sessions (device/device.py, farm.py)."""
 
 from __future__ import annotations
 
 import struct
 from collections.abc import Callable
 
-from enip_farm.cip.object import UDINT, UINT, Attribute, CipClass, CipInstance, constant, short_string
+from enip_farm.cip.object import (
+    UDINT,
+    UINT,
+    Attribute,
+    CipClass,
+    CipInstance,
+    ServiceResult,
+    constant,
+    short_string,
+    short_string_size,
+)
+from enip_farm.protocol.cip import Service
+from enip_farm.protocol.epath import RequestPath
+from enip_farm.protocol.session import MessageContext
+from enip_farm.protocol.status import GeneralStatus
 
 #: Identity status bits 4-7 = 0b0011: "no I/O connections established" (Vol. 1, table 5-2.4).
 STATUS_NO_IO_CONNECTIONS = 0x0030
+#: Attribute 8, state (Vol. 1, 5-2.3): 1 device self testing, 3 operational.
+STATE_SELF_TESTING = 1
+STATE_OPERATIONAL = 3
+#: Reset types (Vol. 1, 5-2.4.1): 0 power cycle, 1 out-of-box configuration and power cycle.
+RESET_POWER_CYCLE = 0
+RESET_OUT_OF_BOX = 1
 
 
 class IdentityObject(CipClass):
@@ -17,8 +45,11 @@ class IdentityObject(CipClass):
     revision = 1
 
     def __init__(self, *, vendor_id: int, device_type: int, product_code: Callable[[], int], revision: tuple[int, int],
-                 serial_number: int, product_name: str, status: Callable[[], int]) -> None:
+                 serial_number: int, product_name: str, status: Callable[[], int],
+                 state: Callable[[], int] = lambda: STATE_OPERATIONAL,
+                 reset: Callable[[int], None] | None = None) -> None:
         super().__init__()
+        self._reset = reset
         self.instances[1] = CipInstance(
             {
                 1: constant(UINT.pack(vendor_id)),
@@ -27,6 +58,21 @@ class IdentityObject(CipClass):
                 4: constant(struct.pack("<BB", *revision)),
                 5: Attribute(lambda: UINT.pack(status())),
                 6: constant(UDINT.pack(serial_number)),
-                7: constant(short_string(product_name)),
-            }
+                7: Attribute(lambda: short_string(product_name), size=short_string_size),
+                8: Attribute(lambda: bytes((state(),))),
+            },
+            all_ids=(1, 2, 3, 4, 5, 6, 7),  # Get Attributes All: the required attributes, as OpENer
         )
+        self.handlers[Service.RESET] = self.reset
+
+    def reset(self, instance: CipInstance, path: RequestPath, data: bytes,
+              context: MessageContext) -> ServiceResult:
+        if path.instance_id == 0 or self._reset is None:  # an instance service
+            return ServiceResult(GeneralStatus.SERVICE_NOT_SUPPORTED)
+        if len(data) > 1:
+            return ServiceResult(GeneralStatus.TOO_MUCH_DATA)
+        kind = data[0] if data else RESET_POWER_CYCLE
+        if kind not in (RESET_POWER_CYCLE, RESET_OUT_OF_BOX):
+            return ServiceResult(GeneralStatus.INVALID_PARAMETER)
+        self._reset(kind)
+        return ServiceResult(GeneralStatus.SUCCESS)

@@ -1,5 +1,6 @@
 """Message Router, class 0x02 (CIP Networks Library Vol. 1, 5-3 and 2-4): decodes each explicit
-request, dispatches it by class id, and answers Multiple Service Packet (0x0A)."""
+request, dispatches it by class id, and answers Multiple Service Packet (0x0A) unless the device's
+profile says it does not (a non-routing adapter such as OpENer answers 0x08)."""
 
 from __future__ import annotations
 
@@ -7,7 +8,7 @@ import logging
 import struct
 from collections import Counter
 
-from enip_farm.cip.object import UINT, CipClass, CipInstance, Reply, ReplyItems, ServiceResult, constant
+from enip_farm.cip.object import UINT, Attribute, CipClass, CipInstance, Reply, ReplyItems, ServiceResult, constant
 from enip_farm.protocol.cip import (
     REPLY_BIT,
     CipDecodeError,
@@ -36,7 +37,7 @@ class MessageRouter(CipClass):
     class_id = 0x02
     revision = 1
 
-    def __init__(self) -> None:
+    def __init__(self, multiple_service_packet: bool = True) -> None:
         super().__init__()
         self.objects: dict[int, CipClass] = {self.class_id: self}
         self.forced_status: dict[int, int] = {}  # fault injection: service -> general status
@@ -44,7 +45,8 @@ class MessageRouter(CipClass):
         self.handled: list[tuple[int, bytes, int]] = []  # (service, path, status) since pop_handled
         self.replay: dict[tuple[int, bytes, bytes], bytes] = {}  # a learned profile's replay table
         self._paths: dict[bytes, RequestPath | int] = {}
-        self.handlers[Service.MULTIPLE_SERVICE_PACKET] = self.multiple_service_packet
+        if multiple_service_packet:
+            self.handlers[Service.MULTIPLE_SERVICE_PACKET] = self.multiple_service_packet
         self.instances[1] = CipInstance(
             {
                 1: constant(b""),  # replaced once every object is registered
@@ -56,7 +58,7 @@ class MessageRouter(CipClass):
         self.objects[obj.class_id] = obj
         ids = sorted(self.objects)
         object_list = struct.pack(f"<H{len(ids)}H", len(ids), *ids)
-        self.instances[1].attributes[1] = constant(object_list)
+        self.instances[1].attributes[1] = Attribute(lambda: object_list, size=_object_list_size)
         self.instances[1].attributes[2] = constant(UINT.pack(len(ids)))
 
     def handle(self, message: bytes, context: MessageContext) -> bytes:
@@ -136,3 +138,8 @@ class MessageRouter(CipClass):
         failed = any(reply[2] != GeneralStatus.SUCCESS for reply in replies)
         status = GeneralStatus.EMBEDDED_SERVICE_ERROR if failed else GeneralStatus.SUCCESS
         return ServiceResult(status, encode_multiple_service(replies))
+
+
+def _object_list_size(data: bytes) -> int | None:
+    """Attribute 1: a UINT count and that many UINT class ids."""
+    return UINT.size * (1 + UINT.unpack_from(data)[0]) if len(data) >= UINT.size else None

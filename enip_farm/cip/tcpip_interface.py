@@ -1,13 +1,43 @@
-"""TCP/IP Interface object, class 0xF5 (CIP Networks Library Vol. 2, 5-4): the read-only
-attributes a scanner or commissioning tool reads (1-6), from the device's own address, and
-attribute 13, the encapsulation inactivity timeout (seconds, 0 = never; settable, 0-3600): a TCP
-connection with no whole encapsulation request for that long is closed (server/tcp.py)."""
+"""TCP/IP Interface object, class 0xF5 (CIP Networks Library Vol. 2, 5-4), revision 4, instance 1:
+attributes 1-13 from the device's own address and configuration.
+
+| # | attribute | here |
+|---|---|---|
+| 1-3 | status, configuration capability, configuration control | valid configuration, DHCP-capable, static; read-only |
+| 4 | physical link object | path to Ethernet Link instance 1 |
+| 5 | interface configuration | address, mask, gateway of the device; no name servers or domain; read-only |
+| 6 | host name (STRING) | settable: up to 64 letters, digits and inner hyphens (RFC 1123 label) |
+| 7 | safety network number | not a safety device: 0x14; six zero bytes in Get Attributes All |
+| 8 | TTL value (USINT) | settable 1-255, default 1 |
+| 9 | multicast configuration | the device's T->O group: allocation 0 (CIP algorithm) or 1 (configured); read-only |
+| 10 | SelectAcd (BOOL) | settable 0/1, default 0 (stored; the farm runs no address conflict detection) |
+| 11 | last conflict detected | no conflict: 35 zero bytes; read-only |
+| 12 | EtherNet/IP Quick Connect (BOOL) | settable 0/1, default 0 (stored) |
+| 13 | encapsulation inactivity timeout (UINT, s) | settable 0-3600, default 120 (server/tcp.py applies it) |
+
+Set values live until the device is reset to its out-of-box configuration (Identity Reset type 1,
+`restore_defaults`): like the module's non-volatile settings they survive a type-0 reset.
+Get Attributes All returns 1-13 in order, 7 as six zero bytes: 96 bytes plus the padded domain
+and host names (as OpENer's GetAttributeAll of class 0xF5 lays them out)."""
 
 from __future__ import annotations
 
+import re
 import socket
+import struct
+from collections.abc import Callable
 
-from enip_farm.cip.object import UDINT, UINT, Attribute, CipClass, CipInstance, cip_string, constant, udint
+from enip_farm.cip.object import (
+    UDINT,
+    UINT,
+    Attribute,
+    CipClass,
+    CipInstance,
+    cip_string,
+    constant,
+    string_size,
+    udint,
+)
 from enip_farm.protocol.status import GeneralStatus
 
 #: Attribute 1: interface configuration status 1 = "valid configuration obtained".
@@ -19,6 +49,16 @@ _CAPABILITY = 0x04
 _CONTROL_STATIC = 0
 #: Attribute 13: the largest encapsulation inactivity timeout, seconds.
 MAX_INACTIVITY_TIMEOUT_S = 3600
+#: Attribute 6: the longest host name (RFC 1123), and what a name may be made of.
+MAX_HOST_NAME = 64
+_HOST_NAME = re.compile(r"^[A-Za-z0-9](?:[A-Za-z0-9-]*[A-Za-z0-9])?$")
+#: Attribute 7 in Get Attributes All: a device that is not a safety device has no safety network number.
+_NO_SAFETY_NETWORK_NUMBER = bytes(6)
+#: Attribute 11: ACD activity 0 (no conflict), remote MAC and ARP PDU all zero.
+_NO_CONFLICT = bytes(1 + 6 + 28)
+#: Attribute 9's allocation control: 0 the CIP algorithm (Vol. 2, 3-5.3), 1 a configured group.
+ALLOC_ALGORITHM, ALLOC_CONFIGURED = 0, 1
+_MCAST_CONFIG = struct.Struct("<BBHI")
 
 
 def ip_udint(address: str) -> bytes:
@@ -26,39 +66,132 @@ def ip_udint(address: str) -> bytes:
     return UDINT.pack(int.from_bytes(socket.inet_aton(address), "big"))
 
 
+def _epath_size(data: bytes) -> int | None:
+    """Attribute 4: a UINT path size in words and the path."""
+    return UINT.size + 2 * UINT.unpack_from(data)[0] if len(data) >= UINT.size else None
+
+
+def _configuration_size(data: bytes) -> int | None:
+    """Attribute 5: five UDINTs and a STRING."""
+    name = string_size(data[20:])
+    return None if name is None else 20 + name
+
+
+class TcpIpSettings:
+    """The settable attributes, as configured (out of box) or as clients set them."""
+
+    __slots__ = ("host_name", "ttl", "select_acd", "quick_connect", "inactivity_timeout_s")
+
+    def __init__(self, host_name: str, inactivity_timeout_s: int) -> None:
+        self.host_name = host_name
+        self.ttl = 1
+        self.select_acd = 0
+        self.quick_connect = 0
+        self.inactivity_timeout_s = inactivity_timeout_s
+
+    def copy(self) -> TcpIpSettings:
+        settings = TcpIpSettings(self.host_name, self.inactivity_timeout_s)
+        settings.ttl, settings.select_acd, settings.quick_connect = self.ttl, self.select_acd, self.quick_connect
+        return settings
+
+
 class TcpIpInterfaceObject(CipClass):
     class_id = 0xF5
     revision = 4
 
     def __init__(self, *, address: str, netmask: str, gateway: str, host_name: str,
-                 inactivity_timeout_s: int = 120) -> None:
+                 inactivity_timeout_s: int = 120, multicast_group: str = "0.0.0.0",
+                 multicast_configured: bool = False) -> None:
         super().__init__()
-        self.inactivity_timeout_s = inactivity_timeout_s
+        self._out_of_box = TcpIpSettings(host_name, inactivity_timeout_s)
+        self.settings = self._out_of_box.copy()
         interface_configuration = (
             ip_udint(address) + ip_udint(netmask) + ip_udint(gateway)
             + ip_udint("0.0.0.0") + ip_udint("0.0.0.0") + cip_string("")
         )
+        multicast = _MCAST_CONFIG.pack(ALLOC_CONFIGURED if multicast_configured else ALLOC_ALGORITHM, 0, 1,
+                                       int.from_bytes(socket.inet_aton(multicast_group), "big"))
         self.instances[1] = CipInstance(
             {
                 1: udint(_STATUS_VALID),
                 2: udint(_CAPABILITY),
                 3: udint(_CONTROL_STATIC),
                 # physical link object: path size 2 words, path 20 F6 24 01 (Ethernet Link 1)
-                4: constant(b"\x02\x00\x20\xf6\x24\x01"),
-                5: constant(interface_configuration),
-                6: constant(cip_string(host_name)),
-                13: Attribute(lambda: UINT.pack(self.inactivity_timeout_s), self._set_inactivity_timeout),
+                4: Attribute(lambda: b"\x02\x00\x20\xf6\x24\x01", size=_epath_size),
+                5: Attribute(lambda: interface_configuration, size=_configuration_size),
+                6: Attribute(lambda: cip_string(self.settings.host_name), self._set_host_name, string_size),
+                8: Attribute(lambda: bytes((self.settings.ttl,)), self._set_ttl),
+                9: constant(multicast),
+                10: Attribute(lambda: bytes((self.settings.select_acd,)), self._setter_bool("select_acd")),
+                11: constant(_NO_CONFLICT),
+                12: Attribute(lambda: bytes((self.settings.quick_connect,)), self._setter_bool("quick_connect")),
+                13: Attribute(lambda: UINT.pack(self.settings.inactivity_timeout_s),
+                              self._set_inactivity_timeout),
             },
-            all_ids=(1, 2, 3, 4, 5, 6),
+            all_ids=tuple(range(1, 14)),
+            all_defaults={7: _NO_SAFETY_NETWORK_NUMBER},
         )
 
+    @property
+    def inactivity_timeout_s(self) -> int:
+        return self.settings.inactivity_timeout_s
+
+    def restore_defaults(self) -> None:
+        """Back to the out-of-box configuration (Identity Reset type 1)."""
+        self.settings = self._out_of_box.copy()
+
+    # -- setters: encoded data in, a general status out ------------------------------------------
+
     def _set_inactivity_timeout(self, data: bytes) -> int:
-        if len(data) < UINT.size:
-            return GeneralStatus.NOT_ENOUGH_DATA
-        if len(data) > UINT.size:
-            return GeneralStatus.TOO_MUCH_DATA
+        status = _exact(data, UINT.size)
+        if status:
+            return status
         (value,) = UINT.unpack(data)
         if value > MAX_INACTIVITY_TIMEOUT_S:
             return GeneralStatus.INVALID_ATTRIBUTE_VALUE
-        self.inactivity_timeout_s = value
+        self.settings.inactivity_timeout_s = value
         return GeneralStatus.SUCCESS
+
+    def _set_ttl(self, data: bytes) -> int:
+        status = _exact(data, 1)
+        if status:
+            return status
+        if data[0] == 0:
+            return GeneralStatus.INVALID_ATTRIBUTE_VALUE
+        self.settings.ttl = data[0]
+        return GeneralStatus.SUCCESS
+
+    def _setter_bool(self, name: str) -> Callable[[bytes], int]:
+        def set_bool(data: bytes) -> int:
+            status = _exact(data, 1)
+            if status:
+                return status
+            if data[0] > 1:
+                return GeneralStatus.INVALID_ATTRIBUTE_VALUE
+            setattr(self.settings, name, data[0])
+            return GeneralStatus.SUCCESS
+        return set_bool
+
+    def _set_host_name(self, data: bytes) -> int:
+        size = string_size(data)
+        if size is None or size > len(data):
+            return GeneralStatus.NOT_ENOUGH_DATA
+        if size < len(data):
+            return GeneralStatus.TOO_MUCH_DATA
+        (length,) = UINT.unpack_from(data)
+        if length > MAX_HOST_NAME:
+            return GeneralStatus.TOO_MUCH_DATA  # as OpENer
+        name = data[UINT.size : UINT.size + length].decode("latin-1")
+        if name and not _HOST_NAME.match(name):
+            return GeneralStatus.INVALID_ATTRIBUTE_VALUE
+        self.settings.host_name = name
+        return GeneralStatus.SUCCESS
+
+
+def _exact(data: bytes, size: int) -> int:
+    """0 if `data` has `size` bytes, else 0x13 (short) or 0x15 (long)."""
+    if len(data) < size:
+        return GeneralStatus.NOT_ENOUGH_DATA
+    if len(data) > size:
+        return GeneralStatus.TOO_MUCH_DATA
+    return GeneralStatus.SUCCESS

@@ -16,7 +16,7 @@ from types import MappingProxyType
 from typing import Any, Literal
 
 import yaml
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 
 class _Strict(BaseModel):
@@ -71,6 +71,14 @@ class ReplayEntry(_Strict):
     reply: str
 
 
+class Routing(_Strict):
+    """Whether a base answers Multiple Service Packet (0x0A) and Unconnected Send (0x52) addressed
+    to itself, or 0x08 (service not supported) as a non-routing adapter such as OpENer does."""
+
+    multiple_service_packet: bool = True
+    unconnected_send: bool = True
+
+
 class Model(_Strict):
     kind: Literal["base", "addon"]
     description: str
@@ -78,8 +86,25 @@ class Model(_Strict):
     assemblies: AssemblyIds | None = None
     sizes: AssemblySizes | None = Field(None, description="explicit sizes (learned profiles); else from io")
     io: IoCounts = IoCounts()
+    routing: Routing | None = Field(None, description="a base that does not say gets Routing()'s defaults, "
+                                    "listed as unverified")
     unverified: tuple[str, ...] = ()
     replay: tuple[ReplayEntry, ...] = ()
+
+    @model_validator(mode="before")
+    @classmethod
+    def _default_routing_is_unverified(cls, data: Any) -> Any:
+        """A base model that does not say how it routes answers as the farm does by default, which
+        nobody has checked against it: `routing` joins its unverified placeholders."""
+        if isinstance(data, dict) and data.get("kind") == "base" and data.get("routing") is None:
+            unverified = tuple(data.get("unverified") or ())
+            if "routing" not in unverified:
+                data = {**data, "unverified": (*unverified, "routing")}
+        return data
+
+    @property
+    def effective_routing(self) -> Routing:
+        return self.routing or Routing()
 
 
 class CatalogueFile(_Strict):

@@ -1,6 +1,15 @@
 """One virtual device: its CIP objects, its I/O image, its connection table and its
 encapsulation-level identity (the `Target` of protocol/session.py).
 
+Identity Reset (cip/identity.py) is performed here, right after the request that asked for it has
+been answered (its reply is built; the server sends it before anything else of the device's):
+every class-1 and class-3 connection closes, the output and configuration images go to their
+power-up state (all zero), the input image keeps what the field (the API, wires, rules) holds, the
+link counters clear, a type-1 reset also restores the configured TCP/IP and Ethernet Link
+settings, and a "reset" event is recorded. The sessions of the device end with that reply
+(`restarts` moves on) and the device does not answer until its reset window ends
+(device/reset.py; the farm closes its TCP connections and listener meanwhile).
+
 One lock discipline: the device lock is held around every read and every write of the images and
 of the connection table (explicit requests, O->T consumption, T->O production, supervision, the
 Python and HTTP APIs), so no reader sees half a write and no writer loses one. What happened
@@ -20,8 +29,8 @@ from enip_farm.cip.assembly import AssemblyInstance, AssemblyObject
 from enip_farm.cip.connection import Connection
 from enip_farm.cip.connection_manager import ConnectionManager
 from enip_farm.cip.connection_table import ConnectionEvent, ConnectionTable
-from enip_farm.cip.ethernet_link import EthernetLinkObject
-from enip_farm.cip.identity import IdentityObject
+from enip_farm.cip.ethernet_link import EthernetLinkObject, InterfaceCounters
+from enip_farm.cip.identity import RESET_OUT_OF_BOX, STATE_OPERATIONAL, STATE_SELF_TESTING, IdentityObject
 from enip_farm.cip.message_router import MessageRouter
 from enip_farm.cip.object import ReplyItems
 from enip_farm.cip.tcpip_interface import TcpIpInterfaceObject
@@ -29,6 +38,7 @@ from enip_farm.device.events import Event, EventLog, ImageChange
 from enip_farm.device.faults import DeviceFaults
 from enip_farm.device.latency import LatencyHistogram
 from enip_farm.device.profile import DeviceProfile
+from enip_farm.device.reset import ResetWindow
 from enip_farm.device.tap import TrafficTap
 from enip_farm.protocol.commands import (
     CAPABILITY_TCP,
@@ -45,8 +55,7 @@ from enip_farm.protocol.cpf import ItemType, encode_items
 from enip_farm.protocol.session import MessageContext, ReplyWithItems
 
 ENIP_PORT = 44818
-#: ListIdentity state: 3 = "operational" (Vol. 2, table 2-4.4 refers to the Identity state attribute).
-_STATE_OPERATIONAL = 3
+_RESET_KINDS = {0: "power cycle", 1: "out-of-box configuration"}
 
 #: An observer of a device: called with every event (log entries, connection events, image changes).
 Observer = Callable[[Event], None]
@@ -87,10 +96,19 @@ class Device:
         self._observers: list[Observer] = []
         self.lock = threading.Lock()
         self.table = ConnectionTable(self.assemblies, _policy(profile), self._key_identity, self.counters)
+        self.reset_window = ResetWindow(round(profile.reset_time_s * 1e9))
+        self._reset_requested: int | None = None  # the type of an Identity Reset being answered
         self._tcpip = TcpIpInterfaceObject(address=profile.address, netmask=profile.netmask, gateway=profile.gateway,
                                            host_name=profile.host_name,
-                                           inactivity_timeout_s=profile.encapsulation_inactivity_timeout_s)
-        self.router = MessageRouter()
+                                           inactivity_timeout_s=profile.encapsulation_inactivity_timeout_s,
+                                           multicast_group=profile.multicast_group,
+                                           multicast_configured=profile.multicast_configured)
+        self.link = EthernetLinkObject(mac=profile.mac)
+        #: Interface counters (Ethernet Link attribute 4): the event loop's sockets (TCP and UDP
+        #: 44818) count into `traffic`, the cyclic I/O thread's (UDP 2222) into `io_traffic`.
+        self.traffic: InterfaceCounters = self.link.new_counters()
+        self.io_traffic: InterfaceCounters = self.link.new_counters()
+        self.router = MessageRouter(multiple_service_packet=profile.routing.multiple_service_packet)
         self.router.forced_status = self.faults.forced_status
         self.router.replay = {(service, path, data): reply for service, path, data, reply in profile.replay}
         for obj in (
@@ -102,11 +120,13 @@ class Device:
                 serial_number=profile.serial_number,
                 product_name=profile.product_name,
                 status=lambda: self.table.status,
+                state=lambda: self.identity_state,
+                reset=self._request_reset,
             ),
             AssemblyObject(list(self.assemblies.values())),
-            ConnectionManager(self.router, self.table),
+            ConnectionManager(self.router, self.table, unconnected_send=profile.routing.unconnected_send),
             self._tcpip,
-            EthernetLinkObject(mac=profile.mac),
+            self.link,
         ):
             self.router.register(obj)
         service = ServiceItem(PROTOCOL_VERSION, CAPABILITY_TCP | CAPABILITY_UDP_CLASS_0_1, "Communications")
@@ -179,6 +199,11 @@ class Device:
         return self._tcpip.inactivity_timeout_s
 
     @property
+    def identity_state(self) -> int:
+        """Identity attribute 8 and ListIdentity's state: 1 (self testing) while resetting, else 3."""
+        return STATE_SELF_TESTING if self.reset_window.active else STATE_OPERATIONAL
+
+    @property
     def product_code(self) -> int:
         """The product code the device shows; an `identity` fault changes it so keys stop matching."""
         code = self.profile.product_code
@@ -226,7 +251,7 @@ class Device:
             status = self.table.status
         return IdentityItem(PROTOCOL_VERSION, SocketAddress(p.address, ENIP_PORT), p.vendor_id, p.device_type,
                             self.product_code, p.revision[0], p.revision[1], status, p.serial_number,
-                            p.product_name, _STATE_OPERATIONAL)
+                            p.product_name, self.identity_state)
 
     def list_identity_data(self) -> bytes:
         return encode_items([(ItemType.LIST_IDENTITY, encode_identity_item(self.identity_item()))])
@@ -260,11 +285,16 @@ class Device:
         with self.lock:
             before = self._snapshot()
             reply = router.dispatch(message, context)
+            reset = self._reset_requested
+            if reset is not None:
+                self._reset(reset, context.now)
             requests = router.pop_handled()
             connections = self.table.pop_events() if self.table.has_events else ()
             after = self._snapshot()
-        if connections or before != after or self._observers:
+        if connections or before != after or self._observers or reset is not None:
             self._publish(before, after, requests, connections)
+            if reset is not None:
+                self._record_reset(reset)
         else:  # the hot path: a request that changed nothing, nobody listening
             for service, path, status in requests:
                 self.events.request(service, path, status)
@@ -281,11 +311,73 @@ class Device:
             before = self._snapshot()
             reply, items = self.router.dispatch(message, context)
             connection.last_reply = (sequence_count, reply, items)
+            reset = self._reset_requested
+            if reset is not None:
+                self._reset(reset, context.now)
             requests = self.router.pop_handled()
             connections = self.table.pop_events()
             after = self._snapshot()
         self._publish(before, after, requests, connections)
+        if reset is not None:
+            self._record_reset(reset)
         return connection.t_o_id, reply, items
+
+    # -- Identity Reset ---------------------------------------------------------------------------
+
+    @property
+    def restarts(self) -> int:
+        """How many resets the device has begun: a session of an earlier count has ended."""
+        return self.reset_window.resets
+
+    @property
+    def resetting(self) -> bool:
+        """The device is in its reset window: it does not answer."""
+        return self.reset_window.active
+
+    def _request_reset(self, kind: int) -> None:
+        """Identity Reset was accepted (the Identity object calls this while building its reply)."""
+        self._reset_requested = kind
+
+    def reset(self, kind: int, now: int) -> int:
+        """Reset the device now (as an accepted Identity Reset of type `kind` does); the time it
+        answers again."""
+        with self.lock:
+            before = self._snapshot()
+            self._reset(kind, now)
+            connections = self.table.pop_events()
+            after = self._snapshot()
+        self._publish(before, after, (), connections)
+        self._record_reset(kind)
+        return self.reset_window.deadline  # type: ignore[return-value]
+
+    def _reset(self, kind: int, now: int) -> None:
+        """Under the lock: what a restart does to the device's state."""
+        self._reset_requested = None
+        table = self.table
+        for connection in list(table.connections.values()):
+            table.close(connection, f"identity reset (type {kind})", now)
+        for role in ("output", "configuration"):  # power-up state; the inputs are the field's
+            assembly = self.assemblies.get(role)
+            if assembly is not None:
+                assembly.data[:] = bytes(len(assembly.data))
+        if kind == RESET_OUT_OF_BOX:
+            self._tcpip.restore_defaults()
+            self.link.restore_defaults()
+        self.link.clear_counters()
+        self._next_session_handle = 1
+        self.reset_window.start(now)
+
+    def _record_reset(self, kind: int) -> None:
+        self.record("reset", f"type {kind} ({_RESET_KINDS[kind]}): not answering for "
+                    f"{self.profile.reset_time_s:g} s")
+
+    def end_reset(self, now: int) -> bool:
+        """End the reset window if its deadline has come (never before): True if the device
+        answers again from now, with a "reset done" event."""
+        if not self.reset_window.end(now):
+            return False
+        self.record("reset done", "answering again")
+        return True
 
     def session_closed(self, session: object, now: int) -> None:
         self._locked(lambda: self.table.session_closed(session, now))
@@ -304,6 +396,9 @@ class Device:
         """An O->T datagram from `source` (host, port), received at `now`: True if a connection took it."""
         if self.faults.io_stopped:
             self.counters["o_t_dropped_io_stopped"] += 1
+            return False
+        if self.reset_window.active:
+            self.counters["o_t_dropped_resetting"] += 1
             return False
         table, output = self.table, self._output
         with self.lock:  # O->T changes the outputs only: the inputs need no snapshot

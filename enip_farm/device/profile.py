@@ -11,7 +11,7 @@ import zlib
 from dataclasses import dataclass
 
 from enip_farm.config import DeviceConfig, ImplicitConfig, LimitsConfig
-from enip_farm.device.catalogue import Catalogue, IoCounts
+from enip_farm.device.catalogue import Catalogue, IoCounts, Routing
 from enip_farm.device.named_signals import NamedSignal, named_signal
 
 
@@ -60,6 +60,9 @@ class DeviceProfile:
     listen_only_point: int | None
     multicast_group: str
     replay: tuple = ()  # (service, path, data, reply) of a learned profile
+    routing: Routing = Routing()  # Multiple Service Packet and Unconnected Send to itself, or 0x08
+    reset_time_s: float = 1.0  # Identity Reset: how long the device does not answer
+    multicast_configured: bool = False  # the multicast group comes from the configuration
     signals: tuple[NamedSignal, ...] = ()  # named signals (EIO_SIGNAL), beside DI1.., DO1..
 
     def assembly(self, role: str) -> AssemblySpec | None:
@@ -157,4 +160,7 @@ def resolve(config: DeviceConfig, catalogue: Catalogue) -> DeviceProfile:
         replay=tuple((e.service, bytes.fromhex(e.path), bytes.fromhex(e.data), bytes.fromhex(e.reply))
                      for e in model.replay),
         signals=tuple(named_signal(signal) for signal in config.signals),
+        routing=model.effective_routing,
+        reset_time_s=config.reset_time_s,
+        multicast_configured=config.implicit.multicast_group is not None,
     )

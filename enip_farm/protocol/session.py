@@ -2,7 +2,9 @@
 (CIP Networks Library Vol. 2, 2-4 and 2-5). Sans-IO: bytes in, whole reply frames out.
 
 The device behind the connection is reached through the `Target` protocol; this module knows
-sessions, commands and their status codes, and nothing of CIP objects.
+sessions, commands and their status codes, and nothing of CIP objects. A target that restarts
+(Identity Reset) ends its sessions: the request that restarted it is answered, then the session
+closes, and a session of the target's earlier life answers nothing more (`Target.restarts`).
 """
 
 from __future__ import annotations
@@ -66,6 +68,11 @@ ReplyWithItems = tuple[bytes, ReplyItems]
 class Target(Protocol):
     """What the encapsulation layer needs from a device."""
 
+    @property
+    def restarts(self) -> int:
+        """How many times the target has restarted: the sessions of an earlier count have ended."""
+        ...
+
     def list_identity_data(self) -> bytes: ...
 
     def list_services_data(self) -> bytes: ...
@@ -102,7 +109,8 @@ def _reply(header: EncapsulationHeader, data: bytes = b"", session_handle: int |
 class EncapsulationSession:
     """One TCP connection: frames in, replies out; `closing` says the connection must end."""
 
-    __slots__ = ("target", "framer", "session_handle", "closing", "discarded", "peer_host", "last_frame_at", "_now")
+    __slots__ = ("target", "framer", "session_handle", "closing", "discarded", "peer_host", "last_frame_at", "_now",
+                 "_life")
 
     def __init__(self, target: Target, peer_host: str = "0.0.0.0", max_length: int = MAX_DATA_LENGTH) -> None:
         self.target = target
@@ -113,6 +121,7 @@ class EncapsulationSession:
         self.peer_host = peer_host
         self.last_frame_at = 0  # ns: when the last whole frame arrived (encapsulation inactivity)
         self._now = 0
+        self._life = target.restarts  # the target's restart count when this connection began
 
     def receive(self, data: bytes, now: int = 0, limit: int | None = None) -> list[bytes]:
         """Bytes from the stream, received at `now` (ns, monotonic): the whole replies to send.
@@ -148,6 +157,9 @@ class EncapsulationSession:
 
     def handle_frame(self, frame: Frame) -> bytes | None:
         header, data = frame
+        if self.target.restarts != self._life:  # a connection of the target's earlier life
+            self.closing = True
+            return None
         if header.options:
             self.discarded += 1
             return None
@@ -188,6 +200,11 @@ class EncapsulationSession:
         self.session_handle = handle
         return _reply(header, _SUPPORTED_REGISTER, handle)
 
+    def _restarted(self) -> None:
+        """After a request: if it restarted the target, its reply is this connection's last."""
+        if self.target.restarts != self._life:
+            self.closing = True
+
     def _send_rr_data(self, header: EncapsulationHeader, data: bytes) -> bytes:
         if not header.session_handle or header.session_handle != self.session_handle:
             return _reply(header, status=EncapsulationStatus.INVALID_SESSION_HANDLE)
@@ -197,6 +214,7 @@ class EncapsulationSession:
         request, items = decoded
         message, reply_items = self.target.handle_unconnected(
             request, _new_context((self.peer_host, self, items, self._now, 0)))
+        self._restarted()
         if reply_items:  # e.g. the T->O socket address of a multicast Forward Open
             body = _SEND_DATA_HEAD + encode_items([(ItemType.NULL_ADDRESS, b""), (ItemType.UNCONNECTED_DATA, message),
                                                    *reply_items])
@@ -213,6 +231,7 @@ class EncapsulationSession:
         connection_id, sequence_count, message, items = decoded
         answer = self.target.handle_connected(connection_id, sequence_count, message,
                                               MessageContext(self.peer_host, self, tuple(items), self._now))
+        self._restarted()
         if answer is None:  # not a connection of this session: say so rather than stay silent
             return _reply(header, status=EncapsulationStatus.INCORRECT_DATA)
         t_o_id, reply, reply_items = answer

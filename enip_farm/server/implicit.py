@@ -7,6 +7,8 @@ delays the other, and it is the only place that sleeps:
 - every device address has a UDP 2222 socket (SO_REUSEADDR, so a scanner on the same host can
   still bind 0.0.0.0:2222); the thread reads O->T datagrams from all of them through epoll and
   hands them to their device with the time they were read;
+- every datagram in and out is counted in the device's interface counters (Ethernet Link
+  attribute 4), by this thread alone (`Device.io_traffic`);
 - it keeps one timer per device, the one its table asks for (`get_timer`): at that time it lets
   the device supervise its connections and send the T->O packets due (`Device.service_io`). A
   Forward Open on the event loop wakes the thread through a pipe. epoll waits in whole
@@ -19,6 +21,7 @@ from __future__ import annotations
 
 import collections
 import heapq
+import ipaddress
 import itertools
 import logging
 import os
@@ -140,6 +143,7 @@ class DeviceIo:
         self.sock = sock
         self.thread = thread
         self.scheduled: int | None = None  # the wake-up the thread holds for this device (ns)
+        self._multicast: dict[str, bool] = {}  # T->O destination host -> whether it is a multicast group
         self._unsubscribe = device.observe(self._observe)
 
     def _observe(self, event: Event) -> None:
@@ -149,6 +153,7 @@ class DeviceIo:
     def read(self) -> None:
         """In the I/O thread: hand the datagrams waiting on this device's socket to the device."""
         recvfrom, receive = self.sock.recvfrom, self.device.receive_io
+        traffic = self.device.io_traffic
         address = (self.device.profile.address, IO_PORT)
         for _ in range(_READS_PER_WAKE):
             try:
@@ -159,10 +164,12 @@ class DeviceIo:
                 log.debug("%s: UDP 2222 error %s", self.device.name, error)
                 return
             now = time.monotonic_ns()
+            traffic.received(len(data))
             recorder = self.device.recorder
             if recorder is not None:
                 recorder.udp(addr, address, data)
-            receive(data, addr, now)
+            if not receive(data, addr, now):
+                traffic.discarded()
 
     def service(self, now: int) -> int | None:
         """In the I/O thread: the device's timer has come; the next one."""
@@ -173,8 +180,13 @@ class DeviceIo:
             self.sock.sendto(packet, destination)
         except OSError as error:
             self.device.counters["t_o_send_errors"] += 1
+            self.device.io_traffic.send_failed()
             log.debug("%s: T->O send failed: %s", self.device.name, error)
             return
+        multicast = self._multicast.get(destination[0])
+        if multicast is None:
+            multicast = self._multicast[destination[0]] = ipaddress.IPv4Address(destination[0]).is_multicast
+        self.device.io_traffic.sent(len(packet), unicast=not multicast)
         recorder = self.device.recorder
         if recorder is not None:
             recorder.udp((self.device.profile.address, IO_PORT), destination, packet)

@@ -11,7 +11,9 @@ the sans-IO encapsulation session and writing each batch of whole replies with o
   over a cap is closed at once.
 - Encapsulation inactivity timeout (TCP/IP Interface attribute 13): a connection with no whole
   request for that long is closed, whether it sent nothing or half a header.
-Injected faults (device/faults.py) delay or drop replies, and close or reset connections."""
+Injected faults (device/faults.py) delay or drop replies, and close or reset connections. A device
+in its reset window (Identity Reset) takes no connection. Every read and write is counted in the
+device's interface counters (Ethernet Link attribute 4)."""
 
 from __future__ import annotations
 
@@ -62,6 +64,11 @@ class EncapsulationProtocol(asyncio.Protocol):
             self._closed_by_us = True
             transport.close()
             return
+        if device.resetting:  # accepted just before the reset closed the listener
+            device.counters["tcp_refused_resetting"] += 1
+            self._closed_by_us = True
+            transport.close()
+            return
         self._admitted = True
         peer = self._peer = transport.get_extra_info("peername")
         self.session = EncapsulationSession(device, peer[0] if peer else "0.0.0.0")
@@ -96,7 +103,9 @@ class EncapsulationProtocol(asyncio.Protocol):
     def data_received(self, data: bytes) -> None:
         if self.session is None:  # refused at connection_made
             return
-        recorder = self.device.recorder
+        device = self.device
+        device.traffic.received(len(data))
+        recorder = device.recorder
         if recorder is not None:
             recorder.tcp_data(self, True, data)
         self._serve(data)
@@ -127,6 +136,7 @@ class EncapsulationProtocol(asyncio.Protocol):
                 if recorder is not None:  # recorded first: a farm killed in between leaves the reply on file
                     recorder.tcp_data(self, False, out)
                 transport.write(out)  # type: ignore[union-attr]
+                self.device.traffic.sent(len(out))
                 self.device.latency.observe(time.perf_counter() - started)
             elif fault.kind is FaultKind.DELAY:
                 loop = asyncio.get_running_loop()
@@ -177,6 +187,7 @@ class EncapsulationProtocol(asyncio.Protocol):
         if self.device.recorder is not None:
             self.device.recorder.tcp_data(self, False, out)
         self.transport.write(out)
+        self.device.traffic.sent(len(out))
         if close:
             self._closed_by_us = True
             self.transport.close()

@@ -1,6 +1,8 @@
 """UDP 44818 (CIP Networks Library Vol. 2, 2-2.2): a socket per device for unicast ListIdentity
 and ListServices, and one discovery responder on 0.0.0.0:44818 that answers a broadcast
-ListIdentity for every device, each reply sent from that device's own socket and address."""
+ListIdentity for every device, each reply sent from that device's own socket and address. A device
+that is offline (a fault) or in its reset window (Identity Reset) answers nothing. Datagrams in and
+out are counted in the device's interface counters (Ethernet Link attribute 4)."""
 
 from __future__ import annotations
 
@@ -45,19 +47,23 @@ class DeviceDatagramProtocol(asyncio.DatagramProtocol):
         self.transport = transport  # type: ignore[assignment]
 
     def datagram_received(self, data: bytes, addr: tuple[str, int]) -> None:
+        self.device.traffic.received(len(data))
         recorder = self.device.recorder
         if recorder is not None:
             recorder.udp(addr, (self.device.profile.address, ENIP_PORT), data)
         self.answer(data, addr)
 
     def answer(self, data: bytes, addr: tuple[str, int]) -> None:
-        if self.device.faults.offline:
+        device = self.device
+        if device.faults.offline or device.resetting:
+            device.traffic.discarded()
             return
-        reply = handle_datagram(self.device, data)
+        reply = handle_datagram(device, data)
         if reply is not None and self.transport is not None:
             self.transport.sendto(reply, addr)
-            if self.device.recorder is not None:
-                self.device.recorder.udp((self.device.profile.address, ENIP_PORT), addr, reply)
+            device.traffic.sent(len(reply))
+            if device.recorder is not None:
+                device.recorder.udp((device.profile.address, ENIP_PORT), addr, reply)
 
     def error_received(self, exc: Exception) -> None:
         log.debug("%s: UDP error %s", self.device.name, exc)
@@ -124,6 +130,7 @@ class DiscoveryResponder:
                     endpoint.device.recorder.udp(addr, (str(destination), ENIP_PORT), data)  # the broadcast, once
                     recorded = True
                 if destination in broadcasts:
+                    endpoint.device.traffic.received(len(data), unicast=False)
                     self._answer_later(endpoint, data, addr)
 
     def _answer_later(self, endpoint: DeviceDatagramProtocol, data: bytes, addr: tuple[str, int]) -> None:
