@@ -159,6 +159,19 @@ def check_cip_reply(reply: bytes, request: bytes) -> int:
     return reply[2]
 
 
+def restarts_device(reply: bytes) -> bool:
+    """The reply is, or a Multiple Service Packet reply holds, a successful Identity Reset (0x85,
+    status 0; Vol. 1, 5-2.4.1): the device restarts, and the connection ends after this reply."""
+    if len(reply) < 4:
+        return False
+    if reply[0] == 0x85:
+        return reply[2] == 0
+    if reply[0] == 0x8A:
+        replies = embedded_requests(b"\x0A\x00" + reply[4 + 2 * reply[3] :])
+        return any(restarts_device(r) for r in replies or ())
+    return False
+
+
 def check_io_packet(packet: bytes) -> tuple[int, int, int, bytes]:
     decoded = reference_decode_io_packet(packet)
     expect(decoded is not None, f"malformed class-1 packet {packet.hex()}")
@@ -220,7 +233,7 @@ class SessionMirror:
     def __init__(self) -> None:
         self.buffer = b""
         self.handle = 0  # the session handle registered on this connection
-        self.closed = False  # an UnregisterSession or an oversize header ended the connection
+        self.closed = False  # an UnregisterSession, an oversize header or an Identity Reset ended it
         self.frames = 0  # complete frames (or oversize headers) taken
         self.replies = 0
         self.connections: dict[int, None] = {}  # O->T ids handed out in Forward Open replies, in order
@@ -258,6 +271,8 @@ class SessionMirror:
                 self.handle = 0
                 break
             self._check(next(pending, None), header, body)
+            if self.closed:  # the request restarted the device: the connection ends after its reply
+                break
         self.buffer = buffer
         expect(next(pending, None) is None, "more replies than frames that call for one")
         return taken
@@ -337,6 +352,7 @@ class SessionMirror:
             expect(all(t in SOCKADDR_ITEMS and len(d) == 16 for t, d in items[2:]), "items beside the reply")
             general = check_cip_reply(items[1][1], request)
             self.cip_statuses[general] = self.cip_statuses.get(general, 0) + 1
+            self.closed = restarts_device(items[1][1])
             if request[0] in (0x54, 0x5B) and general == 0:
                 cip = items[1][1]
                 reply_data = cip[4 + 2 * cip[3] :]
@@ -365,6 +381,7 @@ class SessionMirror:
         else:
             check_cip_reply(cip, request)
         self.last_connected[connection_id] = (sequence_count, cip)
+        self.closed = restarts_device(cip)
         return None
 
 

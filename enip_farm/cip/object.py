@@ -233,7 +233,7 @@ class CipClass:
         entries = []
         failed = False
         for attribute_id, attribute, value in parsed:
-            if type(value) is int:
+            if isinstance(value, int):
                 status = value
             elif attribute is None or attribute.set is None:
                 status = GeneralStatus.ATTRIBUTE_NOT_SETTABLE
