@@ -18,12 +18,18 @@ from enip_farm.device.catalogue import shipped_catalogue
 from enip_farm.device.device import Device
 from enip_farm.device.reset import ResetWindow
 from enip_farm.protocol.cip import decode_reply, encode_multiple_service, encode_request, encode_unconnected_send
-from enip_farm.protocol.commands import decode_identity_item, decode_send_data, encode_send_rr_data
+from enip_farm.protocol.commands import (
+    decode_identity_item,
+    decode_send_data,
+    encode_connected_payload,
+    encode_send_rr_data,
+)
 from enip_farm.protocol.connection import (
     ConnectionTriad,
     ConnectionType,
     ForwardOpenRequest,
     NetworkParameters,
+    decode_forward_open_reply,
     encode_forward_open,
     encode_io_packet,
 )
@@ -50,7 +56,8 @@ def ask(device: Device, message: bytes, now: int = T0, session: object | None = 
 
 
 def get_list(class_id: int, instance: int, *ids: int) -> bytes:
-    return encode_request(0x03, encode_request_path(class_id, instance), struct.pack(f"<{len(ids) + 1}H", len(ids), *ids))
+    data = struct.pack(f"<{len(ids) + 1}H", len(ids), *ids)
+    return encode_request(0x03, encode_request_path(class_id, instance), data)
 
 
 def set_list(class_id: int, instance: int, *entries: tuple[int, bytes], count: int | None = None) -> bytes:
@@ -125,8 +132,8 @@ def test_set_attribute_list_statuses_per_attribute() -> None:
     """A read-only attribute of fixed or variable size is skipped by its own length (0x0E) and the
     list goes on; a bad value fails only itself."""
     device = make_device()
-    reply = ask(device, set_list(0xF5, 1, (1, b"\x00\x00\x00\x00"), (6, b"\x02\x00-x"), (5, bytes(20) + b"\x01\x00a\x00"),
-                                 (8, b"\x00"), (13, b"\x0a\x00")))
+    reply = ask(device, set_list(0xF5, 1, (1, b"\x00\x00\x00\x00"), (6, b"\x02\x00-x"),
+                                 (5, bytes(20) + b"\x01\x00a\x00"), (8, b"\x00"), (13, b"\x0a\x00")))
     assert reply.general_status == 0x0A
     assert reply.data == bytes.fromhex("0500" "0100 0e00" "0600 0900" "0500 0e00" "0800 0900" "0d00 0000")
     assert device.encapsulation_inactivity_timeout_s == 10
@@ -257,6 +264,25 @@ def test_the_reset_reply_is_the_sessions_last_and_other_sessions_end_unanswered(
     assert decode_frame(fresh.receive(register, T0)[0]).header.session_handle == 1  # numbered from 1 again
 
 
+def test_reset_on_a_class_3_connection() -> None:
+    """Reset sent connected (SendUnitData): answered on the connection, which then closes with the
+    session; the device restarts after the reply is built."""
+    device = make_device()
+    session = EncapsulationSession(device, SCANNER)
+    handle = decode_frame(session.receive(encode_frame(Command.REGISTER_SESSION, b"\x01\x00\x00\x00"), T0)[0]
+                          ).header.session_handle
+    (opened,) = session.receive(encode_send_rr_data(CLASS3, handle), T0)
+    reply = decode_reply(decode_send_data(decode_frame(opened).data).items[1].data)
+    connection = decode_forward_open_reply(reply.data)
+    (answer,) = session.receive(encode_frame(Command.SEND_UNIT_DATA, encode_connected_payload(
+        connection.o_t_connection_id, 1, RESET), handle), T0 + MS)
+    items = decode_send_data(decode_frame(answer).data).items
+    assert struct.unpack("<I", items[0].data)[0] == connection.t_o_connection_id
+    assert items[1].data == b"\x01\x00" + b"\x85\x00\x00\x00"  # sequence count echoed, Reset success
+    assert session.closing and device.restarts == 1 and not device.connections
+    assert device.reset_window.due() == T0 + MS + 1_000 * MS  # reset_time_s 1.0 by default
+
+
 def test_reset_window_to_the_tick() -> None:
     window = ResetWindow(250 * MS)
     assert not window.active and window.due() is None and window.end(T0) is False
@@ -301,8 +327,8 @@ def test_tcpip_multicast_config_from_the_configuration() -> None:
 
 @pytest.mark.parametrize(("attribute", "value", "status"), [
     (8, b"\x00", 0x09), (8, b"\x01\x00", 0x15), (10, b"\x02", 0x09), (12, b"", 0x13), (9, bytes(8), 0x0E),
-    (11, bytes(35), 0x0E), (7, bytes(6), 0x14), (6, b"\x41\x00" + b"a" * 65 + b"\x00", 0x15), (6, b"\x03\x00a_b\x00", 0x09),
-    (6, b"\x03\x00abc", 0x13), (6, b"\x02\x00ab\x00", 0x15), (6, b"\x00\x00", 0x00)])
+    (11, bytes(35), 0x0E), (7, bytes(6), 0x14), (6, b"\x41\x00" + b"a" * 65 + b"\x00", 0x15),
+    (6, b"\x03\x00a_b\x00", 0x09), (6, b"\x03\x00abc", 0x13), (6, b"\x02\x00ab\x00", 0x15), (6, b"\x00\x00", 0x00)])
 def test_tcpip_set_attribute_single_checks(attribute: int, value: bytes, status: int) -> None:
     reply = ask(make_device(), encode_request(0x10, encode_request_path(0xF5, 1, attribute), value))
     assert reply.general_status == status
@@ -375,7 +401,8 @@ def test_interface_control(value: bytes, status: int, flags: int) -> None:
 def test_ethernet_link_read_only_attributes() -> None:
     device = make_device()
     for attribute in (4, 5, 7, 8, 9, 10, 11):
-        assert ask(device, encode_request(0x10, encode_request_path(0xF6, 1, attribute), b"\x02")).general_status == 0x0E
+        reply = ask(device, encode_request(0x10, encode_request_path(0xF6, 1, attribute), b"\x02"))
+        assert reply.general_status == 0x0E
 
 
 # -- routing as profile data ---------------------------------------------------------------------------
@@ -393,7 +420,8 @@ def non_routing_profile(tmp_path: Path) -> Path:
 
 
 def test_a_non_routing_model_answers_0x08(tmp_path: Path) -> None:
-    config = parse_config({"devices": [{"name": "io1", "address": "127.0.0.1", "model": str(non_routing_profile(tmp_path))}]})
+    model = str(non_routing_profile(tmp_path))
+    config = parse_config({"devices": [{"name": "io1", "address": "127.0.0.1", "model": model}]})
     (profile,) = build_profiles(config, shipped_catalogue())
     assert not any(item.endswith("routing") for item in profile.unverified)  # the profile says how it routes
     device = Device(profile)

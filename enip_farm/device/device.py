@@ -338,18 +338,6 @@ class Device:
         """Identity Reset was accepted (the Identity object calls this while building its reply)."""
         self._reset_requested = kind
 
-    def reset(self, kind: int, now: int) -> int:
-        """Reset the device now (as an accepted Identity Reset of type `kind` does); the time it
-        answers again."""
-        with self.lock:
-            before = self._snapshot()
-            self._reset(kind, now)
-            connections = self.table.pop_events()
-            after = self._snapshot()
-        self._publish(before, after, (), connections)
-        self._record_reset(kind)
-        return self.reset_window.deadline  # type: ignore[return-value]
-
     def _reset(self, kind: int, now: int) -> None:
         """Under the lock: what a restart does to the device's state."""
         self._reset_requested = None

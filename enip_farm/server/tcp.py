@@ -59,13 +59,13 @@ class EncapsulationProtocol(asyncio.Protocol):
     def connection_made(self, transport: asyncio.BaseTransport) -> None:
         self.transport = transport  # type: ignore[assignment]
         device = self.device
-        if not self.limits.admit(device.name, device.profile.limits.max_tcp_connections, time.monotonic()):
-            device.counters["tcp_refused"] += 1
+        if device.resetting:  # accepted just before the reset closed the listener
+            device.counters["tcp_refused_resetting"] += 1
             self._closed_by_us = True
             transport.close()
             return
-        if device.resetting:  # accepted just before the reset closed the listener
-            device.counters["tcp_refused_resetting"] += 1
+        if not self.limits.admit(device.name, device.profile.limits.max_tcp_connections, time.monotonic()):
+            device.counters["tcp_refused"] += 1
             self._closed_by_us = True
             transport.close()
             return
