@@ -4,20 +4,23 @@ _Attribute_List, Get_and_Clear on the Ethernet Link counters (which count the de
 traffic), Identity Reset, and a model that routes nothing. The bytes and statuses of each are held
 to the letter in tests/test_cip_services_unit.py.
 
-cpppo's client parses a reply by the dialect it is set to (Logix by default, where 0x4C is Read
-Tag), so these tests set it to the plain CIP Object dialect; its Get_Attribute_List reply parser
-reads the data as UINTs, so the lists asked for here have replies of even length."""
+cpppo's client parses every reply by one global dialect (Logix by default, where 0x4C is Read Tag;
+its Read Tag parser is registered on the shared Object parser as soon as cpppo's logix module is
+imported): these tests give it a dialect of their own whose only reply parser is cpppo's generic
+Service Code reply, so every reply's data comes back as it is."""
 
 from __future__ import annotations
 
 import contextlib
 import socket
 import struct
+import threading
 import time
 from pathlib import Path
 
 import ethernetip
 import pytest
+from cpppo.automata import dfa_post, state
 from cpppo.server.enip import client as cpppo_client
 from cpppo.server.enip import device as cpppo_device
 from pycomm3 import CIPDriver, CommError
@@ -32,9 +35,23 @@ from tests.test_cip_services_unit import non_routing_profile
 RESET_TIME_S = 2.0  # long enough to look at the silent device on a busy machine
 
 
+class ServiceCodeReplies(cpppo_device.Object):
+    """A cpppo dialect with its own parser, which reads any reply as a generic Service Code reply."""
+
+    service: dict = {}
+    transit: dict = {}
+    lock = threading.Lock()
+    parser = dfa_post(service, initial=state("Any svc"), terminal=True)
+
+
+ServiceCodeReplies.register_service_parser(number=True, name=cpppo_device.Object.SV_COD_NAM,
+                                           short=cpppo_device.Object.SV_COD_CTX,
+                                           machine=vars(cpppo_device)["__service_code_reply"]())
+
+
 @pytest.fixture
 def cpppo_plain(monkeypatch: pytest.MonkeyPatch) -> None:
-    monkeypatch.setattr(cpppo_device, "dialect", cpppo_device.Object)
+    monkeypatch.setattr(cpppo_device, "dialect", ServiceCodeReplies)
 
 
 def generic(driver: CIPDriver, service: int, class_code: int, instance: int, attribute: int | bytes = b"",
@@ -56,12 +73,9 @@ def cpppo_replies(address: str, *ops: dict) -> list[tuple[int, int, bytes]]:
     out = []
     with cpppo_client.connector(host=address, timeout=5) as conn:
         for _, _, _, reply, _, _ in conn.synchronous(operations=list(ops)):
-            payload = (reply.get("service_code") or reply.get("get_attribute_list")
-                       or reply.get("get_attribute_single") or {})
-            values = payload.get("data", []) if isinstance(payload, dict) else []
-            raw = (struct.pack(f"<{len(values)}H", *values) if reply.get("get_attribute_list") is not None
-                   else bytes(values))
-            out.append((reply.service, reply.status, raw))
+            payload = reply.get("service_code")
+            data = payload.get("data", []) if isinstance(payload, dict) else []
+            out.append((reply.service, reply.status, bytes(data)))
     return out
 
 
