@@ -298,8 +298,10 @@ def test_reset_window_to_the_tick() -> None:
 
 def test_tcpip_get_attributes_all_layout() -> None:
     """Attributes 1-13 in order, as the spec lays out Get Attributes All and OpENer's GetAttributeAll
-    of class 0xF5 encodes it: 96 bytes when the domain and host names are empty. Each name adds its
-    length, padded to even (OpENer's 98 bytes in the issue: its own names took 2 bytes)."""
+    of class 0xF5 encodes them (7 as six zero bytes, not gettable alone): 96 bytes when
+    the domain and host names are empty, each name adding its length padded to even. The 98 bytes
+    the issue measured on OpENer fit this layout with 2 bytes of names (OpENer fills them from its
+    host); they were not measured here."""
     data = ask(make_device(), encode_request(0x01, encode_request_path(0xF5, 1))).data
     expected = bytes.fromhex(
         "01000000"                                  # 1 status: valid configuration
