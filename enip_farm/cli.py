@@ -190,11 +190,20 @@ def io() -> None:
 
 @io.command("get")
 @click.argument("device")
+@click.argument("names", nargs=-1, metavar="[SIGNAL...]")
 @_api_option
 @_token_option
-def io_get(device: str, api: str, token: str | None) -> None:
-    """Show a device's images and signals."""
-    _print_io(_request("GET", api, f"/devices/{device}/io", token))  # type: ignore[arg-type]
+def io_get(device: str, names: tuple[str, ...], api: str, token: str | None) -> None:
+    """Show a device's images and signals, or only the signals named, one `NAME = VALUE` line each:
+    `enip-farm io get io1 goProgramNo DI1-4`."""
+    if not names:
+        _print_io(_request("GET", api, f"/devices/{device}/io", token))  # type: ignore[arg-type]
+        return
+    from urllib.parse import quote
+
+    for name in names:
+        row = _request("GET", api, f"/devices/{quote(device)}/io/{quote(name)}", token)
+        click.echo(f"{row['name']} = {row['value']}")  # type: ignore[index]
 
 
 @io.command("set")
@@ -408,3 +417,77 @@ def learn(capture: Path, output: Path, name: str | None) -> None:
                       + yaml.safe_dump(profile, sort_keys=False))
     click.echo(f"{output}: model {model_name}, {len(model['replay'])} replay entries, "
                f"unverified: {', '.join(model['unverified']) or 'nothing'}")
+
+
+# -- RobotWare's I/O configuration (EIO.cfg) -----------------------------------------------------
+
+
+@main.group()
+def eio() -> None:
+    """RobotWare's I/O configuration (EIO.cfg): import a controller's devices and signals, export the farm's."""
+
+
+@eio.command("import")
+@click.argument("cfg_path", metavar="EIO.cfg", type=click.Path(dir_okay=False, path_type=Path))
+@click.option("-o", "--output", type=click.Path(dir_okay=False, path_type=Path), default=None,
+              help="write the cell configuration here; default: stdout")
+@click.option("--base-address", default=None, metavar="IP",
+              help="renumber the devices from this address, e.g. 127.0.20.1 for a desk run (default: the "
+                   "controller's addresses)")
+def eio_import(cfg_path: Path, output: Path | None, base_address: str | None) -> None:
+    """Make a cell configuration of a controller's EIO.cfg: each EtherNet/IP device it scans, with the
+    identity, assemblies and sizes it expects, and its named signals. Warnings (one line each) say
+    what was not imported or is unknown; nothing unknown is fatal."""
+    from ipaddress import AddressValueError, IPv4Address
+
+    from enip_farm.eio.cfg import CfgError, parse_cfg
+    from enip_farm.eio.importer import EioError, import_eio
+
+    try:
+        base = IPv4Address(base_address) if base_address is not None else None
+    except AddressValueError as error:
+        raise click.BadParameter(str(error), param_hint="--base-address") from None
+    try:
+        text = cfg_path.read_text(encoding="utf-8", errors="replace")
+    except OSError as error:
+        click.echo(f"{cfg_path}: cannot read: {error.strerror}", err=True)
+        sys.exit(2)
+    try:
+        result = import_eio(parse_cfg(text, str(cfg_path)), shipped_catalogue(), base)
+    except (CfgError, EioError) as error:
+        for warning in getattr(error, "warnings", ()):
+            click.echo(warning, err=True)
+        click.echo(str(error), err=True)
+        sys.exit(2)
+    for warning in result.warnings:
+        click.echo(warning, err=True)
+    if output is None:
+        click.echo(result.yaml, nl=False)
+        return
+    output.write_text(result.yaml)
+    click.echo(f"{output}: {result.device_count} devices, {result.signal_count} named signals, "
+               f"{len(result.warnings)} warnings", err=True)
+
+
+@eio.command("export")
+@click.option("--config", "config_path", type=click.Path(path_type=Path), default=None,
+              help="cell configuration (YAML); default: the shipped default cell")
+@click.option("-o", "--output", type=click.Path(dir_okay=False, path_type=Path), default=None,
+              help="write EIO.cfg here; default: stdout")
+def eio_export(config_path: Path | None, output: Path | None) -> None:
+    """Write the EIO.cfg entries a controller needs to scan the farm's devices (ETHERNETIP_DEVICE)
+    and their named signals (EIO_SIGNAL)."""
+    from enip_farm.eio.exporter import ExportError, export_eio
+
+    config = _load(config_path, build=False)
+    try:
+        text = export_eio(config, shipped_catalogue())
+    except (ConfigError, ExportError) as error:
+        click.echo(str(error), err=True)
+        sys.exit(2)
+    if output is None:
+        click.echo(text, nl=False)
+        return
+    output.write_text(text)
+    click.echo(f"{output}: {len(config.devices)} devices, {sum(len(d.signals) for d in config.devices)} "
+               "named signals", err=True)
