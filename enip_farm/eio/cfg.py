@@ -153,7 +153,7 @@ def _attributes(parts: list[tuple[int, str]], source: str, errors: list[str],
         if match is None or match.end() == position:  # only trailing blanks are left
             break
         position = match.end()
-        where = f"{source}:{line_at(match.start())}"
+        where = f"{source}:{line_at(match.start(match.lastgroup or 0))}"
         if match["open"] is not None:
             errors.append(f"{where}: a quoted string is not closed")
             return None

@@ -50,7 +50,8 @@ def device_entry(device: DeviceConfig, profile: DeviceProfile) -> list[tuple[str
                           "the device itself (identity:, assemblies:, address)")
     attributes: list[tuple[str, Value]] = [("Name", device.name)]
     attributes += [(name, extra.pop(name)) for name in _DEVICE_LEADING if name in extra]
-    attributes += [("ProductName", profile.product_name)]
+    if f"{profile.model}.identity.product_name" not in profile.unverified:  # a placeholder is no name to give
+        attributes.append(("ProductName", profile.product_name))
     if "Label" in extra:
         attributes.append(("Label", extra.pop("Label")))
     attributes += [("Address", profile.address), ("VendorId", profile.vendor_id),
