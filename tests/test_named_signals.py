@@ -260,3 +260,16 @@ def test_two_assemblies_with_one_instance_id_are_refused() -> None:
     with pytest.raises(ConfigError) as error:
         build([], assemblies={"input": 100})
     assert str(error.value) == "<config>: devices[0], assemblies: output and input are both instance 100"
+
+
+def test_names_through_the_fleet_client(enip_farm) -> None:
+    from enip_farm.fleet import FleetClient
+
+    farm = enip_farm(name="io1", model="DSQC1030", signals=GRIPPER_SIGNALS, http=True)
+    with FleetClient(f"http://127.0.0.1:{farm.http.port}") as fleet:
+        fleet["io1"].set(goProgramNo=42, diGripperClosed=1)
+        assert fleet["io1"].get("goProgramNo") == 42 and fleet["io1"].get("DI4") == 1
+        assert fleet["io1"].get("DO9-12") == [0, 1, 0, 1]  # 42 = 0b101010 from bit 8 up
+        with pytest.raises(KeyError, match="diNoSuchThing"):
+            fleet["io1"].get("diNoSuchThing")
+    assert farm["io1"].get("goProgramNo") == 42

@@ -233,6 +233,8 @@ class _Importer:
         """An identity or assembly attribute's value if the farm can serve it, else None (warned)."""
         if attribute == "ProductName":
             text = str(value)
+            if not text.strip():
+                return None  # no name given: the model's
             if len(text) > 32:
                 self.warn(entry, f"-ProductName {text!r} is longer than the 32 characters of the identity "
                           f"object: served as {text[:32]!r}")
