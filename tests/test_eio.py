@@ -445,7 +445,7 @@ def test_an_imported_cell_answers_as_the_controller_expects(enip_farm) -> None:
 
 
 def test_named_signals_of_an_imported_cell_over_cip(enip_farm) -> None:
-    farm = enip_farm(imported().document)
+    farm = enip_farm(DATA)  # the fixture imports a controller's EIO.cfg as `eio import` does
     gripper, vision = farm["Gripper"], farm["Vision"]
     gripper.set(diGripperClosed=1, giGripperState=5, aiGripperPos=100.0)
     # bit 0 set; bit 1 clear (diGripperOpen is inverted: it reads 1); bits 4-7 = 5; bits 16-31 = 32767
