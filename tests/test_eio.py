@@ -128,7 +128,7 @@ _values = st.one_of(
             max_size=90))
 
 
-@settings(max_examples=300, deadline=None, database=None)
+@settings(max_examples=100, deadline=None, database=None)
 @given(st.lists(st.dictionaries(_names, _values, min_size=1, max_size=12), min_size=1, max_size=4))
 def test_what_is_written_reads_back_and_keeps_lines_under_80(entries: list[dict]) -> None:
     text = write_cfg("EIO:CFG_1.0::", [("EIO_SIGNAL", [list(entry.items()) for entry in entries])])
