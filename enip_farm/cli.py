@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import asyncio
 import logging
+import re
 import signal
 import sys
 from pathlib import Path
@@ -330,6 +331,75 @@ def compose(config_path: Path, shards: int, subnet: str, container_range: str, a
         click.echo(text, nl=False)
 
 
+# -- Electronic Data Sheets ---------------------------------------------------------------------
+
+
+@main.group()
+def eds() -> None:
+    """Electronic Data Sheets: write one for a catalogue model, make a profile of a vendor's."""
+
+
+@eds.command("export")
+@click.argument("model")
+@click.option("--addons", multiple=True, metavar="ADDON[,ADDON...]",
+              help="add-on modules in slot order (repeat the option or separate with commas)")
+@click.option("-o", "--output", type=click.Path(dir_okay=False, path_type=Path), required=True,
+              help="the EDS file to write ('-': standard output)")
+def eds_export(model: str, addons: tuple[str, ...], output: Path) -> None:
+    """Write the EDS of a catalogue model (or a profile file) as the farm serves it; the catalogue's
+    unverified placeholders are marked UNVERIFIED in it."""
+    import datetime
+
+    from enip_farm.config import parse_config
+    from enip_farm.eds.writer import write_eds
+
+    names = [name for item in addons for name in item.split(",") if name]
+    try:
+        config = parse_config({"devices": [{"name": "eds", "address": "127.0.0.1", "model": model, "addons": names}]},
+                              "eds export", Path.cwd())
+        (profile,) = build_profiles(config, shipped_catalogue())
+    except ConfigError as error:
+        click.echo(str(error), err=True)
+        sys.exit(2)
+    text = write_eds(profile, datetime.datetime.now())
+    if str(output) == "-":
+        click.echo(text, nl=False)
+        return
+    output.write_text(text)
+    click.echo(f"{output}: EDS of {' + '.join((profile.model, *profile.addons))}; "
+               f"UNVERIFIED: {', '.join(profile.unverified) or 'nothing'}", err=True)
+
+
+@eds.command("import")
+@click.argument("source", type=click.Path(dir_okay=False, path_type=Path))
+@click.option("-o", "--output", type=click.Path(dir_okay=False, path_type=Path), required=True,
+              help="the profile file to write (name it as a device's model: `model: PROFILE.yaml`)")
+@click.option("--name", default=None,
+              help="the model's name (default: the EDS's product name); never a model of the catalogue")
+def eds_import(source: Path, output: Path, name: str | None) -> None:
+    """Make a catalogue profile (identity, assemblies and sizes) from a vendor's EDS file."""
+    import yaml
+
+    from enip_farm.eds.reader import eds_profile, read_eds
+
+    try:
+        device = read_eds(source.read_text(encoding="latin-1"), str(source))
+        model_name, document, notes = eds_profile(device, source.name, name)
+    except OSError as error:
+        click.echo(f"{source}: {error.strerror}", err=True)
+        sys.exit(2)
+    except ValueError as error:  # EdsError
+        click.echo(str(error), err=True)
+        sys.exit(2)
+    comments = "".join(f"# {note}\n" for note in notes)
+    output.write_text(f"# enip-farm profile made from {source.name} by `enip-farm eds import`.\n{comments}"
+                      + yaml.safe_dump(document, sort_keys=False))
+    model = document["models"][model_name]
+    click.echo(f"{output}: model {model_name}, assemblies {model['assemblies']}, sizes {model['sizes']}")
+    for note in notes:
+        click.echo(f"  {note}")
+
+
 # -- captures ------------------------------------------------------------------------------------
 
 
@@ -419,7 +489,7 @@ def learn(capture: Path, output: Path, device: str | None, name: str | None) -> 
     if several:
         output.mkdir(parents=True, exist_ok=True)
     for profile in profiles:
-        path = output / f"{profile.name}.yaml" if output.is_dir() else output
+        path = output / (re.sub(r"[^\w.-]", "_", profile.name) + ".yaml") if output.is_dir() else output
         notes = "".join(f"# {note}\n" for note in profile.notes)
         path.write_text(f"# enip-farm profile learned from {capture.name} (device {profile.device}); values listed "
                         f"under unverified are placeholders or guesses.\n{notes}"
