@@ -350,14 +350,11 @@ def eds_export(model: str, addons: tuple[str, ...], output: Path) -> None:
     unverified placeholders are marked UNVERIFIED in it."""
     import datetime
 
-    from enip_farm.config import parse_config
-    from enip_farm.eds.writer import write_eds
+    from enip_farm.eds.writer import model_profile, write_eds
 
     names = [name for item in addons for name in item.split(",") if name]
     try:
-        config = parse_config({"devices": [{"name": "eds", "address": "127.0.0.1", "model": model, "addons": names}]},
-                              "eds export", Path.cwd())
-        (profile,) = build_profiles(config, shipped_catalogue())
+        profile = model_profile(model, names, shipped_catalogue(), Path.cwd())
     except ConfigError as error:
         click.echo(str(error), err=True)
         sys.exit(2)

@@ -83,9 +83,7 @@ class _Collector(logging.Handler):
         self.messages: list[str] = []
 
     def emit(self, record: logging.LogRecord) -> None:
-        message = record.getMessage()
-        if "{entry.keyword}" not in message:  # eds-pie 1.2's unformatted "Unknown Entry"; its fields follow
-            self.messages.append(message)
+        self.messages.append(record.getMessage())
 
 
 @contextmanager
@@ -193,31 +191,42 @@ class _Reader:
             self.points(keyword, str(values[14])), str(values[14]))
 
 
-def read_eds(text: str, source: str) -> EdsDevice:
-    """The device an EDS describes. Raises EdsError for text eds-pie cannot parse or an EDS
-    without the [Device] identity."""
+def parse_eds(text: str) -> tuple[Any, list[str]]:
+    """eds-pie's parse of an EDS (its `EDS` object) and the warnings and errors its checker logged.
+    Raises EdsError for text it cannot parse."""
     with _eds_pie_messages() as messages:
         from eds_pie.eds_pie import CIP_EDS
 
         try:
             eds = CIP_EDS(text)
         except Exception as error:  # eds-pie raises plain Exception for syntax errors
-            raise EdsError(f"{source}: not an EDS file eds-pie can read ({error})") from None
-        notes: list[str] = []
-        reader = _Reader(eds, notes)
-        device = {keyword: eds.get_value("Device", keyword) for keyword in (
-            "VendCode", "VendName", "ProdType", "ProdCode", "MajRev", "MinRev", "ProdName", "Catalog")}
-        missing = [k for k in ("VendCode", "ProdType", "ProdCode", "MajRev", "MinRev") if _int(device[k]) is None]
-        if missing:
-            raise EdsError(f"{source}: [Device] has no {', '.join(missing)}")
-        section = eds.get_section("Connection Manager")
-        keywords = [k for k in (section.entries if section is not None else ()) if k.startswith("Connection")
-                    and k[len("Connection"):].isdigit()]
-        connections = tuple(c for c in (reader.connection(k) for k in keywords) if c is not None)
-    notes = [f"eds-pie: {m}" for m in messages.messages] + notes
-    return EdsDevice(device["VendCode"], str(device["VendName"] or ""), device["ProdType"], device["ProdCode"],
-                     (device["MajRev"], device["MinRev"]), str(device["ProdName"] or ""),
-                     str(device["Catalog"] or ""), connections, tuple(notes))
+            raise EdsError(f"not an EDS file eds-pie can read ({error})") from None
+    return eds, messages.messages
+
+
+def read_eds(text: str, source: str) -> EdsDevice:
+    """The device an EDS describes. Raises EdsError for text eds-pie cannot parse or an EDS
+    without the [Device] identity."""
+    try:
+        eds, messages = parse_eds(text)
+    except EdsError as error:
+        raise EdsError(f"{source}: {error}") from None
+    notes: list[str] = []
+    reader = _Reader(eds, notes)
+    device = {keyword: eds.get_value("Device", keyword) for keyword in (
+        "VendCode", "VendName", "ProdType", "ProdCode", "MajRev", "MinRev", "ProdName", "Catalog")}
+    missing = [k for k in ("VendCode", "ProdType", "ProdCode", "MajRev", "MinRev") if _int(device[k]) is None]
+    if missing:
+        raise EdsError(f"{source}: [Device] has no {', '.join(missing)}")
+    section = eds.get_section("Connection Manager")
+    keywords = [k for k in (section.entries if section is not None else ()) if k.startswith("Connection")
+                and k[len("Connection"):].isdigit()]
+    connections = tuple(c for c in (reader.connection(k) for k in keywords) if c is not None)
+    # eds-pie 1.2 logs "Unknown Entry" unformatted; its "Unknown Field" messages name the entry
+    notes = [f"eds-pie: {m}" for m in messages if "{entry.keyword}" not in m] + notes
+    return EdsDevice(_int(device["VendCode"]), str(device["VendName"] or ""), _int(device["ProdType"]),
+                     _int(device["ProdCode"]), (_int(device["MajRev"]), _int(device["MinRev"])),
+                     str(device["ProdName"] or ""), str(device["Catalog"] or ""), connections, tuple(notes))
 
 
 def _describe(connection: EdsConnection) -> str:

@@ -20,8 +20,13 @@ count or header.
 from __future__ import annotations
 
 import datetime
+from collections.abc import Sequence
 from dataclasses import dataclass
+from pathlib import Path
 
+from enip_farm.config import parse_config
+from enip_farm.device.build import build_profiles
+from enip_farm.device.catalogue import Catalogue
 from enip_farm.device.profile import DeviceProfile
 from enip_farm.protocol.epath import LogicalType, encode_logical
 
@@ -213,3 +218,12 @@ def write_eds(profile: DeviceProfile, created: datetime.datetime) -> str:
               f"{_INDENT}MaxIOConnections = {implicit.max_class1_connections};",
               f"{_INDENT}MaxMsgConnections = {implicit.max_class3_connections};"]
     return "\n".join(lines) + "\n"
+
+
+def model_profile(model: str, addons: Sequence[str], catalogue: Catalogue, base_dir: str | Path = ".") -> DeviceProfile:
+    """The profile a device of `model` (a catalogue model or a profile file) with `addons` gets.
+    Raises ConfigError (one line per problem) for an unknown model or add-on."""
+    device = {"name": "eds", "address": "127.0.0.1", "model": model, "addons": list(addons)}
+    config = parse_config({"devices": [device]}, "eds export", base_dir)
+    (profile,) = build_profiles(config, catalogue)
+    return profile
