@@ -232,3 +232,14 @@ def test_eds_commands(tmp_path: Path) -> None:
         result = subprocess.run([*CLI, "eds", *args], capture_output=True, text=True, timeout=120)
         assert result.returncode == 2 and result.stderr.startswith(message), result.stderr
         assert len(result.stderr.splitlines()) == 1 and not (tmp_path / "x.yaml").exists()
+
+
+@pytest.mark.system
+def test_reading_an_eds_leaves_the_process_logging_alone() -> None:
+    """eds-pie calls logging.basicConfig(level=DEBUG) when imported; through the reader it changes
+    nothing (else every later debug message of the process would be printed)."""
+    script = ("import logging; from enip_farm.eds.reader import read_eds; "
+              f"read_eds(open({str(VENDOR_EDS)!r}).read(), 'x'); "
+              "root = logging.getLogger(); print(root.level, root.handlers, logging.getLogger('eds_pie').handlers)")
+    result = subprocess.run([*CLI[:1], "-c", script], capture_output=True, text=True, timeout=120)
+    assert (result.returncode, result.stdout, result.stderr) == (0, "30 [] []\n", "")
