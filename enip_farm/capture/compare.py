@@ -9,7 +9,7 @@ The mask, where captured and live values legitimately differ (`ReplayMap`):
 - `session_handle`: compared after mapping the captured handle to the live one (the farm numbers
   its own sessions; a capture may start mid-session).
 - connections (Forward Open and Forward Close, Vol. 1 3-5.5.2 and 3-5.5.3; SendUnitData, Vol. 2
-  2-6): the connection ids the target chose (O->T, and T->O of a multicast connection) are
+  2-4): the connection ids the target chose (O->T, and T->O of a multicast connection) are
   compared after mapping the captured id to the farm's; the connection triad golden sent in place
   of the captured one (a fresh connection serial) is mapped back. Sequence counts are sent as captured, so the farm's
   echo of each is compared as it is.

@@ -4,7 +4,7 @@ connections, and compare every reply with the captured one field by field (captu
 What the farm numbers itself is mapped, as session handles are (`ReplayMap`): each Forward Open
 (Vol. 1 3-5.5.2) is sent with a fresh connection serial, so a replay never collides with a
 connection still open on the farm (a second replay, or the recorded client's own), and its Forward
-Close with the same; each SendUnitData (Vol. 2 2-6) goes to the O->T connection id the farm gave
+Close with the same; each SendUnitData (Vol. 2, 2-4) goes to the O->T connection id the farm gave
 that Forward Open. A capture that starts mid-session gets a session registered by golden, and one
 that starts mid-connection a class-3 connection opened by golden, both mapped in their place.
 """

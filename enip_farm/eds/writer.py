@@ -1,5 +1,5 @@
 """`enip-farm eds export MODEL -o FILE.eds`: the EDS of a catalogue model as the farm serves it
-(CIP Networks Library Vol. 1 7-3: [File], [Device], [Device Classification], [Params], [Assembly],
+(CIP Networks Library Vol. 1 chapter 7: [File], [Device], [Device Classification], [Params], [Assembly],
 [Connection Manager], [Capacity]).
 
 Every value is the farm's: the identity, assembly instances and sizes of the resolved profile, the
@@ -8,8 +8,8 @@ the connection points it admits (exclusive owner; input only and listen only whe
 heartbeat points) and the RPI range and connection limits of its implicit policy. A value the
 catalogue lists as unverified is written as it is and marked UNVERIFIED in a comment beside it.
 
-Connection entry fields (Vol. 1 7-3.6.11): trigger and transport (bit 1 class 1, bit 16 cyclic,
-bit 24 listen only, 25 input only, 26 exclusive owner), connection parameters (bits 0-3 fixed or
+Connection entry fields ([Connection Manager]): trigger and transport (bit 1 class 1, bit 16
+cyclic, bit 24 listen only, 25 input only, 26 exclusive owner), connection parameters (bits 0-3 fixed or
 variable O->T and T->O sizes, 8-10 and 12-14 real-time formats: 0 modeless, 3 heartbeat, 4 32-bit
 run/idle header; 16-18 and 20-22 O->T and T->O connection types null, multicast, point to point;
 24-26 and 28-30 priorities), O->T RPI, size, format, T->O RPI, size, format, proxy and target
