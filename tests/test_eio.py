@@ -191,7 +191,7 @@ def test_import_makes_each_ethernetip_device_with_the_identity_and_sizes_the_con
         ("output", 150, 4), ("input", 100, 12), ("configuration", 151, 0)]
     # what the entry gave is no longer a placeholder; what it did not give still is
     assert vision_profile.unverified == (f"{GENERIC_MODEL}.identity.revision", f"{GENERIC_MODEL}.assemblies.input_only",
-                                         f"{GENERIC_MODEL}.assemblies.listen_only")
+                                         f"{GENERIC_MODEL}.assemblies.listen_only", f"{GENERIC_MODEL}.routing")
     assert "DSQC1030.identity.product_code" not in profiles["Gripper"].unverified
 
 
