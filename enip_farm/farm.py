@@ -10,13 +10,13 @@ import gc
 import logging
 import resource
 import threading
-from collections.abc import Coroutine, Iterator
+from collections.abc import Coroutine, Iterator, Mapping
 from contextlib import contextmanager
 from pathlib import Path
 from typing import Any, TypeVar
 
 from enip_farm.capture.recorder import Recorder
-from enip_farm.config import FarmConfig
+from enip_farm.config import FarmConfig, as_config
 from enip_farm.control.handle import DeviceHandle
 from enip_farm.control.http import HttpApi
 from enip_farm.control.wiring import Wiring
@@ -85,12 +85,15 @@ def _bind_message(device: Device, transport: str, error: OSError, port: int = EN
 class Farm:
     """The devices of one configuration, served from one event loop."""
 
-    def __init__(self, config: FarmConfig, http: tuple[str, int] | None = None, token: str | None = None,
-                 record: str | Path | None = None, catalogue: Catalogue | None = None) -> None:
-        """`http`: serve the HTTP API on (host, port), port 0 picks a free one (see `http.port`);
-        `record`: write the farm's traffic to this pcap file; `catalogue`: the models the devices
-        name (default: the shipped catalogue). Raises ConfigError if the devices cannot be built."""
-        self.config = config
+    def __init__(self, config: FarmConfig | Mapping[str, Any] | str | Path, http: tuple[str, int] | None = None,
+                 token: str | None = None, record: str | Path | None = None,
+                 catalogue: Catalogue | None = None) -> None:
+        """`config`: a FarmConfig, a dict as a YAML file holds it, or a file's path; `http`: serve
+        the HTTP API on (host, port), port 0 picks a free one (see `http.port`); `record`: write the
+        farm's traffic to this pcap file; `catalogue`: the models the devices name (default: the
+        shipped catalogue). Raises ConfigError if the configuration is invalid or its devices
+        cannot be built."""
+        self.config = config = as_config(config)
         profiles = build_profiles(config, shipped_catalogue() if catalogue is None else catalogue)
         self.recorder = Recorder(record) if record else None
         self._http_address = http
@@ -195,8 +198,7 @@ class Farm:
         for server in self._servers.values():
             server.close()
         for connection in list(self._connections):
-            if connection.transport is not None:
-                connection.transport.close()
+            connection.kill(FaultKind.CLOSE)
         for server in self._servers.values():
             await server.wait_closed()
         self._servers.clear()
