@@ -37,7 +37,7 @@ REPLY_SIZE = 46
 def write_config(count: int, first: str) -> str:
     config = tempfile.NamedTemporaryFile("w", suffix=".yaml", delete=False)
     config.write(f"devices:\n  - {{name: 'io{{n}}', address: {first}, count: {count}, model: DSQC1030, "
-                 "netmask: 255.0.0.0}}\n")
+                 "netmask: 255.0.0.0}\n")
     config.close()
     return config.name
 

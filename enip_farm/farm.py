@@ -18,7 +18,7 @@ from typing import Any, TypeVar
 from enip_farm.capture.recorder import Recorder
 from enip_farm.config import FarmConfig, as_config
 from enip_farm.control.handle import DeviceHandle
-from enip_farm.control.http import HttpApi
+from enip_farm.control.http import HttpApi, bind_problem
 from enip_farm.control.wiring import Wiring
 from enip_farm.device.build import build_profiles
 from enip_farm.device.catalogue import Catalogue, shipped_catalogue
@@ -114,6 +114,11 @@ class Farm:
         self.loop: asyncio.AbstractEventLoop | None = None
         self.running = False
 
+    @property
+    def tcp_limits(self) -> TcpLimits | None:
+        """The TCP connection caps (and their rate-limited log), once the farm has started."""
+        return self._tcp_limits
+
     def device(self, name: str) -> Device:
         return self.devices[name]
 
@@ -166,8 +171,10 @@ class Farm:
                 try:
                     self.http = HttpApi(self, host, port, self._http_token)
                     await self.http.start()
-                except (OSError, ValueError, SystemExit) as error:
-                    raise BindError(f"HTTP API on {host}:{port}: {error}") from None
+                except OSError as error:
+                    raise BindError(bind_problem(host, port, error)) from None
+                except ValueError as error:
+                    raise BindError(str(error)) from None
             if self.config.discovery:
                 try:
                     self._discovery = DiscoveryResponder(loop, endpoints)
@@ -213,7 +220,7 @@ class Farm:
         device = self.devices[name]
         self._cancel_timer(name, fault.kind)
         device.faults.set(fault)
-        device.record("fault injected", fault.describe())
+        device.record("fault injected", fault.parameters())
         if fault.kind in (FaultKind.CLOSE, FaultKind.RESET, FaultKind.OFFLINE):
             self._close_connections(device, FaultKind.RESET if fault.kind is FaultKind.RESET else FaultKind.CLOSE)
         if fault.kind is FaultKind.OFFLINE and name in self._servers:
@@ -234,7 +241,7 @@ class Farm:
         for k in cleared:
             self._cancel_timer(name, k)
         if cleared:
-            device.record("fault cleared", ", ".join(k.value for k in cleared))
+            device.record("fault cleared", {"kind": ", ".join(k.value for k in cleared)})
         return cleared
 
     def _cancel_timer(self, name: str, kind: FaultKind) -> None:

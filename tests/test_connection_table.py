@@ -199,7 +199,7 @@ def test_sizes_that_cannot_be_honoured_are_refused(kwargs: dict, additional: tup
     (event,) = table.pop_events()  # the refusal is told, with who asked and what was expected
     extended, size = additional
     assert event.kind == "connection refused" and event.connection is None and event.at == T0
-    assert event.reason.startswith(f"Forward Open from {ORIGINATOR.host} refused: 0x01/0x{extended:04X} "
+    assert event.reason.startswith(f"Forward Open from {ORIGINATOR.host}: 0x01/0x{extended:04X} "
                                    f"connection failure: invalid {'O->T' if extended == 0x0127 else 'T->O'} "
                                    f"connection size, {size} bytes expected (class 1, O->T RPI ")
 

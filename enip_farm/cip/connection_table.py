@@ -158,7 +158,7 @@ class ConnectionTable:
             self.close(connection, "forward close", now)
         else:
             self._events.append(ConnectionEvent("connection refused", None, (
-                f"Forward Close from {host or '?'} refused: "
+                f"Forward Close from {host or '?'}: "
                 f"{describe_status(GeneralStatus.CONNECTION_FAILURE, X.CONNECTION_NOT_FOUND)} "
                 f"(connection serial 0x{triad.connection_serial:04X}, vendor {triad.originator_vendor_id}, "
                 f"originator serial 0x{triad.originator_serial:08X})"), now))
@@ -308,7 +308,7 @@ def _refused_open(request: ForwardOpenRequest, originator: Originator, refusal: 
     """One line on a refused Forward Open: who asked for what, and the status it got."""
     o_t, t_o = request.o_t_parameters, request.t_o_parameters
     expected = f", {refusal.expected_size} bytes expected" if refusal.expected_size is not None else ""
-    return (f"{'Large ' if request.large else ''}Forward Open from {originator.host} refused: "
+    return (f"{'Large ' if request.large else ''}Forward Open from {originator.host}: "
             f"{describe_status(refusal.general, refusal.extended)}{expected} "
             f"(class {request.transport_class}, O->T RPI {request.o_t_rpi} us {o_t.size} bytes, "
             f"T->O RPI {request.t_o_rpi} us {t_o.size} bytes, path {request.connection_path.hex(' ')})")

@@ -38,8 +38,12 @@ class Event(NamedTuple):
             service, path, status, extended = detail[:4]
             text = f"service 0x{service:02X} path {path.hex(' ')} status 0x{status:02X}"
             return text if extended is None else f"{text} extended 0x{extended:04X}"
-        if isinstance(detail, dict):
-            return ", ".join(f"{key} {value}" for key, value in detail.items())
+        if isinstance(detail, dict):  # e.g. a fault: "delay (delay_ms 800, duration_s 10)"
+            rest = {key: value for key, value in detail.items() if key != "kind"}
+            parameters = ", ".join(f"{key} {value:g}" if isinstance(value, float) else f"{key} {value}"
+                                   for key, value in rest.items())
+            head = str(detail.get("kind", ""))
+            return f"{head} ({parameters})" if head and parameters else head or parameters
         return str(detail)
 
     def as_dict(self) -> dict[str, Any]:

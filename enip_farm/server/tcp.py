@@ -238,7 +238,7 @@ class EncapsulationProtocol(asyncio.Protocol):
             self.session.connection_lost(time.monotonic_ns())
         self.connections.discard(self)
         who = "the farm" if self._closed_by_us else "the client"
-        self.device.record("tcp closed", f"{self._peer_text()}, closed by {who} after "
+        self.device.record("tcp closed", f"{self._peer_text()} closed by {who} after "
                            f"{(time.monotonic_ns() - self._opened_at) / 1e9:.1f} s")
         if self.device.recorder is not None:
             self.device.recorder.tcp_closed(self, by_client=not self._closed_by_us)
