@@ -44,7 +44,7 @@ def write_config(count: int, first: str) -> str:
 
 def start_farm(config: str, workers: int) -> tuple[subprocess.Popen, float]:
     started = time.monotonic()
-    process = subprocess.Popen([sys.executable, "-m", "enip_farm", "serve", "--config", config, "--workers",
+    process = subprocess.Popen([sys.executable, "-m", "enip_farm", "serve", "--quiet", "--config", config, "--workers",
                                 str(workers)], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     header = process.stdout.readline()
     if not header.startswith("NAME"):

@@ -359,7 +359,7 @@ def test_http_event_stream(enip_farm) -> None:
             if len(received) == 2:
                 break
     assert received[0]["kind"] == "request" and received[0]["detail"].startswith("service 0x0E path 20 01 24 01")
-    assert received[1]["kind"] == "fault injected"
+    assert received[1]["kind"] == "fault injected" and received[1]["detail"] == {"kind": "drop", "duration_s": 0.1}
 
 
 def test_http_token_off_loopback(free_address: AddressPool, enip_farm) -> None:
