@@ -384,3 +384,16 @@ def test_serve_http_on_any_loopback_address_needs_no_token(free_address: Address
         assert result.returncode == 0 and result.stdout.startswith("inputs  0000"), result.stderr
         server.send_signal(signal.SIGINT)
         assert server.wait(timeout=STARTUP_S) == 0
+
+
+def test_encapsulation_refusals_are_told_with_the_peer(enip_farm, lines) -> None:
+    logger, handler = lines
+    device = enip_farm(name="io1", model="DSQC1030").device("io1")
+    Console([device], logger).attach()
+    with RawClient(device.profile.address) as client:  # SendRRData before RegisterSession
+        reply = client.exchange(encode_frame(Command.SEND_RR_DATA, b"\x00" * 16, 77))
+        assert reply.header.status == 0x0064
+        port = client.sock.getsockname()[1]
+    assert wait_for(lambda: any("encapsulation refused" in line for _, line in handler.records))
+    assert ("WARNING", f"io1 {device.profile.address}: encapsulation refused: SendRRData from 127.0.0.1:{port}: "
+            "encapsulation status 0x0064 invalid session handle") in handler.records

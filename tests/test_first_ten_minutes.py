@@ -97,8 +97,9 @@ def test_every_wiring_problem_and_cycle_is_one_line() -> None:
      "at 127.0.2.3, the last host is 127.0.1.254; start lower, use fewer, or widen the netmask"),
     ({"address": "127.0.1.250", "count": 6},  # .250 .. .255: the broadcast address is one of them
      "count 6 from 127.0.1.250 runs past the subnet 127.0.1.0/24"),
-    ({"address": "127.0.2.0"}, "address 127.0.2.0 is the network address of the subnet 127.0.2.0/24 (netmask "
-                               "255.255.255.0): no device can have it; choose a host address (127.0.2.1 .. 127.0.2.254)"),
+    ({"address": "127.0.2.0"},
+     "address 127.0.2.0 is the network address of the subnet 127.0.2.0/24 (netmask 255.255.255.0): no device can "
+     "have it; choose a host address (127.0.2.1 .. 127.0.2.254)"),
     ({"address": "127.0.2.255"}, "address 127.0.2.255 is the broadcast address of the subnet 127.0.2.0/24"),
     ({"address": "10.1.0.0", "netmask": "255.255.0.0"}, "address 10.1.0.0 is the network address of the subnet "
                                                         "10.1.0.0/16"),
