@@ -83,14 +83,22 @@ def test_workers_start_serve_and_stop(free_address: AddressPool, tmp_path: Path)
                       "netmask: 255.0.0.0}\n"
                       "discovery: false\n")
     workers: list[psutil.Process] = []
+    log = tmp_path / "serve.log"
     try:
-        with serving(["serve", "--config", str(config), "--workers", "3"], table_rows=12) as (server, lines):
+        with log.open("w") as stderr, serving(["serve", "--config", str(config), "--workers", "3"], table_rows=12,
+                                              stderr=stderr) as (server, lines):
             assert lines[0].split()[:2] == ["NAME", "ADDRESS"] and len({line.split()[0] for line in lines[1:]}) == 12
             workers = psutil.Process(server.pid).children()
             assert len(workers) >= 3
             probe = subprocess.run([*CLI, "probe", "--config", str(config), "--timeout", str(STARTUP_S)],
                                    capture_output=True, text=True, timeout=2 * STARTUP_S)
             assert probe.returncode == 0 and "12/12 devices answered" in probe.stdout, probe.stdout + probe.stderr
+            with RawClient(first) as client:  # each worker's console tells its devices' events
+                client.register()
+            deadline = time.monotonic() + STARTUP_S
+            while "session registered" not in log.read_text() and time.monotonic() < deadline:
+                time.sleep(0.05)
+            assert f"INFO io1 {first}: session registered: handle 1 from 127.0.0.1" in log.read_text()
             server.send_signal(signal.SIGTERM)
             assert server.wait(timeout=STARTUP_S) == 0
         # the workers (and multiprocessing's resource tracker, which follows a moment later) are gone
