@@ -81,7 +81,8 @@ def test_every_wiring_problem_and_cycle_is_one_line() -> None:
         {"when": "b.DI1-2", "set": "b.DO9"},
     ]})
     assert lines == [
-        "cell.yaml: device 'c' (devices[3]), model: unknown base model 'DSQC9999'; known: DSQC1030, DSQC1042",
+        "cell.yaml: device 'c' (devices[3]), model: unknown base model 'DSQC9999'; known: "
+        + ", ".join(shipped_catalogue().bases()),
         "cell.yaml: wire a.DO1 -> b.DI99: 'b.DI99': DI99: this device has 16 DI signals",
         "cell.yaml: wire a.DO1 -> zz.DI1: 'zz.DI1': no device named 'zz'",
         "cell.yaml: wire a.DI1-8 -> b.DI1-8: wires go from outputs (DO, AO) to inputs (DI, AI)",
