@@ -1,6 +1,7 @@
 """One HTTP API for a fleet of workers (`serve --workers N --http`): the parent routes a request
 for a device to the worker that serves it, and merges GET /devices, /state, /events and /metrics
-from every worker; the rest (/docs, the dashboard's page) comes from the first worker. It stands behind the farm API's own Guard (Host, token, body size)."""
+from every worker; the rest (/docs, the dashboard's page) comes from the first worker. It stands
+behind the farm API's own Guard (Host, token, body size)."""
 
 from __future__ import annotations
 

@@ -23,9 +23,9 @@ import uvicorn
 from fastapi import FastAPI, HTTPException, Query
 from fastapi.exceptions import RequestValidationError
 from fastapi.responses import PlainTextResponse
+from fastapi_offline import FastAPIOffline
 from prometheus_client import CollectorRegistry, generate_latest
 from prometheus_client.exposition import CONTENT_TYPE_LATEST
-from fastapi_offline import FastAPIOffline
 from pydantic import BaseModel, Field
 
 from enip_farm.control.dashboard import mount_dashboard
