@@ -291,6 +291,7 @@
     $('.fault-param', card).placeholder = PARAM_HINT[kinds.value] || '';
     device.card = card;
     device.elements = null;
+    device.connKey = device.faultKey = null;
     device.full = true;
     device.stateDirty = true;
     return card;
@@ -369,32 +370,41 @@
     const led = $('.state-led', card);
     led.className = 'state-led' + (mode === 0x60 ? ' run' : mode === 0x70 ? ' idle' : '');
     led.title = `Identity status 0x${status.toString(16).padStart(4, '0')}`;
-    const conn = $('.conn', card);
-    conn.textContent = '';
     const counters = state.counters;
-    const head = el('div');
-    head.append(`${state.connections.length} connection${state.connections.length === 1 ? '' : 's'}`);
-    if (state.owners.length) {
-      head.append(' · owner ');
-      head.appendChild(el('span', 'owner', state.owners.join(', ')));
+    const connKey = JSON.stringify([state.connections, state.owners, counters]);
+    if (connKey !== device.connKey) {  // the DOM changes only when what it shows does
+      device.connKey = connKey;
+      const conn = $('.conn', card);
+      conn.textContent = '';
+      const head = el('div');
+      head.append(`${state.connections.length} connection${state.connections.length === 1 ? '' : 's'}`);
+      if (state.owners.length) {
+        head.append(' · owner ');
+        head.appendChild(el('span', 'owner', state.owners.join(', ')));
+      }
+      head.append(` · O→T ${counters.o_t_packets} T→O ${counters.t_o_packets} · timeouts ` +
+        `${counters.connection_timeouts} · TCP ${counters.tcp_connections} · sessions ${counters.sessions}`);
+      conn.appendChild(head);
+      for (const c of state.connections) {
+        conn.appendChild(el('div', '', `${c.kind} from ${c.originator}, RPI ${c.o_t_rpi_us / 1000}/` +
+          `${c.t_o_rpi_us / 1000} ms, ${c.received} received` + (c.multicast ? ', multicast' : '')));
+      }
     }
-    head.append(` · O→T ${counters.o_t_packets} T→O ${counters.t_o_packets} · timeouts ` +
-      `${counters.connection_timeouts} · TCP ${counters.tcp_connections} · sessions ${counters.sessions}`);
-    conn.appendChild(head);
-    for (const c of state.connections) {
-      conn.appendChild(el('div', '', `${c.kind} from ${c.originator}, RPI ${c.o_t_rpi_us / 1000}/` +
-        `${c.t_o_rpi_us / 1000} ms, ${c.received} received` + (c.multicast ? ', multicast' : '')));
-    }
+    const faults = state.faults.map(fault => Object.entries(fault).filter(([key]) => key !== 'age_s' &&
+      (key !== 'delay_ms' || fault.kind === 'delay')));
+    const faultKey = JSON.stringify(faults);
+    if (faultKey === device.faultKey) return;
+    device.faultKey = faultKey;
     const active = $('.active', card);
     active.textContent = '';
-    for (const fault of state.faults) {
-      const details = Object.entries(fault).filter(([key]) => !['kind', 'age_s', 'delay_ms'].includes(key) ||
-        (key === 'delay_ms' && fault.kind === 'delay')).map(([key, value]) => `${key} ${value}`);
-      const chip = el('span', 'chip', fault.kind + (details.length ? ` (${details.join(', ')})` : ''));
+    for (const entries of faults) {
+      const kind = entries.find(([key]) => key === 'kind')[1];
+      const details = entries.filter(([key]) => key !== 'kind').map(([key, value]) => `${key} ${value}`);
+      const chip = el('span', 'chip', kind + (details.length ? ` (${details.join(', ')})` : ''));
       const clear = el('button', 'clear', '×');
       clear.type = 'button';
-      clear.title = `clear ${fault.kind}`;
-      clear.dataset.kind = fault.kind;
+      clear.title = `clear ${kind}`;
+      clear.dataset.kind = kind;
       chip.appendChild(clear);
       active.appendChild(chip);
     }
@@ -619,7 +629,7 @@
     schedule();
   });
 
-  filterInput.addEventListener('input', () => { filterDirty = true; schedule(); });
+  for (const type of ['input', 'change']) filterInput.addEventListener(type, () => { filterDirty = true; schedule(); });
   showSelect.addEventListener('change', () => { filterDirty = true; schedule(); });
   cards.addEventListener('scroll', () => { layoutDirty = true; schedule(); }, { passive: true });
   window.addEventListener('resize', () => { layoutDirty = true; schedule(); });
