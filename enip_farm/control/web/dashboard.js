@@ -12,7 +12,7 @@
 'use strict';
 (() => {
   const CARD_W = 360, CARD_H = 380, GAP = 10, BUFFER_ROWS = 1;
-  const POLL_MS = 1000, STATE_BATCH = 40, LOG_MAX = 300, LOG_PER_FRAME = 100, RETRY_MS = 1000;
+  const POLL_MS = 1000, STATE_BATCH = 40, LOG_MAX = 300, LOG_PER_FRAME = 20, RETRY_MS = 1000;
   const FAULT_KINDS = ['delay', 'drop', 'close', 'reset', 'offline', 'status', 'stop-io', 'identity'];
   const PARAM_HINT = { delay: 'ms', status: 'svc status' };
   const REFRESH_KINDS = new Set(['connection opened', 'connection closed', 'connection timed out',
@@ -490,20 +490,28 @@
     return time.toLocaleTimeString([], { hour12: false }) + '.' + String(time.getMilliseconds()).padStart(3, '0');
   }
 
-  function flushLog() {
+  function logLine(className, text) {
+    const item = el('li', className, text);
+    log.insertBefore(item, log.firstChild);
+  }
+
+  function flushLog() {  // at most LOG_PER_FRAME lines a frame: the rest is counted, not drawn
     if (lostSinceFrame) {
-      const item = el('li', 'lost', `${lostSinceFrame} events lost (this page fell behind): re-reading`);
-      log.insertBefore(item, log.firstChild);
+      logLine('lost', `${lostSinceFrame} events lost (this page fell behind): re-reading`);
       lostSinceFrame = 0;
     }
     if (!pendingLog.length) return;
     const words = filterInput.value.toLowerCase().split(/\s+/).filter(Boolean);
-    const batch = pendingLog.splice(0, pendingLog.length).slice(-LOG_PER_FRAME);
-    const fragment = document.createDocumentFragment();
-    for (let i = batch.length - 1; i >= 0; i--) {
-      const event = batch[i];
+    const batch = pendingLog.filter(event => {
       const device = byName.get(event.device);
-      if (words.length && device && !words.every(word => device.search.includes(word))) continue;
+      return !words.length || !device || words.every(word => device.search.includes(word));
+    });
+    pendingLog.length = 0;
+    const skipped = batch.length - LOG_PER_FRAME;
+    if (skipped > 0) logLine('t', `… ${skipped} more events not shown`);
+    const fragment = document.createDocumentFragment();
+    for (let i = batch.length - 1; i >= Math.max(0, skipped); i--) {
+      const event = batch[i];
       const item = el('li');
       item.appendChild(el('span', 't', clock(event.time) + ' '));
       const name = el('span', 'd', event.device);
