@@ -5,6 +5,7 @@ driven in a real browser in tests/test_dashboard_browser.py."""
 
 from __future__ import annotations
 
+import asyncio
 import json
 import re
 import signal
@@ -22,6 +23,7 @@ from enip_farm.config import parse_config
 from enip_farm.control.dashboard import WEB
 from enip_farm.control.guard import public
 from enip_farm.control.io_changes import IoChange, SignalDiff, coalesce
+from enip_farm.control.stream import EventHub
 from enip_farm.device.build import build_profiles
 from enip_farm.device.catalogue import shipped_catalogue
 from enip_farm.device.events import Event, ImageChange
@@ -347,3 +349,21 @@ def test_io_watch_ends_when_the_farm_stops(free_address) -> None:
         if watch.poll() is None:
             watch.kill()
     assert (watch.returncode, out, errors) == (1, "", "the farm ended the event stream\n")
+
+
+def test_io_of_devices_nobody_watches_is_not_named(make_farm) -> None:
+    farm = make_farm({"name": "a", "model": "DSQC1030"}, {"name": "b", "model": "DSQC1030"})
+
+    async def watch_a() -> tuple[list, set]:
+        hub = EventHub(farm.devices.values())  # as `io watch a` subscribes
+        subscriber = hub.subscribe(["a"], ["io"])
+        farm["b"].set(DI1=1)
+        farm["a"].set(DI2=1)
+        while not subscriber.queue:
+            await asyncio.sleep(hub.tick_s)
+        hub.unsubscribe(subscriber)
+        return [item.event for item in subscriber.queue], set(hub._diffs)
+
+    events, diffed = asyncio.run(watch_a())
+    assert [(e.device, e.kind, str(e.detail)) for e in events] == [("a", "io", "input DI2 0 -> 1")]
+    assert diffed == {"a"}  # b's change was dropped before its signals were named

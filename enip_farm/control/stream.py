@@ -208,7 +208,11 @@ class EventHub:
         pending = self._pending
         if pending or self._overflow:
             events = [pending.popleft() for _ in range(len(pending))]  # producers only append
-            if any(subscriber.wants(IO_KIND) for subscriber in self.subscribers):
+            watching = [subscriber.devices for subscriber in self.subscribers if subscriber.wants(IO_KIND)]
+            if watching and None not in watching:  # only these devices' I/O is named (e.g. `io watch io1`)
+                wanted = frozenset().union(*watching)
+                events = [event for event in events if event.kind != IMAGE_CHANGED or event.device in wanted]
+            if watching:
                 events = coalesce(events, self._diff)
             else:
                 events = [event for event in events if event.kind != IMAGE_CHANGED]
