@@ -148,7 +148,7 @@ class DeviceIo:
 
     def read(self) -> None:
         """In the I/O thread: hand the datagrams waiting on this device's socket to the device."""
-        recvfrom, receive = self.sock.recvfrom, self.device.receive_io
+        recvfrom, receive, send = self.sock.recvfrom, self.device.receive_io, self.send
         address = (self.device.profile.address, IO_PORT)
         for _ in range(_READS_PER_WAKE):
             try:
@@ -162,7 +162,7 @@ class DeviceIo:
             recorder = self.device.recorder
             if recorder is not None:
                 recorder.udp(addr, address, data)
-            receive(data, addr, now)
+            receive(data, addr, now, send)
 
     def service(self, now: int) -> int | None:
         """In the I/O thread: the device's timer has come; the next one."""
