@@ -123,6 +123,7 @@ class FixedProducer(SafetyScannerConnection):
                                 self._pid_seed_s1, self._pid_seed_s3, self._pid_seed_s5, rollover)
         self._udp.send_io_data(self._target_endpoint, self._server_ot_id, self._server_encap_seq, bytes(buf[:n]))
         self._server_encap_seq += 1
+        self.last_sent_ns = time.monotonic_ns()
 
 
 def unid(snn_hex: str, node: int) -> UniqueNetworkId:
@@ -219,7 +220,7 @@ async def main(args: dict) -> None:
             task = getattr(connection, "_production_task", None)
             if task is not None:
                 task.cancel()
-            emit(event="silent", at_ns=time.monotonic_ns())
+            emit(event="silent", at_ns=time.monotonic_ns(), last_sent_ns=getattr(connection, "last_sent_ns", None))
         elif cmd == "close":
             if connection.is_open:
                 await connection.close()

@@ -104,11 +104,7 @@ def encode_data(data: bytes, mode: int, timestamp: int, seeds: Seeds, extended: 
 def message_timestamp(message: bytes, length: int, extended: bool) -> int:
     """The timestamp of a data message before its CRCs are checked (the extended CRC depends on
     the rollover count, which the consumer derives from the timestamp)."""
-    if length <= 2:
-        offset = length + 3
-    else:
-        offset = 2 * length + (6 if extended else 5)
-    return _U16.unpack_from(message, offset)[0]
+    return _U16.unpack_from(message, length + 3 if length <= 2 else 2 * length + 5)[0]
 
 
 def decode_data(message: bytes, length: int, seeds: Seeds, extended: bool, rollover: int = 0) -> DataMessage | None:
