@@ -121,9 +121,9 @@ class FixedProducer(SafetyScannerConnection):
         buf = bytearray(len(self._output_data) * 2 + 16)
         n = encode_safety_frame(buf, bytes(self._output_data), self._format, mode, timestamp,
                                 self._pid_seed_s1, self._pid_seed_s3, self._pid_seed_s5, rollover)
+        self.last_sent_ns = time.monotonic_ns()  # before the send: the target cannot receive it earlier
         self._udp.send_io_data(self._target_endpoint, self._server_ot_id, self._server_encap_seq, bytes(buf[:n]))
         self._server_encap_seq += 1
-        self.last_sent_ns = time.monotonic_ns()
 
 
 def unid(snn_hex: str, node: int) -> UniqueNetworkId:
