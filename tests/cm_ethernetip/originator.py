@@ -95,6 +95,8 @@ class FixedProducer(SafetyScannerConnection):
         self._fix_rollover = reply.initial_rollover_value
         self._fix_last_ts = reply.initial_timestamp
         self._fix_sent = None
+        self.last_sent_ns = None
+        self.send_periods_us: list[int] = []
 
     def _on_server_tcoo(self, data: bytes) -> None:
         if len(data) != 6 or (data[0] & 3) != self._ping_count:
@@ -121,9 +123,21 @@ class FixedProducer(SafetyScannerConnection):
         buf = bytearray(len(self._output_data) * 2 + 16)
         n = encode_safety_frame(buf, bytes(self._output_data), self._format, mode, timestamp,
                                 self._pid_seed_s1, self._pid_seed_s3, self._pid_seed_s5, rollover)
-        self.last_sent_ns = time.monotonic_ns()  # before the send: the target cannot receive it earlier
+        now = time.monotonic_ns()  # before the send: the target cannot receive it earlier
+        if getattr(self, "last_sent_ns", None) is not None:
+            self.send_periods_us.append((now - self.last_sent_ns) // 1000)
+        self.last_sent_ns = now
         self._udp.send_io_data(self._target_endpoint, self._server_ot_id, self._server_encap_seq, bytes(buf[:n]))
         self._server_encap_seq += 1
+
+
+def percentiles(values_us: list[int]) -> dict[str, float | None]:
+    """p50, p99 and max of intervals in microseconds, as milliseconds."""
+    ordered = sorted(values_us)
+    if not ordered:
+        return {"p50_ms": None, "p99_ms": None, "max_ms": None}
+    return {"p50_ms": ordered[len(ordered) // 2] / 1000, "p99_ms": ordered[min(len(ordered) - 1,
+            len(ordered) * 99 // 100)] / 1000, "max_ms": ordered[-1] / 1000}
 
 
 def unid(snn_hex: str, node: int) -> UniqueNetworkId:
@@ -209,11 +223,8 @@ async def main(args: dict) -> None:
             else:
                 connection.set_consumed_data(data)
         elif cmd == "stats":
-            periods = sorted(stats["periods_us"])
             emit(event="stats", rx=stats["rx"], crc_faults=stats["crc_faults"],
-                 p50_us=periods[len(periods) // 2] if periods else None,
-                 p99_us=periods[min(len(periods) - 1, len(periods) * 99 // 100)] if periods else None,
-                 max_us=periods[-1] if periods else None,
+                 rx_period=percentiles(stats["periods_us"]), tx_period=percentiles(getattr(connection, "send_periods_us", [])),
                  sent=getattr(connection, "_server_encap_seq", getattr(connection, "send_count", 0)))
         elif cmd == "silent":
             connection.is_open = False  # production and time coordination stop; no Forward Close
