@@ -224,7 +224,8 @@ async def main(args: dict) -> None:
                 connection.set_consumed_data(data)
         elif cmd == "stats":
             emit(event="stats", rx=stats["rx"], crc_faults=stats["crc_faults"],
-                 rx_period=percentiles(stats["periods_us"]), tx_period=percentiles(getattr(connection, "send_periods_us", [])),
+                 rx_period=percentiles(stats["periods_us"]),
+                 tx_period=percentiles(getattr(connection, "send_periods_us", [])),
                  sent=getattr(connection, "_server_encap_seq", getattr(connection, "send_count", 0)))
         elif cmd == "silent":
             connection.is_open = False  # production and time coordination stop; no Forward Close
