@@ -22,6 +22,10 @@ Workarounds for cm-ethernetip 0.1.0, in this script only (the farm is not bent t
   such a connection. With the fix the producer does what Vol. 5 asks: idle with timestamp 0 and
   rollover 0 until the first time coordination message, then its clock (128 us ticks) plus the
   correction from that message, rollover counted from the reply's initial values.
+- Its base-format time coordination message (`encode_tcoo`) computes CRC-S3 over the consumer
+  time value as one byte instead of two whenever the value is below 256 (its CRC routine takes an
+  int below 256 for a single byte): 1 message in 256 fails a target's CRC check. The fix encodes
+  the value as two bytes.
 """
 
 from __future__ import annotations
@@ -39,6 +43,7 @@ from ethernetip.protocol.forward_open_config import ForwardOpenConfig
 from ethernetip.safety import (
     ModeByte,
     SafetyConfigurationId,
+    SafetyCrc,
     SafetyFormat,
     SafetyForwardOpenConfig,
     SafetyNetworkNumber,
@@ -97,6 +102,18 @@ class FixedProducer(SafetyScannerConnection):
         self._fix_sent = None
         self.last_sent_ns = None
         self.send_periods_us: list[int] = []
+
+    def _send_client_tcoo(self, ping_count_reply: int) -> None:
+        if self._format == SafetyFormat.EXTENDED:
+            super()._send_client_tcoo(ping_count_reply)
+            return
+        consumer_time = (time.perf_counter_ns() // TICK_NS) & 0xFFFF
+        ack = (ping_count_reply & 3) | 0x08
+        ack |= 0x80 if bin(ack).count("1") % 2 else 0
+        crc = SafetyCrc.compute_s3(struct.pack("<BH", ack, consumer_time), self._cid_seed_s3)
+        message = struct.pack("<BHBH", ack, consumer_time, ((ack ^ 0xFF) & 0x55) | (ack & 0xAA), crc)
+        self._udp.send_io_data(self._target_endpoint, self._client_ot_id, self._client_encap_seq, message)
+        self._client_encap_seq += 1
 
     def _on_server_tcoo(self, data: bytes) -> None:
         if len(data) != 6 or (data[0] & 3) != self._ping_count:
