@@ -116,6 +116,9 @@ def test_time_coordination_matches_cm_ethernetip(extended: bool, wire: str) -> N
     assert encode_time_coordination(2, 0xBEEF, SEEDS, extended) == bytes.fromhex(wire)
     assert decode_time_coordination(bytes.fromhex(wire), SEEDS, extended) == (2, 0xBEEF)
     assert decode_time_coordination(bytes.fromhex(wire)[:5] + b"\x00", SEEDS, extended) is None
+    # cm-ethernetip 0.1.0 puts a consumer time below 256 into its CRC-S3 as one byte: refused
+    assert decode_time_coordination(bytes.fromhex("09ab005c7c36"), SEEDS, False) == (1, 0x00AB)
+    assert decode_time_coordination(bytes.fromhex("09ab005c12c2"), SEEDS, False) is None
     # ack byte: ping count reply, ping response bit 3, even parity in bit 7
     assert [encode_time_coordination(ping, 0, SEEDS, False)[0] for ping in range(4)] == [0x88, 0x09, 0x0A, 0x8B]
 
