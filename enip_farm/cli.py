@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import asyncio
 import logging
+import re
 import signal
 import sys
 from pathlib import Path
@@ -190,11 +191,20 @@ def io() -> None:
 
 @io.command("get")
 @click.argument("device")
+@click.argument("names", nargs=-1, metavar="[SIGNAL...]")
 @_api_option
 @_token_option
-def io_get(device: str, api: str, token: str | None) -> None:
-    """Show a device's images and signals."""
-    _print_io(_request("GET", api, f"/devices/{device}/io", token))  # type: ignore[arg-type]
+def io_get(device: str, names: tuple[str, ...], api: str, token: str | None) -> None:
+    """Show a device's images and signals, or only the signals named, one `NAME = VALUE` line each:
+    `enip-farm io get io1 goProgramNo DI1-4`."""
+    if not names:
+        _print_io(_request("GET", api, f"/devices/{device}/io", token))  # type: ignore[arg-type]
+        return
+    from urllib.parse import quote
+
+    for name in names:
+        row = _request("GET", api, f"/devices/{quote(device)}/io/{quote(name)}", token)
+        click.echo(f"{row['name']} = {row['value']}")  # type: ignore[index]
 
 
 @io.command("set")
@@ -330,11 +340,77 @@ def compose(config_path: Path, shards: int, subnet: str, container_range: str, a
         click.echo(text, nl=False)
 
 
+# -- Electronic Data Sheets ---------------------------------------------------------------------
+
+
+@main.group()
+def eds() -> None:
+    """Electronic Data Sheets: write one for a catalogue model, make a profile of a vendor's."""
+
+
+@eds.command("export")
+@click.argument("model")
+@click.option("--addons", multiple=True, metavar="ADDON[,ADDON...]",
+              help="add-on modules in slot order (repeat the option or separate with commas)")
+@click.option("-o", "--output", type=click.Path(dir_okay=False, path_type=Path), required=True,
+              help="the EDS file to write ('-': standard output)")
+def eds_export(model: str, addons: tuple[str, ...], output: Path) -> None:
+    """Write the EDS of a catalogue model (or a profile file) as the farm serves it; the catalogue's
+    unverified placeholders are marked UNVERIFIED in it."""
+    import datetime
+
+    from enip_farm.eds.writer import model_profile, write_eds
+
+    names = [name for item in addons for name in item.split(",") if name]
+    try:
+        profile = model_profile(model, names, shipped_catalogue(), Path.cwd())
+    except ConfigError as error:
+        click.echo(str(error), err=True)
+        sys.exit(2)
+    text = write_eds(profile, datetime.datetime.now())
+    if str(output) == "-":
+        click.echo(text, nl=False)
+        return
+    output.write_text(text)
+    click.echo(f"{output}: EDS of {' + '.join((profile.model, *profile.addons))}; "
+               f"UNVERIFIED: {', '.join(profile.unverified) or 'nothing'}", err=True)
+
+
+@eds.command("import")
+@click.argument("source", type=click.Path(dir_okay=False, path_type=Path))
+@click.option("-o", "--output", type=click.Path(dir_okay=False, path_type=Path), required=True,
+              help="the profile file to write (name it as a device's model: `model: PROFILE.yaml`)")
+@click.option("--name", default=None,
+              help="the model's name (default: the EDS's product name); never a model of the catalogue")
+def eds_import(source: Path, output: Path, name: str | None) -> None:
+    """Make a catalogue profile (identity, assemblies and sizes) from a vendor's EDS file."""
+    import yaml
+
+    from enip_farm.eds.reader import eds_profile, read_eds
+
+    try:
+        device = read_eds(source.read_text(encoding="latin-1"), str(source))
+        model_name, document, notes = eds_profile(device, source.name, name)
+    except OSError as error:
+        click.echo(f"{source}: {error.strerror}", err=True)
+        sys.exit(2)
+    except ValueError as error:  # EdsError
+        click.echo(str(error), err=True)
+        sys.exit(2)
+    comments = "".join(f"# {note}\n" for note in notes)
+    output.write_text(f"# enip-farm profile made from {source.name} by `enip-farm eds import`.\n{comments}"
+                      + yaml.safe_dump(document, sort_keys=False))
+    model = document["models"][model_name]
+    click.echo(f"{output}: model {model_name}, assemblies {model['assemblies']}, sizes {model['sizes']}")
+    for note in notes:
+        click.echo(f"  {note}")
+
+
 # -- captures ------------------------------------------------------------------------------------
 
 
 @main.command()
-@click.argument("capture", type=click.Path(exists=True, dir_okay=False, path_type=Path))
+@click.argument("capture", type=click.Path(dir_okay=False, path_type=Path))
 @click.option("--config", "config_path", type=click.Path(path_type=Path), default=None,
               help="start this cell in-process and replay against it (default: the default cell)")
 @click.option("--device", default=None, help="the farm device that answers for the captured device")
@@ -344,17 +420,22 @@ def compose(config_path: Path, shards: int, subnet: str, container_range: str, a
 def golden(capture: Path, config_path: Path | None, device: str | None, address: str | None,
            mapping: tuple[str, ...]) -> None:
     """Replay a capture's requests against the farm and compare every reply field by field.
-    One line per exchange, a summary, exit status 0 only when all pass."""
+    One line per exchange, a summary, exit status 0 only when all pass (1 when one fails, 2 for a
+    file that is not a capture or holds no EtherNet/IP exchange)."""
     from contextlib import nullcontext
 
     from enip_farm.capture.exchanges import load_exchanges
     from enip_farm.capture.golden import replay
 
-    groups = load_exchanges(capture)
+    try:
+        groups = load_exchanges(capture)
+    except ValueError as error:  # CaptureError: not a capture, or cut short
+        click.echo(str(error), err=True)
+        sys.exit(2)
     captured = sorted({e.device for group in groups for e in group})
     if not captured:
         click.echo(f"{capture}: no EtherNet/IP exchanges on port 44818", err=True)
-        sys.exit(1)
+        sys.exit(2)
     farm = None if address else _farm(_load(config_path, build=False))
     names: dict[str, str] = {}
     for item in mapping:
@@ -387,24 +468,114 @@ def golden(capture: Path, config_path: Path | None, device: str | None, address:
 
 
 @main.command()
-@click.argument("capture", type=click.Path(exists=True, dir_okay=False, path_type=Path))
-@click.option("-o", "--output", type=click.Path(dir_okay=False, path_type=Path), required=True)
+@click.argument("capture", type=click.Path(dir_okay=False, path_type=Path))
+@click.option("-o", "--output", type=click.Path(path_type=Path), required=True,
+              help="the profile file; a directory (one profile per device) for a capture of several devices")
+@click.option("--device", default=None, metavar="IP", help="learn only this captured device")
 @click.option("--name", default=None,
               help="the model's name (default: the learned product name); never a model of the catalogue")
-def learn(capture: Path, output: Path, name: str | None) -> None:
-    """Write a device profile learned from a capture of a real device. Name it as a device's
-    model in a cell config (`model: PROFILE.yaml`); values the capture does not determine are
-    listed under `unverified`."""
+def learn(capture: Path, output: Path, device: str | None, name: str | None) -> None:
+    """Write device profiles learned from a capture of real devices, one per device. Name one as a
+    device's model in a cell config (`model: PROFILE.yaml`); values the capture does not
+    determine are listed under `unverified`."""
     import yaml
 
-    from enip_farm.capture.learn import learn as learn_profile
+    from enip_farm.capture.learn import learn as learn_profiles
 
     try:
-        profile = learn_profile(capture, name)
-    except ValueError as error:
-        raise click.BadParameter(str(error), param_hint="--name") from None
-    ((model_name, model),) = profile["models"].items()
-    output.write_text(f"# enip-farm profile learned from {capture.name}; unverified values are placeholders.\n"
-                      + yaml.safe_dump(profile, sort_keys=False))
-    click.echo(f"{output}: model {model_name}, {len(model['replay'])} replay entries, "
-               f"unverified: {', '.join(model['unverified']) or 'nothing'}")
+        profiles = learn_profiles(capture, name, device=device)
+    except ValueError as error:  # CaptureError, LearnError
+        click.echo(str(error), err=True)
+        sys.exit(2)
+    several = len(profiles) > 1
+    if several and output.suffix in (".yaml", ".yml"):
+        click.echo(f"{capture} holds {len(profiles)} devices ({', '.join(p.device for p in profiles)}): "
+                   "give -o a directory for one profile each, or --device IP", err=True)
+        sys.exit(2)
+    if several:
+        output.mkdir(parents=True, exist_ok=True)
+    for profile in profiles:
+        path = output / (re.sub(r"[^\w.-]", "_", profile.name) + ".yaml") if output.is_dir() else output
+        notes = "".join(f"# {note}\n" for note in profile.notes)
+        path.write_text(f"# enip-farm profile learned from {capture.name} (device {profile.device}); values listed "
+                        f"under unverified are placeholders or guesses.\n{notes}"
+                        + yaml.safe_dump(profile.document, sort_keys=False))
+        model = profile.model
+        click.echo(f"{path}: device {profile.device}, model {profile.name}, {len(model['replay'])} replay entries, "
+                   f"unverified: {', '.join(model['unverified']) or 'nothing'}")
+        for note in profile.notes:
+            click.echo(f"  {note}")
+
+
+# -- RobotWare's I/O configuration (EIO.cfg) -----------------------------------------------------
+
+
+@main.group()
+def eio() -> None:
+    """RobotWare's I/O configuration (EIO.cfg): import a controller's devices and signals, export the farm's."""
+
+
+@eio.command("import")
+@click.argument("cfg_path", metavar="EIO.cfg", type=click.Path(dir_okay=False, path_type=Path))
+@click.option("-o", "--output", type=click.Path(dir_okay=False, path_type=Path), default=None,
+              help="write the cell configuration here; default: stdout")
+@click.option("--base-address", default=None, metavar="IP",
+              help="renumber the devices from this address, e.g. 127.0.20.1 for a desk run (default: the "
+                   "controller's addresses)")
+def eio_import(cfg_path: Path, output: Path | None, base_address: str | None) -> None:
+    """Make a cell configuration of a controller's EIO.cfg: each EtherNet/IP device it scans, with the
+    identity, assemblies and sizes it expects, and its named signals. Warnings (one line each) say
+    what was not imported or is unknown; nothing unknown is fatal."""
+    from ipaddress import AddressValueError, IPv4Address
+
+    from enip_farm.eio.cfg import CfgError, parse_cfg
+    from enip_farm.eio.importer import EioError, import_eio
+
+    try:
+        base = IPv4Address(base_address) if base_address is not None else None
+    except AddressValueError as error:
+        raise click.BadParameter(str(error), param_hint="--base-address") from None
+    try:
+        text = cfg_path.read_text(encoding="utf-8", errors="replace")
+    except OSError as error:
+        click.echo(f"{cfg_path}: cannot read: {error.strerror}", err=True)
+        sys.exit(2)
+    try:
+        result = import_eio(parse_cfg(text, str(cfg_path)), shipped_catalogue(), base)
+    except (CfgError, EioError) as error:
+        for warning in getattr(error, "warnings", ()):
+            click.echo(warning, err=True)
+        click.echo(str(error), err=True)
+        sys.exit(2)
+    for warning in result.warnings:
+        click.echo(warning, err=True)
+    if output is None:
+        click.echo(result.yaml, nl=False)
+        return
+    output.write_text(result.yaml)
+    click.echo(f"{output}: {result.device_count} devices, {result.signal_count} named signals, "
+               f"{len(result.warnings)} warnings", err=True)
+
+
+@eio.command("export")
+@click.option("--config", "config_path", type=click.Path(path_type=Path), default=None,
+              help="cell configuration (YAML); default: the shipped default cell")
+@click.option("-o", "--output", type=click.Path(dir_okay=False, path_type=Path), default=None,
+              help="write EIO.cfg here; default: stdout")
+def eio_export(config_path: Path | None, output: Path | None) -> None:
+    """Write the EIO.cfg entries a controller needs to scan the farm's devices (ETHERNETIP_DEVICE)
+    and their named signals (EIO_SIGNAL)."""
+    from enip_farm.eio.exporter import ExportError, export_eio
+
+    config = _load(config_path, build=False)
+    try:
+        text = export_eio(config, shipped_catalogue())
+    except (ConfigError, ExportError) as error:
+        click.echo(str(error), err=True)
+        sys.exit(2)
+    if output is None:
+        click.echo(text, nl=False)
+        return
+    output.write_text(text)
+    click.echo(f"{output}: {len(config.devices)} devices, {sum(len(d.signals) for d in config.devices)} "
+               "named signals", err=True)

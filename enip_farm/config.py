@@ -27,6 +27,9 @@ from pydantic import (
 
 _MAC = re.compile(r"^([0-9A-Fa-f]{2}[:-]){5}[0-9A-Fa-f]{2}$")
 
+#: An attribute of a RobotWare EIO.cfg entry kept as it was: a string, a number, or true for a flag.
+EioValue = str | int | float | bool
+
 
 class ConfigError(Exception):
     """A configuration that cannot be served; the message is meant for the user as it is."""
@@ -128,7 +131,8 @@ class SignalConfig(_Strict):
     max_phys_limit: float | None = None
     min_bit_val: float | None = None
     max_bit_val: float | None = None
-    extra: dict[str, str] = Field({}, description="other EIO_SIGNAL attributes, kept as they were")
+    extra: dict[str, EioValue] = Field({}, description="other EIO_SIGNAL attributes (Label, Category, Access...), "
+                                       "kept as they were for `enip-farm eio export`")
 
 
 class DeviceConfig(_Strict):
@@ -152,6 +156,8 @@ class DeviceConfig(_Strict):
     limits: LimitsConfig = LimitsConfig()
     signals: list[SignalConfig] = Field([], description="named signals (RobotWare EIO_SIGNAL) beside DI1.., DO1..")
     safety: SafetyConfig = SafetyConfig()
+    extra: dict[str, EioValue] = Field({}, description="other attributes of the controller's ETHERNETIP_DEVICE "
+                                       "entry (VendorName, Label...), kept as they were for `enip-farm eio export`")
     _entry: int = PrivateAttr(0)
 
     @field_validator("model")

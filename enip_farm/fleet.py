@@ -10,6 +10,7 @@ from __future__ import annotations
 import time
 from collections.abc import Callable
 from typing import Any
+from urllib.parse import quote
 
 import httpx
 
@@ -68,8 +69,8 @@ def shard(config: FarmConfig, spec: str) -> FarmConfig:
 
 class RemoteDevice:
     """One device of a running farm or fleet, driven through its HTTP API, with the calls of the
-    pytest fixture's handle: `.set(DI3=1)`, `.get("DO5")`, `.inputs`, `.outputs`, `.wait_for(...)`,
-    `.inject(kind, ...)`, `.clear_faults()`, `.faults`."""
+    pytest fixture's handle: `.set(DI3=1)`, `.get("DO5")`, `.get("goProgramNo")`, `.inputs`,
+    `.outputs`, `.wait_for(...)`, `.inject(kind, ...)`, `.clear_faults()`, `.faults`."""
 
     def __init__(self, client: FleetClient, name: str) -> None:
         self._client = client
@@ -93,11 +94,18 @@ class RemoteDevice:
     def set_inputs(self, data: bytes) -> None:
         self._client.request("PUT", f"/devices/{self.name}/io", json={"inputs": data.hex()})
 
-    def get(self, name: str) -> int | list[int]:
-        """`DI3` (one value) or `DO1-8` (a list), as RobotWare names the signals."""
-        return _signal(self._io()["signals"], name)
+    def get(self, name: str) -> int | float | list[int]:
+        """A signal's value: numbered (`DI3`, `DO1-8` as a list) or named (`goProgramNo`), as
+        RobotWare names them; KeyError naming it if the device has no such signal."""
+        try:
+            return self._client.request("GET", f"/devices/{self.name}/io/{quote(name, safe='')}")["value"]
+        except httpx.HTTPStatusError as error:
+            if error.response.status_code == 404:
+                raise KeyError(error.response.json().get("detail", name)) from None
+            raise
 
-    def set(self, values: dict[str, int | list[int]] | None = None, **signals: int | list[int]) -> None:
+    def set(self, values: dict[str, int | float | list[int]] | None = None,
+            **signals: int | float | list[int]) -> None:
         self._client.request("PUT", f"/devices/{self.name}/io", json={"signals": {**(values or {}), **signals}})
 
     def wait_for(self, predicate: Callable[[RemoteDevice], bool], timeout: float = 5.0,
@@ -149,14 +157,3 @@ class FleetClient:
     def __exit__(self, *_: object) -> None:
         self.close()
 
-
-def _signal(signals: dict[str, list[int]], name: str) -> int | list[int]:
-    kind = name.rstrip("0123456789-")
-    first, _, last = name[len(kind):].partition("-")
-    if kind not in signals or not first.isdigit() or (last and not last.isdigit()):
-        raise KeyError(f"no signal {name!r} (kinds: {', '.join(signals)})")
-    low, high = int(first), int(last or first)
-    values = signals[kind][low - 1 : high]
-    if low < 1 or len(values) != high - low + 1:
-        raise KeyError(f"no signal {name!r}: {kind} has {len(signals[kind])}")
-    return values if last else values[0]

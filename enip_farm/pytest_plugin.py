@@ -5,11 +5,11 @@
         farm["io1"].set(DI3=1)
         ...
 
-`enip_farm(...)` takes a config file path, a config dict, or one device's fields as keyword
-arguments. Devices go on fresh 127.x addresses (each test process takes its own block, so parallel
-tests never collide) unless `keep_addresses=True`. The farm serves from a background thread, so
-synchronous clients (pycomm3) and async tests alike can talk to it; at teardown every socket and
-the thread are gone.
+`enip_farm(...)` takes a config file path (a cell's YAML, or a controller's EIO.cfg, imported as
+`enip-farm eio import` does), a config dict, or one device's fields as keyword arguments. Devices go
+on fresh 127.x addresses (each test process takes its own block, so parallel tests never collide)
+unless `keep_addresses=True`. The farm serves from a background thread, so synchronous clients
+(pycomm3) and async tests alike can talk to it; at teardown every socket and the thread are gone.
 """
 
 from __future__ import annotations
@@ -25,6 +25,9 @@ import pytest
 import yaml
 
 from enip_farm.config import parse_config
+from enip_farm.device.catalogue import shipped_catalogue
+from enip_farm.eio.cfg import parse_cfg
+from enip_farm.eio.importer import import_eio
 from enip_farm.farm import BindError, Farm
 
 
@@ -54,6 +57,8 @@ def _config_dict(source: str | Path | dict[str, Any] | None, device: dict[str, A
         return {"devices": [device]}
     if isinstance(source, dict):
         return dict(source)
+    if str(source).lower().endswith(".cfg"):  # the controller's EIO.cfg, as `enip-farm eio import` reads it
+        return import_eio(parse_cfg(Path(source).read_text(), str(source)), shipped_catalogue()).document
     return yaml.safe_load(Path(source).read_text())
 
 
@@ -79,7 +84,7 @@ def start_farm(stack: ExitStack, addresses: Callable[[], str], source: str | Pat
 
 @pytest.fixture
 def enip_farm(free_address: AddressPool) -> Iterator[Callable[..., Farm]]:
-    """A factory: enip_farm("cell.yaml"), enip_farm({"devices": [...]}), enip_farm(name="io1",
+    """A factory: enip_farm("cell.yaml"), enip_farm("EIO.cfg"), enip_farm({"devices": [...]}), enip_farm(name="io1",
     model="DSQC1030", addons=["DSQC1031"]); options keep_addresses, discovery, http."""
     with ExitStack() as stack:
         yield lambda *args, **kwargs: start_farm(stack, free_address, *args, **kwargs)

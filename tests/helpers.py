@@ -17,6 +17,13 @@ from typing import IO
 
 from enip_farm.protocol.cip import MessageRouterReply, decode_reply, encode_request
 from enip_farm.protocol.commands import decode_send_data, encode_send_data
+from enip_farm.protocol.connection import (
+    ConnectionTriad,
+    ConnectionType,
+    ForwardOpenRequest,
+    NetworkParameters,
+    encode_forward_open,
+)
 from enip_farm.protocol.cpf import CpfItem, ItemType
 from enip_farm.protocol.encapsulation import Command, Frame, StreamFramer, encode_frame
 from enip_farm.protocol.epath import encode_request_path
@@ -143,3 +150,16 @@ class RawClient:
 
     def set(self, class_id: int, instance_id: int, attribute_id: int, data: bytes) -> MessageRouterReply:
         return self.get(class_id, instance_id, attribute_id, service=0x10, data=data)
+
+
+def forward_open_message(path: bytes, o_t_size: int, t_o_size: int, rpi: int, serial: int,
+                         t_o_multicast: bool = False, transport: int = 0x01, o_t_id: int = 0,
+                         t_o_id: int = 0x7E570001, variable: bool = False) -> bytes:
+    """A Forward Open request (0x54) to the Connection Manager: O->T point to point, T->O point to
+    point or multicast, fixed (or variable) sizes, originator vendor 0x1234 and serial 0xABCD."""
+    t_o_type = ConnectionType.MULTICAST if t_o_multicast else ConnectionType.POINT_TO_POINT
+    request = ForwardOpenRequest(
+        0x0A, 0x0E, o_t_id, t_o_id, ConnectionTriad(serial, 0x1234, 0xABCD), 1, rpi,
+        NetworkParameters(False, ConnectionType.POINT_TO_POINT, 2, variable, o_t_size), rpi,
+        NetworkParameters(False, t_o_type, 2, False, t_o_size), transport, path)
+    return encode_request(0x54, encode_request_path(6, 1), encode_forward_open(request))

@@ -134,9 +134,9 @@ def _identity_capture(path: Path, product_name: str) -> Path:
 @pytest.mark.system
 def test_learn_never_names_a_model_like_a_built_in_one(tmp_path: Path) -> None:
     capture = _identity_capture(tmp_path / "real.pcap", "DSQC1030")
-    assert list(learn(capture)["models"]) == ["DSQC1030_learned"]
+    assert [p.name for p in learn(capture)] == ["DSQC1030_learned"]
     mine = Catalogue.from_document({"models": {"DSQC1030_learned": shipped_catalogue().models["DSQC1030"]}}, "mine")
-    assert list(learn(capture, catalogue=shipped_catalogue().with_models(mine.models, "mine"))["models"]) == [
+    assert [p.name for p in learn(capture, catalogue=shipped_catalogue().with_models(mine.models, "mine"))] == [
         "DSQC1030_learned_learned"]
     with pytest.raises(ValueError, match="never replaces"):
         learn(capture, name="DSQC1031")

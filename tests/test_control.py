@@ -288,8 +288,8 @@ def test_wiring_end_to_end_with_pycomm3(enip_farm) -> None:
         farm["robot1"].wait_for(lambda d: d.get("DI1") == 1, timeout=10)  # the rule, 100 ms later
     # when, by the farm's own clock (a loaded test thread may look late, the farm's timestamps do not)
     wired = farm["robot1"].events("wired")
-    (fall,) = [e for e in wired if e.detail == "robot1.DI1-16 = " + str([0] * 16)]
-    (rule,) = [e for e in wired if e.detail == "robot1.DI1 = 1"]
+    (fall,) = [e for e in wired if e.detail == f"robot1.DI1-16 = {[0] * 16} (wire from harness.DO1-16)"]
+    (rule,) = [e for e in wired if e.detail == "robot1.DI1 = 1 (rule: harness.DO16 falls, after 100 ms)"]
     assert 0.099 <= rule.monotonic - fall.monotonic < 2.0
 
 

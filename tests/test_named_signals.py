@@ -194,3 +194,82 @@ def test_a_wire_between_signals_of_different_widths_is_refused(free_address: Add
     with pytest.raises(ConfigError, match="same kind and number"):
         build_profiles(parse_config({"devices": devices, "wires": [{"from": "a.goWide", "to": "b.giNarrow"}]}),
                        shipped_catalogue())
+
+
+def test_one_signal_by_name_over_http(enip_farm) -> None:
+    farm = enip_farm(name="io1", model="DSQC1030", signals=GRIPPER_SIGNALS, http=True)
+    farm["io1"].set(giPartType=9, DI1=1)
+    with httpx.Client(base_url=f"http://127.0.0.1:{farm.http.port}") as client:
+        assert client.get("/devices/io1/io/giparttype").json() == {"name": "giPartType", "type": "GI", "role": "input",
+                                                                   "value": 9}
+        assert client.get("/devices/io1/io/DI1-3").json() == {"name": "DI1-3", "type": "DI", "role": "input",
+                                                              "value": [1, 0, 0]}
+        assert client.get("/devices/io1/io/DO2").json() == {"name": "DO2", "type": "DO", "role": "output", "value": 0}
+        missing = client.get("/devices/io1/io/diNoSuchThing")
+        assert missing.status_code == 404 and "diNoSuchThing" in missing.json()["detail"]
+        assert client.get("/devices/io1/io/DI17").status_code == 404  # past the device's 16 DI
+        assert client.get("/devices/nobody/io/DI1").status_code == 404
+
+
+@pytest.mark.system
+def test_io_get_prints_the_signals_named(enip_farm) -> None:
+    import os
+    import subprocess
+
+    from tests.helpers import CLI
+
+    farm = enip_farm(name="io1", model="DSQC1030", signals=GRIPPER_SIGNALS, http=True)
+    farm["io1"].set(giPartType=9, diGripperClosed=1)
+    env = {**os.environ, "ENIP_FARM_API": f"http://127.0.0.1:{farm.http.port}"}
+    result = subprocess.run([*CLI, "io", "get", "io1", "giPartType", "DI3-4", "diDoorOpen"], capture_output=True,
+                            text=True, env=env, timeout=60)
+    assert (result.returncode, result.stdout) == (0, "giPartType = 9\nDI3-4 = [0, 1]\ndiDoorOpen = 1\n")
+    whole = subprocess.run([*CLI, "io", "get", "io1"], capture_output=True, text=True, env=env, timeout=60)
+    assert "giPartType = 9" in whole.stdout.splitlines() and "diGripperClosed = 1" in whole.stdout.splitlines()
+    missing = subprocess.run([*CLI, "io", "get", "io1", "diNoSuchThing"], capture_output=True, text=True, env=env,
+                             timeout=60)
+    assert missing.returncode == 1 and "404" in missing.stderr and "diNoSuchThing" in missing.stderr
+
+
+def test_wired_events_name_both_ends_and_the_cause(free_address: AddressPool, enip_farm) -> None:
+    cell = {"devices": [
+        {"name": "plc", "address": free_address(), "model": "DSQC1030",
+         "signals": [{"name": "goRecipe", "type": "GO", "device_map": "0-7"},
+                     {"name": "doStart", "type": "DO", "device_map": "15"}]},
+        {"name": "robot", "address": free_address(), "model": "DSQC1030",
+         "signals": [{"name": "giRecipe", "type": "GI", "device_map": "8-15"},
+                     {"name": "diStarted", "type": "DI", "device_map": "0"}]}],
+        "wires": [{"from": "plc.goRecipe", "to": "robot.giRecipe"}],
+        "rules": [{"when": "plc.doStart", "set": "robot.diStarted"}]}
+    farm = enip_farm(cell)
+    farm["plc"].set(goRecipe=77, doStart=1)
+    assert [event.detail for event in farm["robot"].events("wired")] == [
+        "robot.giRecipe = 77 (wire from plc.goRecipe)", "robot.diStarted = 1 (rule: plc.doStart rises)"]
+
+
+def test_numbered_signals_end_where_a_smaller_image_ends() -> None:
+    [profile] = build([], addons=["DSQC1031", "DSQC1032"], assemblies={"input_size": 6})
+    signals = SignalMap(profile)
+    assert signals.names() == {"DI": 32, "DO": 32, "AI": 1, "AO": 4}  # inputs: 4 bytes of DI, then one INT
+    assert len(signals.values("input", bytes(6))) == 33
+    with pytest.raises(SignalError, match="this device has 1 AI signals"):
+        signals.lookup("AI2")
+
+
+def test_two_assemblies_with_one_instance_id_are_refused() -> None:
+    with pytest.raises(ConfigError) as error:
+        build([], assemblies={"input": 100})
+    assert str(error.value) == "<config>: devices[0], assemblies: output and input are both instance 100"
+
+
+def test_names_through_the_fleet_client(enip_farm) -> None:
+    from enip_farm.fleet import FleetClient
+
+    farm = enip_farm(name="io1", model="DSQC1030", signals=GRIPPER_SIGNALS, http=True)
+    with FleetClient(f"http://127.0.0.1:{farm.http.port}") as fleet:
+        fleet["io1"].set(goProgramNo=42, diGripperClosed=1)
+        assert fleet["io1"].get("goProgramNo") == 42 and fleet["io1"].get("DI4") == 1
+        assert fleet["io1"].get("DO9-12") == [0, 1, 0, 1]  # 42 = 0b101010 from bit 8 up
+        with pytest.raises(KeyError, match="diNoSuchThing"):
+            fleet["io1"].get("diNoSuchThing")
+    assert farm["io1"].get("goProgramNo") == 42

@@ -7,8 +7,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 from pathlib import Path
 
-from enip_farm.capture.packets import read_packets, tcp_streams
-from enip_farm.protocol.encapsulation import Frame, StreamFramer, decode_frame
+from enip_farm.capture.packets import Packet, read_packets, tcp_streams
+from enip_farm.protocol.encapsulation import HEADER, Frame, StreamFramer, decode_frame
 
 ENIP_PORT = 44818
 
@@ -24,8 +24,6 @@ class Exchange:
 
     @property
     def raw_request(self) -> bytes:
-        from enip_farm.protocol.encapsulation import HEADER
-
         return HEADER.pack(*self.request.header) + self.request.data
 
 
@@ -47,8 +45,13 @@ def _pair(stream: int, transport: str, device: str, requests: list[Frame], repli
 
 
 def load_exchanges(path: str | Path) -> list[list[Exchange]]:
-    """The exchanges of a capture, grouped: one list per TCP stream in order, then the UDP ones."""
-    packets = list(read_packets(path))
+    """The exchanges of a capture, grouped: one list per TCP stream in order, then the UDP ones.
+    Raises CaptureError (capture/packets.py) for a file that is not a readable capture."""
+    return exchanges_of(read_packets(path))
+
+
+def exchanges_of(packets: list[Packet]) -> list[list[Exchange]]:
+    """The exchanges of a capture's packets, grouped as `load_exchanges` groups them."""
     groups = []
     for index, stream in enumerate(tcp_streams(packets, ENIP_PORT), 1):
         groups.append(_pair(index, "tcp", stream.server[0], _frames(stream.to_server), _frames(stream.to_client)))

@@ -1,11 +1,11 @@
 """pcap and pcapng in and out (with dpkt): packets as (addresses, ports, TCP flags, payload),
 Ethernet/IPv4/TCP/UDP frames built with correct checksums, and TCP streams reassembled per
-direction."""
+direction. A file dpkt cannot read as a capture is one `CaptureError` with a one-line message."""
 
 from __future__ import annotations
 
 import socket
-from collections.abc import Iterator
+import struct
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -42,27 +42,54 @@ def _ip_of(link_type: int, buf: bytes) -> dpkt.ip.IP | None:
     return None
 
 
-def read_packets(path: str | Path) -> Iterator[Packet]:
-    """IPv4 TCP and UDP packets of a pcap or pcapng file, in capture order."""
-    with open(path, "rb") as handle:
-        magic = handle.read(4)
-        handle.seek(0)
-        reader = dpkt.pcapng.Reader(handle) if magic == PCAPNG_MAGIC else dpkt.pcap.Reader(handle)
-        link_type = reader.datalink()
-        for timestamp, buf in reader:
-            try:
-                ip = _ip_of(link_type, buf)
-            except (dpkt.UnpackError, ValueError):
-                continue
-            if ip is None:
-                continue
-            src, dst = socket.inet_ntoa(ip.src), socket.inet_ntoa(ip.dst)
-            if isinstance(ip.data, dpkt.tcp.TCP):
-                tcp = ip.data
-                yield Packet(timestamp, src, tcp.sport, dst, tcp.dport, "tcp", tcp.flags, tcp.seq, bytes(tcp.data))
-            elif isinstance(ip.data, dpkt.udp.UDP):
-                udp = ip.data
-                yield Packet(timestamp, src, udp.sport, dst, udp.dport, "udp", 0, 0, bytes(udp.data))
+class CaptureError(ValueError):
+    """A file that is not a readable pcap or pcapng capture; the message is one line for the user."""
+
+
+def read_packets(path: str | Path) -> list[Packet]:
+    """IPv4 TCP and UDP packets of a pcap or pcapng file, in capture order. Raises CaptureError
+    for a file that cannot be opened, is not a capture, or is cut inside a packet record."""
+    packets: list[Packet] = []
+    records = -1  # until the file's header is read
+    try:
+        with open(path, "rb") as handle:
+            magic = handle.read(4)
+            handle.seek(0)
+            reader = dpkt.pcapng.Reader(handle) if magic == PCAPNG_MAGIC else dpkt.pcap.Reader(handle)
+            link_type = reader.datalink()
+            records = 0
+            for timestamp, buf in reader:
+                records += 1
+                packet = _packet(link_type, timestamp, buf)
+                if packet is not None:
+                    packets.append(packet)
+    except OSError as error:
+        raise CaptureError(f"{path}: {error.strerror}") from None
+    except (dpkt.UnpackError, ValueError, struct.error) as error:  # dpkt.NeedData is an UnpackError
+        if records >= 0:
+            raise CaptureError(f"{path}: capture cut short after {records} packets ({error})") from None
+        reason = "an empty file" if Path(path).stat().st_size == 0 else error or type(error).__name__
+        raise CaptureError(f"{path}: not a pcap or pcapng capture ({reason})") from None
+    return packets
+
+
+def _packet(link_type: int, timestamp: float, buf: bytes) -> Packet | None:
+    """The TCP or UDP packet of one record, or None (not IPv4 TCP/UDP, or a frame dpkt cannot
+    decode: one damaged frame does not make the capture unreadable)."""
+    try:
+        ip = _ip_of(link_type, buf)
+    except (dpkt.UnpackError, ValueError):
+        return None
+    if ip is None:
+        return None
+    src, dst = socket.inet_ntoa(ip.src), socket.inet_ntoa(ip.dst)
+    if isinstance(ip.data, dpkt.tcp.TCP):
+        tcp = ip.data
+        return Packet(timestamp, src, tcp.sport, dst, tcp.dport, "tcp", tcp.flags, tcp.seq, bytes(tcp.data))
+    if isinstance(ip.data, dpkt.udp.UDP):
+        udp = ip.data
+        return Packet(timestamp, src, udp.sport, dst, udp.dport, "udp", 0, 0, bytes(udp.data))
+    return None
 
 
 def mac_of(address: str) -> bytes:

@@ -92,6 +92,14 @@ class DeviceHandle:
         set(diGripperClosed=1) or set({"DI1-4": [1, 0, 1, 1]}). All or nothing (see `update`)."""
         self.update(signals={**(values or {}), **signals})
 
+    def signal(self, name: str) -> dict[str, Any]:
+        """One signal as `signal_table` shows it, looked up as `get` does: {"name", "type", "role",
+        "value"}; for a numbered range (DI1-8) the value is a list. SignalError if there is none."""
+        signal = self.signals.lookup(name)
+        image = self.device.inputs if signal.role == "input" else self.device.outputs
+        kind = signal.type if isinstance(signal, NamedSignal) else signal.kind
+        return {"name": str(signal), "type": kind, "role": signal.role, "value": self.signals.value(signal, image)}
+
     def signal_table(self) -> list[dict[str, Any]]:
         """Every signal with its value: numbered (DI1.., DO1.., AI1.., AO1..) first, then named."""
         values = {**self.signals.values("input", self.device.inputs),

@@ -1,11 +1,12 @@
 """The farm's HTTP API (FastAPI, served by uvicorn on the farm's own event loop).
 
-GET /devices, GET /devices/{name}, GET and PUT /devices/{name}/io, POST and DELETE
-/devices/{name}/faults, GET /events (server-sent events, control/stream.py), GET /metrics
-(Prometheus), and the OpenAPI schema at /openapi.json and /docs. Bound to anything but localhost,
-every request needs `Authorization: Bearer <token>`. Host, token and body size are checked before
-FastAPI sees a request (control/guard.py). Fault parameters are checked by `Fault` itself
-(device/faults.py); an image write is all or nothing (`DeviceHandle.update`).
+GET /devices, GET /devices/{name}, GET and PUT /devices/{name}/io, GET /devices/{name}/io/{signal}
+(one signal by its number or name), POST and DELETE /devices/{name}/faults, GET /events (server-sent
+events, control/stream.py), GET /metrics (Prometheus), and the OpenAPI schema at /openapi.json and
+/docs. Bound to anything but localhost, every request needs `Authorization: Bearer <token>`. Host,
+token and body size are checked before FastAPI sees a request (control/guard.py). Fault parameters
+are checked by `Fault` itself (device/faults.py); an image write is all or nothing
+(`DeviceHandle.update`).
 """
 
 from __future__ import annotations
@@ -29,6 +30,7 @@ from enip_farm.control.handle import FarmControl
 from enip_farm.control.metrics import FarmCollector
 from enip_farm.control.stream import EventHub, EventStream
 from enip_farm.device.faults import Fault, FaultError, FaultKind
+from enip_farm.device.signals import SignalError
 
 LOCALHOST = frozenset({"127.0.0.1", "localhost", "::1"})
 
@@ -106,6 +108,16 @@ def create_app(farm: FarmControl, hub: EventHub | None = None) -> FastAPI:
     @app.get("/devices/{name}/io")
     def get_io(name: str) -> dict[str, Any]:
         return _io(farm, known(name))
+
+    @app.get("/devices/{name}/io/{signal}")
+    def get_signal(name: str, signal: str) -> dict[str, Any]:
+        """One signal by name: numbered (DI3, DO1-8, AI2) or named (goProgramNo); 404 naming it if the
+        device has no such signal."""
+        handle = farm[known(name)]
+        try:
+            return handle.signal(signal)
+        except SignalError as error:
+            raise HTTPException(404, f"device {name!r}: {error}") from None
 
     @app.put("/devices/{name}/io")
     def put_io(name: str, body: IoWrite) -> dict[str, Any]:

@@ -44,20 +44,23 @@ class Wiring:
         for source, target in self.wires.get(key, ()):
             values = signals.read(source.signal, new)
             if values != signals.read(source.signal, old):
-                self.write(target, values)
+                self.write(target, values, f"wire from {source}")
         for when, target, rule in self.rules.get(key, ()):
             before, after = signals.read(when.signal, old)[0], signals.read(when.signal, new)[0]
             if before != after and after == (1 if rule.edge == "rises" else 0):
+                cause = f"rule: {when} {rule.edge}"
                 if rule.delay_ms:
                     loop = self.farm.loop
                     if loop is not None:
                         loop.call_soon_threadsafe(loop.call_later, rule.delay_ms / 1000, self.write, target,
-                                                  [rule.value])
+                                                  [rule.value], f"{cause}, after {rule.delay_ms:g} ms")
                 else:
-                    self.write(target, [rule.value])
+                    self.write(target, [rule.value], cause)
 
-    def write(self, target: Endpoint, values: list[int]) -> None:
+    def write(self, target: Endpoint, values: list, cause: str) -> None:
+        """Set the target and record a "wired" event naming both ends by their signal names, e.g.
+        `robot.giRecipe = 77 (wire from plc.goRecipe)` or `robot.DI1 = 1 (rule: plc.doStart rises)`."""
         device = self.farm.devices[target.device]
         signals = self.maps[target.device]
         device.write_image(target.signal.role, lambda image: signals.write(target.signal, image, values))
-        device.record("wired", f"{target} = {values if len(values) > 1 else values[0]}")
+        device.record("wired", f"{target} = {values if len(values) > 1 else values[0]} ({cause})")

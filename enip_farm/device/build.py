@@ -38,8 +38,10 @@ def build_profiles(config: FarmConfig, catalogue: Catalogue) -> list[DeviceProfi
     profiles = [resolve(device.model_copy(update={"model": models[device.model]}) if device.model in models
                         else device, catalogue) for device in config.devices]
     problems = list(dict.fromkeys(  # a `count` entry's devices share their problems
-        f"{config.source}: {device_location(device.entry)}, signals: {message}"
-        for device, profile in zip(config.devices, profiles, strict=True) for message in signal_problems(profile)))
+        f"{config.source}: {device_location(device.entry)}, {field}: {message}"
+        for device, profile in zip(config.devices, profiles, strict=True)
+        for field, messages in (("assemblies", assembly_problems(profile)), ("signals", signal_problems(profile)))
+        for message in messages))
     problems += [f"{config.source}: {message}" for message in check_wiring(config, profiles)]
     if problems:
         raise ConfigError("\n".join(problems))
@@ -90,6 +92,18 @@ def _device_problems(device: DeviceConfig, model_name: str, catalogue: Catalogue
             problems.append(("signals", str(error)))
     if not problems and device.addons and model is not None and model.assemblies is None:
         problems.append(("", f"model {model_name} takes no add-ons"))
+    return problems
+
+
+def assembly_problems(profile: DeviceProfile) -> list[str]:
+    """One message per assembly instance id that two roles share (e.g. an input override of 100
+    on a model whose output is 100): one of them would hide the other."""
+    roles: dict[int, str] = {}
+    problems = []
+    for spec in profile.assemblies:
+        if spec.instance_id in roles:
+            problems.append(f"{roles[spec.instance_id]} and {spec.role} are both instance {spec.instance_id}")
+        roles.setdefault(spec.instance_id, spec.role)
     return problems
 
 

@@ -55,10 +55,14 @@ class AssemblyIds(_Strict):
     listen_only: int | None = Field(None, ge=1, description="heartbeat connection point, listen-only connections")
 
 
+#: The largest assembly a device serves, in bytes (a Forward Open's 9-bit size less the headers).
+MAX_ASSEMBLY_SIZE = 496
+
+
 class AssemblySizes(_Strict):
-    output: int = Field(0, ge=0, le=496)
-    input: int = Field(0, ge=0, le=496)
-    configuration: int = Field(0, ge=0, le=496)
+    output: int = Field(0, ge=0, le=MAX_ASSEMBLY_SIZE)
+    input: int = Field(0, ge=0, le=MAX_ASSEMBLY_SIZE)
+    configuration: int = Field(0, ge=0, le=MAX_ASSEMBLY_SIZE)
 
 
 class SafetyDefaults(_Strict):

@@ -81,6 +81,13 @@ class SignalMap:
                 self.words["AI"].append(module.input_offset + (io.di + 7) // 8 + 2 * i)
             for i in range(io.ao):
                 self.words["AO"].append(module.output_offset + (io.do + 7) // 8 + 2 * i)
+        # an image configured smaller than its modules' channels (assemblies.input_size) ends the numbering
+        sizes = {"DI": profile.input_size, "DO": profile.output_size, "AI": profile.input_size,
+                 "AO": profile.output_size}
+        for kind, bits in self.bits.items():
+            bits[:] = [(offset, bit) for offset, bit in bits if offset < sizes[kind]]
+        for kind, words in self.words.items():
+            words[:] = [offset for offset in words if offset + 2 <= sizes[kind]]
 
     def lookup(self, text: str) -> Signal:
         """A named signal (case-insensitive, as RAPID names are) or a numbered range (DI3, DO1-16);

@@ -1,0 +1,229 @@
+"""`enip-farm eds export MODEL -o FILE.eds`: the EDS of a catalogue model as the farm serves it
+(CIP Networks Library Vol. 1 chapter 7: [File], [Device], [Device Classification], [Params], [Assembly],
+[Connection Manager], [Capacity]).
+
+Every value is the farm's: the identity, assembly instances and sizes of the resolved profile, the
+channel layout of its modules (each module's digital bytes, then its analog INTs, in slot order),
+the connection points it admits (exclusive owner; input only and listen only where the model has
+heartbeat points) and the RPI range and connection limits of its implicit policy. A value the
+catalogue lists as unverified is written as it is and marked UNVERIFIED in a comment beside it.
+
+Connection entry fields ([Connection Manager]): trigger and transport (bit 1 class 1, bit 16
+cyclic, bit 24 listen only, 25 input only, 26 exclusive owner), connection parameters (bits 0-3 fixed or
+variable O->T and T->O sizes, 8-10 and 12-14 real-time formats: 0 modeless, 3 heartbeat, 4 32-bit
+run/idle header; 16-18 and 20-22 O->T and T->O connection types null, multicast, point to point;
+24-26 and 28-30 priorities), O->T RPI, size, format, T->O RPI, size, format, proxy and target
+configuration sizes and formats, name, help, path. Sizes are application data, without sequence
+count or header.
+"""
+
+from __future__ import annotations
+
+import datetime
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+from enip_farm.config import parse_config
+from enip_farm.device.build import build_profiles
+from enip_farm.device.catalogue import Catalogue
+from enip_farm.device.profile import DeviceProfile
+from enip_farm.protocol.epath import LogicalType, encode_logical
+
+#: Trigger and transport: class 1, cyclic, and the connection type bit.
+EXCLUSIVE_OWNER, INPUT_ONLY, LISTEN_ONLY = 0x04010002, 0x02010002, 0x01010002
+#: Connection parameters: every priority; T->O fixed, modeless, point to point or multicast (listen
+#: only: multicast); O->T point to point, fixed or variable with the run/idle header (exclusive
+#: owner) or a fixed heartbeat (input only, listen only). The farm's admission, cip/admission.py.
+EXCLUSIVE_OWNER_PARAMETERS, INPUT_ONLY_PARAMETERS, LISTEN_ONLY_PARAMETERS = 0x77640407, 0x77640305, 0x77240305
+VENDOR_NAMES = {75: "ABB Robotics"}
+DEVICE_TYPES = {0x07: "General Purpose Discrete I/O", 0x0C: "Communications Adapter", 0x2B: "Generic Device"}
+_DATA_TYPES = {8: (0xD1, "BYTE"), 16: (0xD2, "WORD"), 32: (0xD3, "DWORD")}
+_INT, _UDINT = 0xC3, 0xC8
+_INDENT, _FIELD = " " * 8, " " * 16
+
+
+@dataclass(frozen=True)
+class _Member:
+    bits: int
+    param: int
+
+
+def _quote(text: str) -> str:
+    return '"' + text.replace('"', "'") + '"'
+
+
+def _path(*segments: tuple[LogicalType, int]) -> str:
+    return " ".join(f"{byte:02X}" for segment in segments for byte in encode_logical(*segment))
+
+
+def _entry(keyword: str, fields: list[tuple[str, str]]) -> str:
+    """An entry written field per line, each with its comment, as EDS tools write them."""
+    lines = [f"{_INDENT}{keyword} ="]
+    for index, (value, comment) in enumerate(fields):
+        text = f"{_FIELD}{value}{';' if index == len(fields) - 1 else ','}"
+        lines.append(f"{text:<47} $ {comment}" if comment else text)
+    return "\n".join(lines)
+
+
+class _Params:
+    def __init__(self) -> None:
+        self.entries: list[str] = []
+
+    def add(self, name: str, data_type: int, size: int, units: str, help_text: str,
+            limits: tuple[str, str, str] = ("", "", "")) -> int:
+        number = len(self.entries) + 1
+        self.entries.append(_entry(f"Param{number}", [
+            ("0", "reserved, shall be 0"), (",", "link path size, link path"), ("0x0000", "descriptor"),
+            (f"0x{data_type:02X}", "data type"), (str(size), "data size in bytes"), (_quote(name), "name"),
+            (_quote(units), "units"), (_quote(help_text), "help string"),
+            (",".join(limits), "minimum, maximum, default"), (",,,", "scaling: multiplier, divisor, base, offset"),
+            (",,,", "links: multiplier, divisor, base, offset"), ("", "decimal places")]))
+        return number
+
+
+def _members(profile: DeviceProfile, params: _Params, role: str) -> list[_Member]:
+    """The image's channels, one member per module's digital bytes and one per analog INT."""
+    members: list[_Member] = []
+    digital, analog = ("di", "ai") if role == "input" else ("do", "ao")
+    first = {"di": 1, "do": 1, "ai": 1, "ao": 1}
+    for module in profile.modules:
+        count = getattr(module.io, digital)
+        if count:
+            bits = 8 * ((count + 7) // 8)
+            data_type, type_name = _DATA_TYPES.get(bits, (0xD1, "BYTE"))
+            name = f"{digital.upper()}{first[digital]}-{first[digital] + count - 1}"
+            size = bits // 8 if bits in _DATA_TYPES else 1
+            number = params.add(f"{module.model} {name}", data_type, size, "",
+                                f"{type_name}, bit 0 = {digital.upper()}{first[digital]}")
+            members += [_Member(bits, number)] if bits in _DATA_TYPES else [_Member(8, number)] * (bits // 8)
+            first[digital] += count
+        for _ in range(getattr(module.io, analog)):
+            name = f"{analog.upper()}{first[analog]}"
+            members.append(_Member(16, params.add(f"{module.model} {name}", _INT, 2, "", "INT, raw value")))
+            first[analog] += 1
+    return members
+
+
+def _assembly(instance: int, name: str, size: int, members: list[_Member]) -> str:
+    fields = [(_quote(name), "name"), (_quote(_path((LogicalType.CLASS_ID, 4), (LogicalType.INSTANCE_ID, instance),
+                                                   (LogicalType.ATTRIBUTE_ID, 3))), "path"),
+              (str(size), "size in bytes"), ("0x0000", "descriptor"), (",", "reserved")]
+    if sum(m.bits for m in members) != 8 * size:
+        members = []  # sizes given in the configuration, not from the modules: no members to describe
+    fields += [(f"{m.bits},Param{m.param}", "member size in bits, member") for m in members]
+    if not members:
+        fields[-1] = (",", "reserved (no members)")
+    return _entry(f"Assem{instance}", fields)
+
+
+def _connection(number: int, kind: int, parameters: int, o_t: tuple[int, str], t_o: tuple[int, str],
+                configuration: tuple[int, str], name: str, path: str) -> str:
+    return _entry(f"Connection{number}", [
+        (f"0x{kind:08X}", "trigger and transport: class 1, cyclic, " + name.lower()),
+        (f"0x{parameters:08X}", "connection parameters"),
+        (f"Param1,{o_t[0]},{o_t[1]}", "O->T RPI, size, format"),
+        (f"Param1,{t_o[0]},{t_o[1]}", "T->O RPI, size, format"),
+        (",", "proxy configuration size, format"),
+        (f"{configuration[0]},{configuration[1]}", "target configuration size, format"),
+        (_quote(name), "connection name"), (_quote(""), "help string"), (_quote(path), "path")])
+
+
+def _unverified(profile: DeviceProfile, item: str) -> str:
+    return "  $ UNVERIFIED placeholder" if f"{profile.model}.{item}" in profile.unverified else ""
+
+
+def write_eds(profile: DeviceProfile, created: datetime.datetime) -> str:
+    """The EDS text of a device as the farm serves it; `created` dates the file."""
+    modules = " + ".join((profile.model, *profile.addons))
+    date, time = created.strftime("%m-%d-%Y"), created.strftime("%H:%M:%S")
+    implicit = profile.implicit
+    lines = [
+        f"$ Electronic Data Sheet of the enip-farm emulation of {modules}, written by `enip-farm eds export`.",
+        "$ The values are the farm's catalogue and policy, not a datasheet of the module: ABB does not publish",
+        "$ the device type, product codes, revisions, product names, assembly layouts with add-ons or RPI",
+        "$ limits of these modules. Values marked UNVERIFIED are placeholders; so are the channel layout",
+        "$ (each module's digital bytes, then its analog INTs, in slot order) and the connection limits.",
+    ]
+    lines += [f"$ UNVERIFIED: {item}" for item in profile.unverified]
+    vendor = VENDOR_NAMES.get(profile.vendor_id, f"Vendor {profile.vendor_id}")
+    device_type = DEVICE_TYPES.get(profile.device_type, f"Device type {profile.device_type}")
+    lines += [
+        "",
+        "[File]",
+        f"{_INDENT}DescText = {_quote(f'enip-farm emulation of {modules} (values unverified)')};",
+        f"{_INDENT}CreateDate = {date};",
+        f"{_INDENT}CreateTime = {time};",
+        f"{_INDENT}ModDate = {date};",
+        f"{_INDENT}ModTime = {time};",
+        f"{_INDENT}Revision = 1.0;",
+        "",
+        "[Device]",
+        f"{_INDENT}VendCode = {profile.vendor_id};",
+        f"{_INDENT}VendName = {_quote(vendor)};",
+        f"{_INDENT}ProdType = {profile.device_type};{_unverified(profile, 'identity.device_type')}",
+        f"{_INDENT}ProdTypeStr = {_quote(device_type)};",
+        f"{_INDENT}ProdCode = {profile.product_code};{_unverified(profile, 'identity.product_code')}",
+        f"{_INDENT}MajRev = {profile.revision[0]};{_unverified(profile, 'identity.revision')}",
+        f"{_INDENT}MinRev = {profile.revision[1]};{_unverified(profile, 'identity.revision')}",
+        f"{_INDENT}ProdName = {_quote(profile.product_name)};{_unverified(profile, 'identity.product_name')}",
+        f"{_INDENT}Catalog = {_quote(modules)};",
+        "",
+        "[Device Classification]",
+        f"{_INDENT}Class1 = EtherNetIP;",
+    ]
+    output, inputs, configuration = (profile.assembly(role) for role in ("output", "input", "configuration"))
+    if output is None or inputs is None:
+        lines += ["", "$ No assemblies: identity and explicit messaging only (no I/O connections)."]
+        return "\n".join(lines) + "\n"
+
+    params = _Params()
+    default_rpi = min(max(10_000, implicit.rpi_min_us), implicit.rpi_max_us)
+    params.add("RPI", _UDINT, 4, "microsecond", "Requested packet interval (the farm's policy, unverified)",
+               (str(implicit.rpi_min_us), str(implicit.rpi_max_us), str(default_rpi)))
+    output_members = _members(profile, params, "output")
+    input_members = _members(profile, params, "input")
+    lines += ["", "[Params]", *params.entries]
+    lines += ["", "[Assembly]", f"{_INDENT}Object_Name = {_quote('Assembly Object')};",
+              f"{_INDENT}Object_Class_Code = 0x04;",
+              _assembly(output.instance_id, "Output", output.size, output_members),
+              _assembly(inputs.instance_id, "Input", inputs.size, input_members)]
+    config_format = ""
+    if configuration is not None and configuration.size:
+        lines.append(_assembly(configuration.instance_id, "Configuration", configuration.size, []))
+        config_format = f"Assem{configuration.instance_id}"
+    config_point = [(LogicalType.INSTANCE_ID, configuration.instance_id)] if configuration is not None else []
+    config_size = configuration.size if configuration is not None else 0
+
+    def connection_path(consumed: int) -> str:
+        return _path((LogicalType.CLASS_ID, 4), *config_point, (LogicalType.CONNECTION_POINT, consumed),
+                     (LogicalType.CONNECTION_POINT, inputs.instance_id))
+
+    t_o = (inputs.size, f"Assem{inputs.instance_id}")
+    connections = [(EXCLUSIVE_OWNER, EXCLUSIVE_OWNER_PARAMETERS, (output.size, f"Assem{output.instance_id}"),
+                    "Exclusive Owner", output.instance_id)]
+    if profile.input_only_point is not None:
+        connections.append((INPUT_ONLY, INPUT_ONLY_PARAMETERS, (0, ""), "Input Only", profile.input_only_point))
+    if profile.listen_only_point is not None:
+        connections.append((LISTEN_ONLY, LISTEN_ONLY_PARAMETERS, (0, ""), "Listen Only", profile.listen_only_point))
+    lines += ["", "[Connection Manager]", f"{_INDENT}Object_Name = {_quote('Connection Manager Object')};",
+              f"{_INDENT}Object_Class_Code = 0x06;"]
+    if profile.input_only_point is not None or profile.listen_only_point is not None:
+        lines.append(f"{_INDENT}$ Input-only and listen-only heartbeat points are a common convention, "
+                     "unverified for these modules.")
+    lines += [_connection(number, kind, parameters, o_t, t_o, (config_size, config_format), name,
+                          connection_path(point))
+              for number, (kind, parameters, o_t, name, point) in enumerate(connections, 1)]
+    lines += ["", "[Capacity]", f"{_INDENT}$ The farm's limits per device (its guards, not the module's).",
+              f"{_INDENT}MaxIOConnections = {implicit.max_class1_connections};",
+              f"{_INDENT}MaxMsgConnections = {implicit.max_class3_connections};"]
+    return "\n".join(lines) + "\n"
+
+
+def model_profile(model: str, addons: Sequence[str], catalogue: Catalogue, base_dir: str | Path = ".") -> DeviceProfile:
+    """The profile a device of `model` (a catalogue model or a profile file) with `addons` gets.
+    Raises ConfigError (one line per problem) for an unknown model or add-on."""
+    device = {"name": "eds", "address": "127.0.0.1", "model": model, "addons": list(addons)}
+    config = parse_config({"devices": [device]}, "eds export", base_dir)
+    (profile,) = build_profiles(config, catalogue)
+    return profile
