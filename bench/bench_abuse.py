@@ -178,7 +178,7 @@ def main() -> None:
     config.write(f"discovery: false\ndevices:\n  - {{name: calm, address: {CALM}, model: DSQC1030}}\n"
                  f"  - {{name: abused, address: {ABUSED}, model: DSQC1030}}\n")
     config.close()
-    farm = subprocess.Popen(["taskset", "-c", str(args.farm_cpu), sys.executable, "-m", "enip_farm", "serve",
+    farm = subprocess.Popen(["taskset", "-c", str(args.farm_cpu), sys.executable, "-m", "enip_farm", "serve", "--quiet",
                              "--config", config.name, "--http", "0"], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
                             text=True)
     os.sched_setaffinity(0, {args.client_cpu})

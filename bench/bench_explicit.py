@@ -10,6 +10,9 @@ both pay the same cross-CPU wake-up. Measured per server, in one run:
 Every loop is bounded in count and in time. Traffic goes to 127.0.0.0/8 only.
 
     python bench/bench_explicit.py [--requests 20000] [--server-cpu 1] [--client-cpu 0]
+
+CPU per request comes from /proc, which counts in clock ticks (10 ms): with few requests a phase
+may take no whole tick, and the ratio of two such figures is shown as n/a.
 """
 
 from __future__ import annotations
@@ -123,6 +126,11 @@ def percentile(values: list[float], q: float) -> float:
     return statistics.quantiles(values, n=100, method="inclusive")[int(q) - 1] if len(values) > 1 else values[0]
 
 
+def ratio(a: float, b: float) -> str:
+    """a / b to two decimals, or n/a when b is 0 (e.g. CPU time below one clock tick)."""
+    return f"{a / b:.2f}" if b else "n/a"
+
+
 def wait_listening(host: str, process: subprocess.Popen, timeout: float = 20.0) -> None:
     deadline = time.monotonic() + timeout
     while time.monotonic() < deadline:
@@ -152,7 +160,7 @@ def measure(name: str, host: str, pid: int, args: argparse.Namespace) -> dict[st
         "aggregate_8_per_s": parallel,
         "connect_register_p50_us": statistics.median(setup),
         "cpu_us_per_request_sequential": (cpu1 - cpu0) / len(latencies) * 1e6,
-        "cpu_us_per_request_aggregate": (cpu2 - cpu1) / done * 1e6,
+        "cpu_us_per_request_aggregate": (cpu2 - cpu1) / done * 1e6 if done else 0.0,
     }
 
 
@@ -164,18 +172,21 @@ def main() -> None:
     parser.add_argument("--server-cpu", type=int, default=1, help="CPU 0 takes this VM's interrupts")
     parser.add_argument("--client-cpu", type=int, default=0)
     parser.add_argument("--json", type=Path, default=None, help="also write the results here")
+    parser.add_argument("--farm-host", default=FARM_HOST, help="the farm's device address (127.0.0.0/8)")
+    parser.add_argument("--minimal-host", default=MINIMAL_HOST, help="the minimal responder's address")
     args = parser.parse_args()
 
     config = tempfile.NamedTemporaryFile("w", suffix=".yaml", delete=False)
-    config.write(f"devices:\n  - {{name: bench, address: {FARM_HOST}, model: DSQC1030}}\ndiscovery: false\n")
+    config.write(f"devices:\n  - {{name: bench, address: {args.farm_host}, model: DSQC1030}}\ndiscovery: false\n")
     config.close()
     pin = ["taskset", "-c", str(args.server_cpu)]
     servers = {
-        "farm": (FARM_HOST, subprocess.Popen([*pin, sys.executable, "-m", "enip_farm", "serve", "--config",
-                                              config.name], stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
-                                             text=True)),
-        "minimal": (MINIMAL_HOST, subprocess.Popen([*pin, sys.executable, str(Path(__file__).with_name(
-            "minimal_responder.py")), MINIMAL_HOST], stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)),
+        "farm": (args.farm_host, subprocess.Popen([*pin, sys.executable, "-m", "enip_farm", "serve", "--quiet",
+                                                   "--config", config.name], stdout=subprocess.DEVNULL,
+                                                  stderr=subprocess.PIPE, text=True)),
+        "minimal": (args.minimal_host, subprocess.Popen([*pin, sys.executable, str(Path(__file__).with_name(
+            "minimal_responder.py")), args.minimal_host], stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
+            text=True)),
     }
     os.sched_setaffinity(0, {args.client_cpu})
     rounds: dict[str, list[dict[str, float]]] = {name: [] for name in servers}
@@ -197,7 +208,9 @@ def main() -> None:
     print(f"medians of {args.rounds} interleaved rounds; server CPU {args.server_cpu}, client CPU {args.client_cpu}")
     print(f"{'metric':34} {'farm':>10} {'minimal':>10} {'farm/minimal':>13}")
     for key in farm:
-        print(f"{key:34} {farm[key]:10.1f} {minimal[key]:10.1f} {farm[key] / minimal[key]:13.2f}")
+        print(f"{key:34} {farm[key]:10.1f} {minimal[key]:10.1f} {ratio(farm[key], minimal[key]):>13}")
+    if not all(farm[key] and minimal[key] for key in farm if key.startswith("cpu_")):
+        print("n/a: a phase took less than one clock tick of CPU (10 ms); give more --requests for CPU figures")
     if args.json:
         args.json.parent.mkdir(parents=True, exist_ok=True)
         args.json.write_text(json.dumps(rounds, indent=2))

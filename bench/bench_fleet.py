@@ -36,14 +36,15 @@ REPLY_SIZE = 46
 
 def write_config(count: int, first: str) -> str:
     config = tempfile.NamedTemporaryFile("w", suffix=".yaml", delete=False)
-    config.write(f"devices:\n  - {{name: 'io{{n}}', address: {first}, count: {count}, model: DSQC1030}}\n")
+    config.write(f"devices:\n  - {{name: 'io{{n}}', address: {first}, count: {count}, model: DSQC1030, "
+                 "netmask: 255.0.0.0}\n")
     config.close()
     return config.name
 
 
 def start_farm(config: str, workers: int) -> tuple[subprocess.Popen, float]:
     started = time.monotonic()
-    process = subprocess.Popen([sys.executable, "-m", "enip_farm", "serve", "--config", config, "--workers",
+    process = subprocess.Popen([sys.executable, "-m", "enip_farm", "serve", "--quiet", "--config", config, "--workers",
                                 str(workers)], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     header = process.stdout.readline()
     if not header.startswith("NAME"):

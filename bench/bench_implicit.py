@@ -10,13 +10,16 @@ or more), and at the end each Forward Close tells whether the connection had tim
 Every loop is bounded in time. Traffic goes to 127.0.0.0/8 only.
 
     python bench/bench_implicit.py --connections 200 --rpi-ms 10 --seconds 60
-    python bench/bench_implicit.py --sweep 10          # lowest RPI with p99 error <= 0.5 ms
+    python bench/bench_implicit.py --sweep 10          # lowest RPI with p99 error <= 0.5 ms, 10 s per RPI
+
+Each run says on stderr when it starts and what it found, so a sweep shows its progress.
 """
 
 from __future__ import annotations
 
 import argparse
 import heapq
+import ipaddress
 import json
 import os
 import select
@@ -62,8 +65,13 @@ def cpu_seconds(pid: int) -> float:
     return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
 
 
-def address(i: int) -> str:
-    return f"127.0.{201 + i // 250}.{i % 250 + 1}"
+SWEEP_RPIS_MS = (10, 5, 4, 3, 2, 1.5, 1, 0.5)
+FIRST_ADDRESS = "127.0.201.1"
+
+
+def address(i: int, first: str = FIRST_ADDRESS) -> str:
+    """Device i's address: 250 per /24 from `first` (x.y.z.1 by default), the next 250 in the next /24."""
+    return str(ipaddress.IPv4Address(first) + (i // 250) * 256 + i % 250)
 
 
 class Session:
@@ -180,15 +188,15 @@ def run_load(hosts: list[str], rpi_us: int, seconds: float, farm_pid: int) -> di
     }
 
 
-def start_farm(count: int, rpi_min_us: int, cpu: int) -> tuple[subprocess.Popen, str]:
+def start_farm(count: int, rpi_min_us: int, cpu: int, first: str = FIRST_ADDRESS) -> tuple[subprocess.Popen, str]:
     config = tempfile.NamedTemporaryFile("w", suffix=".yaml", delete=False)
     config.write("discovery: false\ndevices:\n")
     for i in range(count):
-        config.write(f"  - {{name: b{i}, address: {address(i)}, model: DSQC1030, "
+        config.write(f"  - {{name: b{i}, address: {address(i, first)}, model: DSQC1030, "
                      f"implicit: {{rpi_min_us: {rpi_min_us}}}}}\n")
     config.close()
-    process = subprocess.Popen(["taskset", "-c", str(cpu), sys.executable, "-m", "enip_farm", "serve", "--config",
-                                config.name], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    process = subprocess.Popen(["taskset", "-c", str(cpu), sys.executable, "-m", "enip_farm", "serve", "--quiet",
+                                "--config", config.name], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     process.stdout.readline()  # the table's header: every device listens
     return process, config.name
 
@@ -197,26 +205,33 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--connections", type=int, default=200)
     parser.add_argument("--rpi-ms", type=float, default=10.0)
-    parser.add_argument("--seconds", type=float, default=60.0)
+    parser.add_argument("--seconds", type=float, default=None,
+                        help="length of each run (default: 60 s, or 10 s per RPI with --sweep)")
     parser.add_argument("--repeat", type=int, default=1, help="runs against the same farm; the median is reported")
     parser.add_argument("--sweep", type=int, default=0, metavar="N",
-                        help="instead: N connections at decreasing RPIs, 10 s each")
+                        help=f"instead: N connections at each RPI of {', '.join(map(str, SWEEP_RPIS_MS))} ms")
+    parser.add_argument("--first-address", default=FIRST_ADDRESS,
+                        help="the first device's address (127.0.0.0/8); 250 per /24 from there")
     parser.add_argument("--farm-cpu", type=int, default=1, help="CPU 0 takes this VM's interrupts")
     parser.add_argument("--client-cpu", type=int, default=0)
     parser.add_argument("--json", type=Path, default=None, help="also write the results here")
     args = parser.parse_args()
+    seconds = args.seconds if args.seconds is not None else 10.0 if args.sweep else 60.0
     os.sched_setaffinity(0, {args.client_cpu})
     count = args.sweep or args.connections
-    farm, config = start_farm(count, 250, args.farm_cpu)
-    hosts = [address(i) for i in range(count)]
+    farm, config = start_farm(count, 250, args.farm_cpu, args.first_address)
+    hosts = [address(i, args.first_address) for i in range(count)]
+    runs = list(SWEEP_RPIS_MS) if args.sweep else [args.rpi_ms] * args.repeat
     results = []
     try:
-        if args.sweep:
-            for rpi_ms in (10, 5, 4, 3, 2, 1.5, 1, 0.5):
-                results.append(run_load(hosts, int(rpi_ms * 1000), 10.0, farm.pid))
-        else:
-            for _ in range(args.repeat):
-                results.append(run_load(hosts, int(args.rpi_ms * 1000), args.seconds, farm.pid))
+        for n, rpi_ms in enumerate(runs, 1):
+            print(f"run {n}/{len(runs)}: {count} connections at RPI {rpi_ms:g} ms for {seconds:g} s ...",
+                  file=sys.stderr, flush=True)
+            result = run_load(hosts, int(rpi_ms * 1000), seconds, farm.pid)
+            results.append(result)
+            print(f"run {n}/{len(runs)}: error p99 {result['err_p99_ms']:.3f} ms, {result['late']} late, "
+                  f"{result['timeouts']} timeouts, farm CPU {result['farm_cpu_percent']:.0f}%",
+                  file=sys.stderr, flush=True)
     finally:
         farm.terminate()
         farm.wait(10)

@@ -3,21 +3,26 @@
 from __future__ import annotations
 
 import asyncio
-import logging
 import re
 import signal
 import sys
 from pathlib import Path
 from typing import Any
+from urllib.parse import urlsplit
 
 import click
 
 from enip_farm.config import ConfigError, FarmConfig, default_config_path, load_config
+from enip_farm.console import Console, configure_logging
 from enip_farm.device.build import build_profiles
 from enip_farm.device.catalogue import shipped_catalogue
+from enip_farm.device.faults import Fault, FaultError, FaultKind
 from enip_farm.farm import BindError, Farm, freeze_heap, new_event_loop
 from enip_farm.fleet import shard
 from enip_farm.table import device_table
+
+#: Where the CLI's client commands look for the farm's HTTP API (serve --http 8044).
+DEFAULT_API = "http://127.0.0.1:8044"
 
 
 def _load(path: Path | None, build: bool = True) -> FarmConfig:
@@ -63,13 +68,46 @@ def main() -> None:
     """Virtual EtherNet/IP I/O devices (ABB scalable I/O) for testing robot controller software."""
 
 
+def _http_address(text: str | None) -> tuple[str, int] | None:
+    """--http [HOST:]PORT: (host, port), localhost when no host is given; a port out of 0..65535 or
+    text that is no port is refused (click's usage error, exit 2)."""
+    if not text:
+        return None
+    host, _, port = text.rpartition(":")
+    host = host.removeprefix("[").removesuffix("]")
+    if not port.isdigit():
+        raise click.BadParameter(f"{text!r}: expected [HOST:]PORT, e.g. 8044 or 127.0.0.1:8044", param_hint="--http")
+    if not 0 <= int(port) <= 65535:
+        raise click.BadParameter(f"{text!r}: the port {int(port)} is out of range (0..65535; 0 picks a free one)",
+                                 param_hint="--http")
+    return host or "127.0.0.1", int(port)
+
+
+def _banner(devices: int, config: FarmConfig, config_path: Path | None, http_url: str | None) -> list[str]:
+    """What `serve` says once every device listens: the configuration it loaded, where the HTTP API
+    and the dashboard are (or how to get them)."""
+    source = f"{config.source} (the default cell)" if config_path is None else config.source
+    lines = [f"{devices} devices listening on TCP and UDP 44818, from {source}. Ctrl-C to stop."]
+    if http_url:
+        lines += [f"HTTP API on {http_url}",
+                  f"dashboard on {http_url}/ and API docs on {http_url}/docs; `enip-farm io` and `enip-farm fault` "
+                  "use this API" + ("" if http_url == DEFAULT_API else f" with --api {http_url}")]
+    else:
+        lines.append("no HTTP API: `enip-farm io`, `enip-farm fault` and the dashboard need one (serve --http 8044)")
+    return lines
+
+
 @main.command()
 @click.option("--config", "config_path", type=click.Path(path_type=Path), default=None,
               help="cell configuration (YAML); default: the shipped default cell")
-@click.option("--log-level", default="warning", show_default=True,
-              type=click.Choice(["debug", "info", "warning", "error"]))
+@click.option("--log-level", default="info", show_default=True,
+              type=click.Choice(["debug", "info", "warning", "error"]),
+              help="info: one line per connection, session, Forward Open/Close, timeout, fault and refusal; "
+                   "debug: also every request and I/O change")
+@click.option("-q", "--quiet", is_flag=True, help="only warnings and errors (timeouts, refusals, faults)")
 @click.option("--http", "http", default=None, metavar="[HOST:]PORT",
-              help="serve the HTTP API (localhost unless a host is given; other hosts need --token)")
+              help="serve the HTTP API and dashboard (localhost unless a host is given; an address that is not "
+                   "loopback needs --token)")
 @click.option("--token", envvar="ENIP_FARM_TOKEN", default=None, help="bearer token for the HTTP API")
 @click.option("--workers", type=click.IntRange(1, 256), default=1, show_default=True,
               help="processes, each serving a slice of the devices (worker i's HTTP API on PORT + i)")
@@ -78,28 +116,23 @@ def main() -> None:
                    "or ENIP_FARM_SHARD)")
 @click.option("--record", type=click.Path(dir_okay=False, path_type=Path), default=None,
               help="write every TCP and UDP exchange to this pcap file")
-def serve(config_path: Path | None, log_level: str, http: str | None, token: str | None, workers: int,
+def serve(config_path: Path | None, log_level: str, quiet: bool, http: str | None, token: str | None, workers: int,
           shard_spec: str | None, record: Path | None) -> None:
-    """Serve every device of a cell until Ctrl-C or SIGTERM."""
-    logging.basicConfig(level=log_level.upper(), format="%(asctime)s %(levelname)s %(name)s: %(message)s")
+    """Serve every device of a cell until Ctrl-C or SIGTERM, logging what happens to them."""
+    address = _http_address(http)
+    configure_logging(log_level, quiet)
     config = _select(_load(config_path, build=bool(shard_spec) or workers > 1), shard_spec)
-    address = None
-    if http:
-        host, _, port = http.rpartition(":")
-        if not port.isdigit():
-            raise click.BadParameter("expected [HOST:]PORT", param_hint="--http")
-        address = (host or "127.0.0.1", int(port))
     if workers > 1:
         if record:
             raise click.UsageError("--record writes one file: use it with --workers 1")
         from enip_farm.workers import serve_workers
 
-        sys.exit(serve_workers(config, workers, address, token))
+        sys.exit(serve_workers(config, workers, address, token, log_level, quiet))
     farm = _farm(config, http=address, token=token, record=record)
     loop = new_event_loop()
     asyncio.set_event_loop(loop)
     try:
-        loop.run_until_complete(_serve(farm))
+        loop.run_until_complete(_serve(farm, config_path))
     except BindError as error:
         click.echo(str(error), err=True)
         sys.exit(1)
@@ -107,20 +140,23 @@ def serve(config_path: Path | None, log_level: str, http: str | None, token: str
         loop.close()
 
 
-async def _serve(farm: Farm) -> None:
+async def _serve(farm: Farm, config_path: Path | None) -> None:
     stop = asyncio.Event()
     loop = asyncio.get_running_loop()
     for sig in (signal.SIGINT, signal.SIGTERM):
         loop.add_signal_handler(sig, stop.set)
     await farm.start()
+    console = Console(farm.devices.values(), also_flush=[farm.tcp_limits.log] if farm.tcp_limits else [])
+    console.start(loop)
     freeze_heap()
     try:
         click.echo(device_table(farm.devices.values()))
-        click.echo(f"{len(farm.devices)} devices listening on TCP and UDP 44818. Ctrl-C to stop.", err=True)
-        if farm.http is not None:
-            click.echo(f"HTTP API on {farm.http.url}", err=True)
+        for line in _banner(len(farm.devices), farm.config, config_path,
+                            farm.http.url if farm.http is not None else None):
+            click.echo(line, err=True)
         await stop.wait()
     finally:
+        console.close()
         await farm.stop()
 
 
@@ -154,7 +190,7 @@ def models() -> None:
 
 # -- the HTTP API's client -----------------------------------------------------------------------
 
-_api_option = click.option("--api", envvar="ENIP_FARM_API", default="http://127.0.0.1:8044", show_default=True,
+_api_option = click.option("--api", envvar="ENIP_FARM_API", default=DEFAULT_API, show_default=True,
                            help="the farm's HTTP API (or ENIP_FARM_API)")
 _token_option = click.option("--token", envvar="ENIP_FARM_TOKEN", default=None,
                              help="bearer token (or ENIP_FARM_TOKEN)")
@@ -166,14 +202,37 @@ def _request(method: str, api: str, path: str, token: str | None, **kwargs: obje
     headers = {"Authorization": f"Bearer {token}"} if token else {}
     try:
         response = httpx.request(method, api.rstrip("/") + path, headers=headers, timeout=10, **kwargs)
+    except httpx.ConnectError as error:
+        port = urlsplit(api).port or 8044
+        click.echo(f"cannot reach the farm's HTTP API at {api} ({_reason(error)}): is the farm running with its "
+                   f"HTTP API? Start it with `enip-farm serve --http {port}`, or give the API's address with --api "
+                   "(or ENIP_FARM_API).", err=True)
+        sys.exit(1)
     except httpx.HTTPError as error:
-        click.echo(f"cannot reach the farm at {api}: {error}", err=True)
+        click.echo(f"the farm's HTTP API at {api} did not answer: {_reason(error)}", err=True)
         sys.exit(1)
     if response.status_code >= 400:
-        detail = response.json().get("detail") if "json" in response.headers.get("content-type", "") else response.text
-        click.echo(f"{method} {path}: {response.status_code} {detail}", err=True)
+        click.echo(f"{method} {path}: {response.status_code} {_detail(response)}", err=True)
         sys.exit(1)
     return response.json()
+
+
+def _reason(error: Exception) -> str:
+    """The innermost reason of a connection error, e.g. `[Errno 111] Connection refused`."""
+    text = str(error)
+    return text.rsplit("] ", 1)[-1].strip() if text.startswith("[") and "] " in text else text or type(error).__name__
+
+
+def _detail(response: object) -> str:
+    """An error reply's detail in one line: FastAPI's list of validation errors as `field: message`."""
+    try:
+        detail = response.json().get("detail")  # type: ignore[attr-defined]
+    except ValueError:
+        return response.text  # type: ignore[attr-defined, no-any-return]
+    if isinstance(detail, list):
+        return "; ".join(f"{'.'.join(str(p) for p in item.get('loc', ())[1:]) or 'request'}: {item.get('msg', item)}"
+                         if isinstance(item, dict) else str(item) for item in detail)
+    return str(detail)
 
 
 def _print_io(io: dict) -> None:
@@ -251,8 +310,31 @@ def fault(first: str, second: str | None, third: str | None, delay_ms: float, ma
         raise click.UsageError("fault DEVICE KIND [options]")
     body = {"kind": second, "delay_ms": delay_ms, "max_delay_ms": max_delay_ms, "service": service,
             "status": status, "duration_s": duration_s}
+    try:
+        Fault(**body)  # type: ignore[arg-type]  # the farm checks the same; here the message names the flags
+    except FaultError as error:
+        click.echo(f"fault {first} {second}: {_fault_problem(error)}", err=True)
+        sys.exit(2)
     active = _request("POST", api, f"/devices/{first}/faults", token, json=body)
     click.echo(f"{first}: active faults: " + ", ".join(f["kind"] for f in active))  # type: ignore[union-attr]
+
+
+#: The `fault` command's flag for each parameter of a Fault.
+_FAULT_FLAGS = {"max_delay_ms": "--max-delay-ms", "delay_ms": "--delay-ms", "duration_s": "--duration",
+                "service": "--service", "status": "--status"}
+
+
+def _fault_problem(error: FaultError) -> str:
+    """A fault's parameter problem in the CLI's words: flags, not field names."""
+    message = str(error).removeprefix(f"{error.field}: ")
+    if error.field == "kind":
+        return f"unknown kind {error.value!r}; one of {', '.join(kind.value for kind in FaultKind)}"
+    for field in ("max_delay_ms", "delay_ms", "duration_s"):  # names no word of prose; max_ first
+        message = re.sub(rf"(?<![\w-]){field}\b", _FAULT_FLAGS[field], message)
+    flag = _FAULT_FLAGS.get(error.field, error.field)
+    example = {"--delay-ms": " (e.g. --delay-ms 800)", "--service": " (e.g. --service 0x0E --status 0x08)",
+               "--status": " (e.g. --service 0x0E --status 0x08)"}.get(flag, "")
+    return f"{flag}: {message}{example}"
 
 
 # -- fleet helpers: container entrypoint, healthcheck, compose generator ---------------------------

@@ -9,7 +9,8 @@ field, never as a traceback.
 from __future__ import annotations
 
 import re
-from ipaddress import IPv4Address
+from collections.abc import Mapping
+from ipaddress import IPv4Address, IPv4Network
 from pathlib import Path
 from typing import Any, Literal
 
@@ -24,6 +25,7 @@ from pydantic import (
     field_validator,
     model_validator,
 )
+from pydantic_core import InitErrorDetails, PydanticCustomError
 
 _MAC = re.compile(r"^([0-9A-Fa-f]{2}[:-]){5}[0-9A-Fa-f]{2}$")
 
@@ -176,6 +178,15 @@ class DeviceConfig(_Strict):
             raise ValueError("MAC address must look like 02:00:7f:00:0a:01")
         return value
 
+    @field_validator("netmask")
+    @classmethod
+    def _netmask_format(cls, value: IPv4Address) -> IPv4Address:
+        try:
+            IPv4Network(f"0.0.0.0/{value}")
+        except ValueError:
+            raise ValueError(f"{value} is not a netmask (ones, then zeros: 255.255.255.0, 255.255.0.0, ...)") from None
+        return value
+
     @model_validator(mode="after")
     def _template(self) -> DeviceConfig:
         if self.count > 1 and "{n}" not in self.name:
@@ -184,6 +195,9 @@ class DeviceConfig(_Strict):
             raise ValueError("the only placeholder in a name is {n}")
         if int(self.address) + self.count - 1 > 0xFFFFFFFF:
             raise ValueError("the addresses run past 255.255.255.255")
+        problem = _subnet_problem(self.address, self.count, self.netmask)
+        if problem:
+            raise ValueError(problem)
         seen: dict[str, str] = {}
         for signal in self.signals:
             if signal.name.casefold() in seen:
@@ -249,14 +263,53 @@ class FarmConfig(_Strict):
                 device._entry = index
                 devices.append(device)
         self.devices = devices
+        errors: list[InitErrorDetails] = []  # every duplicate, one line each
         for field in ("name", "address"):
-            seen: dict[Any, str] = {}
+            seen: dict[Any, DeviceConfig] = {}
             for device in self.devices:
                 value = getattr(device, field)
-                if value in seen:
-                    raise ValueError(f"devices {seen[value]!r} and {device.name!r} have the same {field} {value}")
-                seen[value] = device.name
+                first = seen.setdefault(value, device)
+                if first is not device:  # expanded names hold no braces, so the message is no template
+                    message = f"{value} is taken by {device_location(first.entry, first.name)}" + (
+                        f" (here by {device.name!r})" if field == "address" else "")
+                    errors.append(InitErrorDetails(type=PydanticCustomError("duplicate", message),
+                                                   loc=("devices", device.entry, field), input=str(value)))
+        if errors:
+            raise ValidationError.from_exception_data(type(self).__name__, errors)
         return self
+
+
+def _subnet_problem(first: IPv4Address, count: int, netmask: IPv4Address) -> str | None:
+    """Why the addresses first .. first + count - 1 cannot all be hosts of first's subnet, if they
+    cannot: a network or broadcast address, or a range that runs past the subnet. /31 and /32 have
+    neither (RFC 3021), so any address of theirs is a host."""
+    network = IPv4Network(f"{first}/{netmask}", strict=False)
+    if network.prefixlen >= 31:
+        return None
+    last = first + count - 1
+    subnet = f"the subnet {network} (netmask {netmask})"
+    for address, what in ((network.network_address, "network"), (network.broadcast_address, "broadcast")):
+        if count == 1 and first == address:
+            return (f"address {first} is the {what} address of {subnet}: no device can have it; "
+                    f"choose a host address ({network.network_address + 1} .. {network.broadcast_address - 1})")
+    if first == network.network_address:
+        return f"count {count} from {first} starts at the network address of {subnet}: start at {first + 1}"
+    if last >= network.broadcast_address:
+        return (f"count {count} from {first} runs past {subnet}: the addresses would end at {last}, the last "
+                f"host is {network.broadcast_address - 1}; start lower, use fewer, or widen the netmask "
+                "(e.g. netmask: 255.255.0.0)")
+    return None
+
+
+def as_config(source: FarmConfig | Mapping[str, Any] | str | Path) -> FarmConfig:
+    """A configuration from a FarmConfig, a dict (as a YAML file holds it) or a file path."""
+    if isinstance(source, FarmConfig):
+        return source
+    if isinstance(source, Mapping):
+        return parse_config(dict(source))
+    if isinstance(source, (str, Path)):
+        return load_config(source)
+    raise TypeError(f"a configuration is a FarmConfig, a dict or a file path, not {type(source).__name__}")
 
 
 def is_profile_path(model: str) -> bool:
@@ -282,6 +335,9 @@ def _describe(error: dict[str, Any], data: Any) -> str:
         location = location[2:]
     field = ".".join(str(part) for part in location)
     message = error["msg"].removeprefix("Value error, ")
+    if isinstance(error.get("input"), bool) and error["type"] == "literal_error":  # YAML 1.1 booleans
+        words = "on, yes" if error["input"] else "off, no"
+        message += f" (YAML reads an unquoted {words} as {str(error['input']).lower()}: quote the value, e.g. \"off\")"
     return ", ".join(part for part in (where, field) if part) + f": {message}" if (where or field) else message
 
 

@@ -10,15 +10,15 @@ import gc
 import logging
 import resource
 import threading
-from collections.abc import Coroutine, Iterator
+from collections.abc import Coroutine, Iterator, Mapping
 from contextlib import contextmanager
 from pathlib import Path
 from typing import Any, TypeVar
 
 from enip_farm.capture.recorder import Recorder
-from enip_farm.config import FarmConfig
+from enip_farm.config import FarmConfig, as_config
 from enip_farm.control.handle import DeviceHandle
-from enip_farm.control.http import HttpApi
+from enip_farm.control.http import HttpApi, bind_problem
 from enip_farm.control.wiring import Wiring
 from enip_farm.device.build import build_profiles
 from enip_farm.device.catalogue import Catalogue, shipped_catalogue
@@ -85,12 +85,15 @@ def _bind_message(device: Device, transport: str, error: OSError, port: int = EN
 class Farm:
     """The devices of one configuration, served from one event loop."""
 
-    def __init__(self, config: FarmConfig, http: tuple[str, int] | None = None, token: str | None = None,
-                 record: str | Path | None = None, catalogue: Catalogue | None = None) -> None:
-        """`http`: serve the HTTP API on (host, port), port 0 picks a free one (see `http.port`);
-        `record`: write the farm's traffic to this pcap file; `catalogue`: the models the devices
-        name (default: the shipped catalogue). Raises ConfigError if the devices cannot be built."""
-        self.config = config
+    def __init__(self, config: FarmConfig | Mapping[str, Any] | str | Path, http: tuple[str, int] | None = None,
+                 token: str | None = None, record: str | Path | None = None,
+                 catalogue: Catalogue | None = None) -> None:
+        """`config`: a FarmConfig, a dict as a YAML file holds it, or a file's path; `http`: serve
+        the HTTP API on (host, port), port 0 picks a free one (see `http.port`); `record`: write the
+        farm's traffic to this pcap file; `catalogue`: the models the devices name (default: the
+        shipped catalogue). Raises ConfigError if the configuration is invalid or its devices
+        cannot be built."""
+        self.config = config = as_config(config)
         profiles = build_profiles(config, shipped_catalogue() if catalogue is None else catalogue)
         self.recorder = Recorder(record) if record else None
         self._http_address = http
@@ -110,6 +113,11 @@ class Farm:
         self._fault_timers: dict[tuple[str, FaultKind], asyncio.TimerHandle] = {}
         self.loop: asyncio.AbstractEventLoop | None = None
         self.running = False
+
+    @property
+    def tcp_limits(self) -> TcpLimits | None:
+        """The TCP connection caps (and their rate-limited log), once the farm has started."""
+        return self._tcp_limits
 
     def device(self, name: str) -> Device:
         return self.devices[name]
@@ -163,8 +171,10 @@ class Farm:
                 try:
                     self.http = HttpApi(self, host, port, self._http_token)
                     await self.http.start()
-                except (OSError, ValueError, SystemExit) as error:
-                    raise BindError(f"HTTP API on {host}:{port}: {error}") from None
+                except OSError as error:
+                    raise BindError(bind_problem(host, port, error)) from None
+                except ValueError as error:
+                    raise BindError(str(error)) from None
             if self.config.discovery:
                 try:
                     self._discovery = DiscoveryResponder(loop, endpoints)
@@ -195,8 +205,7 @@ class Farm:
         for server in self._servers.values():
             server.close()
         for connection in list(self._connections):
-            if connection.transport is not None:
-                connection.transport.close()
+            connection.kill(FaultKind.CLOSE)
         for server in self._servers.values():
             await server.wait_closed()
         self._servers.clear()
@@ -211,7 +220,7 @@ class Farm:
         device = self.devices[name]
         self._cancel_timer(name, fault.kind)
         device.faults.set(fault)
-        device.record("fault injected", fault.describe())
+        device.record("fault injected", fault.parameters())
         if fault.kind in (FaultKind.CLOSE, FaultKind.RESET, FaultKind.OFFLINE):
             self._close_connections(device, FaultKind.RESET if fault.kind is FaultKind.RESET else FaultKind.CLOSE)
         if fault.kind is FaultKind.OFFLINE and name in self._servers:
@@ -232,7 +241,7 @@ class Farm:
         for k in cleared:
             self._cancel_timer(name, k)
         if cleared:
-            device.record("fault cleared", ", ".join(k.value for k in cleared))
+            device.record("fault cleared", {"kind": ", ".join(k.value for k in cleared)})
         return cleared
 
     def _cancel_timer(self, name: str, kind: FaultKind) -> None:

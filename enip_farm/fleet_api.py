@@ -17,6 +17,7 @@ from starlette.responses import JSONResponse, Response, StreamingResponse
 from starlette.routing import Route
 
 from enip_farm.control.guard import Guard
+from enip_farm.control.http import bind_problem, listening_socket
 
 _START_TIMEOUT = 120.0
 _FORWARD_TIMEOUT = 30.0
@@ -182,9 +183,13 @@ class RouterServer(uvicorn.Server):
 def serving_router(app: Starlette, host: str, port: int, token: str | None) -> Iterator[RouterServer]:
     """Serve `app` on (host, port) from a thread until the block ends, behind the farm API's own
     Guard (Host, token, body size), so the fleet's port refuses what a farm's port refuses."""
+    try:
+        sock = listening_socket(host, port)
+    except OSError as error:
+        raise OSError(error.errno, bind_problem(host, port, error)) from None
     server = RouterServer(uvicorn.Config(Guard(app, host, token), host=host, port=port, log_level="warning",
                                           access_log=False, lifespan="on", timeout_graceful_shutdown=2))
-    thread = threading.Thread(target=server.run, name="enip-farm-fleet-api", daemon=True)
+    thread = threading.Thread(target=server.run, kwargs={"sockets": [sock]}, name="enip-farm-fleet-api", daemon=True)
     thread.start()
     try:
         deadline = _START_TIMEOUT

@@ -71,6 +71,11 @@ def start_farm(stack: ExitStack, addresses: Callable[[], str], source: str | Pat
         if not keep_addresses:
             for entry in devices:
                 entry["address"] = addresses()
+                count = entry.get("count", 1)
+                if isinstance(count, int) and count > 1:  # its devices take the next addresses too
+                    for _ in range(count - 1):
+                        addresses()
+                    entry.setdefault("netmask", "255.0.0.0")  # the pool's addresses span /24s of 127/8
         farm = Farm(parse_config({**data, "devices": devices}, str(source or "<enip_farm>")),
                     http=("127.0.0.1", 0) if http else None)
         try:

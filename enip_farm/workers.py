@@ -23,7 +23,8 @@ from typing import Any
 import click
 
 from enip_farm.config import FarmConfig, parse_config
-from enip_farm.control.http import LOCALHOST
+from enip_farm.console import Console, configure_logging
+from enip_farm.control.guard import needs_token
 from enip_farm.farm import BindError, Farm, freeze_heap, new_event_loop
 from enip_farm.fleet import split
 from enip_farm.fleet_api import RouterServer, create_router, router_port, serving_router
@@ -33,7 +34,8 @@ _START_TIMEOUT = 120.0
 
 
 def _worker(index: int, config_data: dict[str, Any], http: bool, token: str | None,
-            reports: multiprocessing.Queue) -> None:
+            reports: multiprocessing.Queue, log_level: str = "info", quiet: bool = False) -> None:
+    configure_logging(log_level, quiet)
     farm = Farm(parse_config(config_data, f"worker {index}"), http=("127.0.0.1", 0) if http else None, token=token)
     loop = new_event_loop()
     asyncio.set_event_loop(loop)
@@ -47,12 +49,15 @@ def _worker(index: int, config_data: dict[str, Any], http: bool, token: str | No
         except BindError as error:
             reports.put((index, "error", str(error)))
             return
+        console = Console(farm.devices.values(), also_flush=[farm.tcp_limits.log] if farm.tcp_limits else [])
+        console.start(loop)
         freeze_heap()
         reports.put((index, "ready", (device_table(farm.devices.values(), header=False),
                                       farm.http.port if farm.http is not None else 0)))
         try:
             await stop.wait()
         finally:
+            console.close()
             await farm.stop()
 
     try:
@@ -61,11 +66,12 @@ def _worker(index: int, config_data: dict[str, Any], http: bool, token: str | No
         loop.close()
 
 
-def serve_workers(config: FarmConfig, count: int, http: tuple[str, int] | None, token: str | None) -> int:
+def serve_workers(config: FarmConfig, count: int, http: tuple[str, int] | None, token: str | None,
+                  log_level: str = "info", quiet: bool = False) -> int:
     """Run the workers (and the fleet's HTTP API if `http`) until a signal; the exit status for the CLI."""
-    if http and http[0] not in LOCALHOST and not token:
+    if http and needs_token(http[0]) and not token:
         click.echo(f"the HTTP API on {http[0]} needs a token (--token or ENIP_FARM_TOKEN); "
-                   "only localhost is served without one", err=True)
+                   "only loopback (localhost, 127.x.y.z, ::1) is served without one", err=True)
         return 2
     parts = split(config, count)
     context = multiprocessing.get_context("spawn")
@@ -74,7 +80,7 @@ def serve_workers(config: FarmConfig, count: int, http: tuple[str, int] | None, 
     for index, part in enumerate(parts):
         process = context.Process(target=_worker, name=f"enip-farm-worker-{index}", daemon=False,
                                   args=(index, part.model_dump(mode="json", by_alias=True), http is not None,
-                                        token, reports))
+                                        token, reports, log_level, quiet))
         process.start()
         processes.append(process)
     owners = {device.name: index for index, part in enumerate(parts) for device in part.devices}
@@ -111,7 +117,7 @@ def serve_workers(config: FarmConfig, count: int, http: tuple[str, int] | None, 
                     try:
                         router = stack.enter_context(serving_router(create_router(owners, apis), *http, token))
                     except OSError as error:
-                        click.echo(str(error), err=True)
+                        click.echo(error.strerror or str(error), err=True)
                         status = 1
                 if status == 0:
                     status = _run(config, processes, tables, http, router, lambda: stopping)

@@ -69,8 +69,9 @@ def serving(args: list[str], table_rows: int, prefix: tuple[str, ...] = (), **po
     (a header and `table_rows` rows, bounded by STARTUP_S); yields the process and the table. A
     process that exits first fails the test with its stderr. At exit it is killed if still running
     and reaped, within bounds."""
-    process = subprocess.Popen([*prefix, *CLI, *args], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                               cwd=ROOT, **popen)
+    popen.setdefault("stderr", subprocess.PIPE)  # or a file: a long run's log lines must not fill a pipe
+    process = subprocess.Popen([*prefix, *CLI, *args], stdout=subprocess.PIPE, text=True, cwd=ROOT,
+                               **popen)  # type: ignore[call-overload]
     try:
         table = read_lines(process.stdout, 1 + table_rows)
         if len(table) < 1 + table_rows:

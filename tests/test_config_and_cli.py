@@ -37,9 +37,10 @@ def _write(tmp_path: Path, text: str) -> Path:
         ("devices:\n  - {name: io1, address: 127.0.0.3, model: DSQC1030, identity: {vendor_id: 70000}}\n",
          "identity.vendor_id"),
         ("devices:\n  - {name: a, address: 127.0.0.3, model: DSQC1030}\n"
-         "  - {name: a, address: 127.0.0.4, model: DSQC1030}\n", "same name a"),
+         "  - {name: a, address: 127.0.0.4, model: DSQC1030}\n", "name: a is taken by device 'a' (devices[0])"),
         ("devices:\n  - {name: a, address: 127.0.0.3, model: DSQC1030}\n"
-         "  - {name: b, address: 127.0.0.3, model: DSQC1030}\n", "same address 127.0.0.3"),
+         "  - {name: b, address: 127.0.0.3, model: DSQC1030}\n",
+         "address: 127.0.0.3 is taken by device 'a' (devices[0])"),
         ("devices: []\n", "devices"),
         ("devices: [\n", "not valid YAML"),
     ],

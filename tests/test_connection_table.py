@@ -195,7 +195,13 @@ def test_sizes_that_cannot_be_honoured_are_refused(kwargs: dict, additional: tup
     table = make_table()
     result = table.forward_open(request(**kwargs), ORIGINATOR, T0)
     assert type(result) is Refusal and result.additional_status == additional and result.general == 0x01
-    assert not table.connections and table.pop_events() == []
+    assert not table.connections
+    (event,) = table.pop_events()  # the refusal is told, with who asked and what was expected
+    extended, size = additional
+    assert event.kind == "connection refused" and event.connection is None and event.at == T0
+    assert event.reason.startswith(f"Forward Open from {ORIGINATOR.host}: 0x01/0x{extended:04X} "
+                                   f"connection failure: invalid {'O->T' if extended == 0x0127 else 'T->O'} "
+                                   f"connection size, {size} bytes expected (class 1, O->T RPI ")
 
 
 def test_variable_o_t_that_fits_and_a_shorter_packet() -> None:

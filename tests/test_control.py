@@ -359,18 +359,23 @@ def test_http_event_stream(enip_farm) -> None:
             if len(received) == 2:
                 break
     assert received[0]["kind"] == "request" and received[0]["detail"].startswith("service 0x0E path 20 01 24 01")
-    assert received[1]["kind"] == "fault injected"
+    assert received[1]["kind"] == "fault injected" and received[1]["detail"] == {"kind": "drop", "duration_s": 0.1}
 
 
-def test_http_token_off_localhost(free_address: AddressPool, enip_farm) -> None:
+def test_http_token_off_loopback(free_address: AddressPool, enip_farm) -> None:
     from enip_farm.farm import BindError, Farm
 
     config = parse_config({"devices": [{"name": "io", "address": free_address(), "model": "DSQC1030"}],
                            "discovery": False})
-    host = free_address()  # a loopback address other than localhost: a token is required
-    with pytest.raises(BindError, match="needs a token"), Farm(config, http=(host, 0)).running_in_thread():
+    # every address but loopback needs a token; refused before anything binds
+    with pytest.raises(BindError, match=r"the HTTP API on 0\.0\.0\.0 needs a token"), \
+            Farm(config, http=("0.0.0.0", 0)).running_in_thread():
         pass
-    farm = Farm(config, http=(host, 0), token="s3cret")
+    host = free_address()  # a loopback address other than 127.0.0.1 (as --http 127.0.10.1:8044): no token needed
+    farm = Farm(config, http=(host, 0))
+    with farm.running_in_thread():
+        assert httpx.get(f"http://{host}:{farm.http.port}/devices").status_code == 200
+    farm = Farm(config, http=(host, 0), token="s3cret")  # given one, it is required there too
     with farm.running_in_thread():
         url = f"http://{host}:{farm.http.port}/devices"
         assert httpx.get(url).status_code == 401

@@ -37,20 +37,22 @@ def _block(free_address: AddressPool) -> str:
 
 
 def test_count_shorthand() -> None:
-    config = parse_config({"devices": [{"name": "io{n}", "address": "127.0.100.254", "count": 4, "model": "DSQC1030"},
-                                       {"name": "x", "address": "127.0.101.9", "model": "DSQC1030"}]})
+    wide = {"netmask": "255.255.0.0"}  # a range across a /24 boundary needs a subnet that holds it
+    config = parse_config({"devices": [{"name": "io{n}", "address": "127.0.100.254", "count": 4, "model": "DSQC1030",
+                                        **wide}, {"name": "x", "address": "127.0.101.9", "model": "DSQC1030"}]})
     assert [(d.name, str(d.address)) for d in config.devices] == [
         ("io1", "127.0.100.254"), ("io2", "127.0.100.255"), ("io3", "127.0.101.0"), ("io4", "127.0.101.1"),
         ("x", "127.0.101.9")]
-    with pytest.raises(ConfigError, match="have the same address 127.0.101.1"):
-        parse_config({"devices": [{"name": "io{n}", "address": "127.0.100.254", "count": 4, "model": "DSQC1030"},
-                                  {"name": "x", "address": "127.0.101.1", "model": "DSQC1030"}]})
+    with pytest.raises(ConfigError, match=r"address: 127.0.101.1 is taken by device 'io4' \(devices\[0\]\)"):
+        parse_config({"devices": [{"name": "io{n}", "address": "127.0.100.254", "count": 4, "model": "DSQC1030",
+                                   **wide}, {"name": "x", "address": "127.0.101.1", "model": "DSQC1030"}]})
     with pytest.raises(ConfigError, match="needs {n}"):
         parse_config({"devices": [{"name": "io", "address": "127.0.100.1", "count": 2, "model": "DSQC1030"}]})
 
 
 def test_a_few_hundred_devices_all_answer(enip_farm) -> None:
-    farm = enip_farm({"devices": [{"name": "io{n}", "address": "127.0.0.1", "count": 300, "model": "DSQC1030"}]},
+    farm = enip_farm({"devices": [{"name": "io{n}", "address": "127.0.0.1", "count": 300, "model": "DSQC1030",
+                                   "netmask": "255.0.0.0"}]},
                      discovery=False)
     addresses = {handle.address for handle in farm.handles.values()}
     assert len(addresses) == 300
@@ -77,17 +79,26 @@ def test_a_few_hundred_devices_all_answer(enip_farm) -> None:
 def test_workers_start_serve_and_stop(free_address: AddressPool, tmp_path: Path) -> None:
     first = _block(free_address)
     config = tmp_path / "cell.yaml"
-    config.write_text(f"devices:\n  - {{name: 'io{{n}}', address: {first}, count: 12, model: DSQC1030}}\n"
+    config.write_text(f"devices:\n  - {{name: 'io{{n}}', address: {first}, count: 12, model: DSQC1030, "
+                      "netmask: 255.0.0.0}\n"
                       "discovery: false\n")
     workers: list[psutil.Process] = []
+    log = tmp_path / "serve.log"
     try:
-        with serving(["serve", "--config", str(config), "--workers", "3"], table_rows=12) as (server, lines):
+        with log.open("w") as stderr, serving(["serve", "--config", str(config), "--workers", "3"], table_rows=12,
+                                              stderr=stderr) as (server, lines):
             assert lines[0].split()[:2] == ["NAME", "ADDRESS"] and len({line.split()[0] for line in lines[1:]}) == 12
             workers = psutil.Process(server.pid).children()
             assert len(workers) >= 3
             probe = subprocess.run([*CLI, "probe", "--config", str(config), "--timeout", str(STARTUP_S)],
                                    capture_output=True, text=True, timeout=2 * STARTUP_S)
             assert probe.returncode == 0 and "12/12 devices answered" in probe.stdout, probe.stdout + probe.stderr
+            with RawClient(first) as client:  # each worker's console tells its devices' events
+                client.register()
+            deadline = time.monotonic() + STARTUP_S
+            while "session registered" not in log.read_text() and time.monotonic() < deadline:
+                time.sleep(0.05)
+            assert f"INFO io1 {first}: session registered: handle 1 from 127.0.0.1" in log.read_text()
             server.send_signal(signal.SIGTERM)
             assert server.wait(timeout=STARTUP_S) == 0
         # the workers (and multiprocessing's resource tracker, which follows a moment later) are gone
@@ -105,7 +116,8 @@ def test_workers_start_serve_and_stop(free_address: AddressPool, tmp_path: Path)
 def test_one_http_port_drives_the_devices_of_every_worker(free_address: AddressPool, tmp_path: Path) -> None:
     first = _block(free_address)
     config = tmp_path / "cell.yaml"
-    config.write_text(f"devices:\n  - {{name: 'io{{n}}', address: {first}, count: 6, model: DSQC1030}}\n"
+    config.write_text(f"devices:\n  - {{name: 'io{{n}}', address: {first}, count: 6, model: DSQC1030, "
+                      "netmask: 255.0.0.0}\n"
                       "discovery: false\n")
     names = [f"io{n}" for n in range(1, 7)]
     with serving(["serve", "--config", str(config), "--workers", "3", "--http", "0", "--token", "s3cret"],

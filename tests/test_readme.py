@@ -1,25 +1,276 @@
-"""The README's example test passes as written: it is cut out of README.md and run by pytest."""
+"""The README's examples run as written (README.md, *README examples are tests*): each fenced block
+is preceded by a marker saying what becomes of it.
+
+- `<!-- example: run -->`: run against the default cell, served as the quick start serves it
+  (`enip-farm serve --http 8044`) in a network namespace of its own, in README order; python blocks
+  with this tree's package, sh blocks with bash -e and this tree's `enip-farm`. Exit 0, and every
+  `print(...)  # VALUE` line prints VALUE.
+- `<!-- example-test -->`: a pytest file, run with pytest.
+- `<!-- example: config -->`: a yaml configuration, validated.
+- `<!-- example: skip (why) -->`: not run.
+
+Every python and sh block carries one. The quick start itself runs in a fresh venv of the machine's
+python3 (`test_quick_start_in_a_fresh_venv`)."""
 
 from __future__ import annotations
 
+import os
 import re
+import shutil
+import signal
 import subprocess
 import sys
+from collections.abc import Iterator
+from dataclasses import dataclass
 from pathlib import Path
 
 import pytest
 
-README = Path(__file__).resolve().parent.parent / "README.md"
+from enip_farm.config import ConfigError, parse_config
+from enip_farm.device.build import build_profiles
+from enip_farm.device.catalogue import shipped_catalogue
+from tests.helpers import CLI, ROOT, STARTUP_S, read_lines
+
+README = ROOT / "README.md"
+_MARKER = re.compile(r"<!-- (example-test|example: (\w+)(?: \((.*)\))?) -->")
+_CHECKED = ("python", "sh")  # blocks of these languages must say what becomes of them
+EXAMPLE_TIMEOUT_S = 120.0
+
+
+@dataclass(frozen=True)
+class Block:
+    line: int  # 1-based line of the opening fence
+    language: str
+    text: str
+    marker: str | None  # run, pytest, config, skip, or None
+    reason: str = ""
+
+    def __str__(self) -> str:
+        return f"README.md:{self.line} ({self.language})"
+
+
+def readme_blocks(text: str) -> list[Block]:
+    """The fenced blocks at the start of a line, each with the marker on the last non-blank line before it."""
+    lines = text.splitlines()
+    blocks = []
+    i = 0
+    while i < len(lines):
+        if not lines[i].startswith("```"):
+            i += 1
+            continue
+        language = lines[i][3:].strip()
+        end = next((j for j in range(i + 1, len(lines)) if lines[j].startswith("```")), len(lines))
+        before = next((lines[j] for j in range(i - 1, -1, -1) if lines[j].strip()), "")
+        match = _MARKER.fullmatch(before.strip())
+        marker = reason = None
+        if match:
+            marker = "pytest" if match[1] == "example-test" else match[2]
+            reason = match[3] or ""
+        blocks.append(Block(i + 1, language, "\n".join(lines[i + 1:end]) + "\n", marker, reason or ""))
+        i = end + 1
+    return blocks
+
+
+BLOCKS = readme_blocks(README.read_text())
+
+
+def _of(marker: str) -> list[Block]:
+    return [block for block in BLOCKS if block.marker == marker]
+
+
+def test_every_example_says_what_becomes_of_it() -> None:
+    unmarked = [str(b) for b in BLOCKS if b.language in _CHECKED and b.marker is None]
+    assert not unmarked, ("put <!-- example: run -->, <!-- example: skip (why) --> or <!-- example-test --> right "
+                          f"before: {', '.join(unmarked)}")
+    unknown = [f"{b}: {b.marker}" for b in BLOCKS if b.marker not in (None, "run", "pytest", "config", "skip")]
+    assert not unknown, f"markers are run, config, skip (why) or example-test: {unknown}"
+    assert all(b.reason for b in _of("skip")), [str(b) for b in _of("skip") if not b.reason]
+    assert all(b.language in _CHECKED for b in _of("run")) and all(b.language == "yaml" for b in _of("config"))
+    assert _of("run") and _of("pytest") and _of("config")
+
+
+def test_the_quick_start_keeps_its_two_commands_and_ci_runs_the_test_command() -> None:
+    (quick,) = [b for b in BLOCKS if b.language == "sh" and "enip-farm serve" in b.text][:1]
+    commands = [line.split("#")[0].strip() for line in quick.text.splitlines()]
+    assert commands[0].startswith("python3 -m venv .venv && . .venv/bin/activate")
+    assert any(c.startswith('pip install ".[clients]" && enip-farm serve') for c in commands)
+    test_command = next(c for c in commands if "pytest" in c)
+    assert test_command == 'pip install -e ".[test]" && python -m pytest'
+    ci = (ROOT / ".ci" / "run").read_text()
+    assert 'python3 -m pip install -e ".[test]" && python3 -m pytest' in ci  # the same command, python3's pip
+    assert "python3-venv" in ci  # Debian's venv module, for the quick start's first line
+
+
+@pytest.mark.parametrize("block", _of("config"), ids=str)
+def test_readme_configurations_are_valid(block: Block) -> None:
+    import yaml
+
+    try:
+        build_profiles(parse_config(yaml.safe_load(block.text), str(block)), shipped_catalogue())
+    except ConfigError as error:
+        pytest.fail(str(error))
 
 
 @pytest.mark.system
-def test_readme_example_passes(tmp_path: Path) -> None:
-    match = re.search(r"<!-- example-test -->\s*```python\n(.*?)```", README.read_text(), re.S)
-    assert match, "README.md has no example test"
+@pytest.mark.parametrize("block", _of("pytest"), ids=str)
+def test_readme_example_test_passes(tmp_path: Path, block: Block) -> None:
     example = tmp_path / "test_example.py"
-    example.write_text(match[1])
+    example.write_text(block.text)
     # cwd is tmp_path: the plugin and the package come from the tree under test through PYTHONPATH (conftest)
     result = subprocess.run([sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider", str(example)],
                             capture_output=True, text=True, timeout=120, cwd=tmp_path)
     assert result.returncode == 0, result.stdout + result.stderr
     assert "1 passed" in result.stdout
+
+
+# -- the default cell in a network namespace ---------------------------------------------------------
+
+
+def own_network_namespace() -> tuple[str, ...]:
+    """A prefix that runs a command in a fresh network namespace with loopback up (root and
+    unshare(1) needed), so the default cell's fixed addresses, the wildcard discovery port and port
+    8044 never meet a farm already serving on this host; the test is skipped, saying why, where it
+    cannot."""
+    if not all(shutil.which(tool) for tool in ("unshare", "nsenter", "ip")):
+        pytest.skip("unshare, nsenter (util-linux) and ip (iproute2) are needed to serve the default cell in a netns")
+    tried = subprocess.run(["unshare", "-n", "ip", "link", "set", "lo", "up"], capture_output=True, text=True,
+                           timeout=STARTUP_S)
+    if tried.returncode != 0:
+        pytest.skip(f"a network namespace is not permitted here (root needed; uid {os.geteuid()}): "
+                    f"{tried.stderr.strip()}")
+    return ("unshare", "-n", "sh", "-c", 'ip link set lo up && exec "$@"', "sh")
+
+
+@dataclass
+class Cell:
+    """The default cell served in a namespace: run commands beside it with `inside`."""
+
+    process: subprocess.Popen
+    env: dict[str, str]
+
+    def inside(self, command: list[str], **kwargs: object) -> subprocess.CompletedProcess:
+        return subprocess.run(["nsenter", f"--net=/proc/{self.process.pid}/ns/net", *command], capture_output=True,
+                              text=True, timeout=EXAMPLE_TIMEOUT_S, env=self.env, **kwargs)  # type: ignore[call-overload]
+
+
+def _serve_default_cell(prefix: tuple[str, ...], command: list[str], env: dict[str, str], cwd: Path,
+                        log: Path) -> subprocess.Popen:
+    """The default cell, served by `command` behind `prefix`, once its table and banner are out."""
+    with log.open("w") as stderr:
+        process = subprocess.Popen([*prefix, *command], stdout=subprocess.PIPE, stderr=stderr, text=True, cwd=cwd,
+                                   env=env)
+    table = read_lines(process.stdout, 9)  # the header and the default cell's 8 devices
+    if len(table) < 9:
+        process.wait(timeout=STARTUP_S)
+        raise AssertionError(f"the default cell did not start: {table} {log.read_text()}")
+    return process
+
+
+def _stop(process: subprocess.Popen) -> None:
+    if process.poll() is None:
+        process.send_signal(signal.SIGINT)
+        try:
+            process.wait(timeout=STARTUP_S)
+        except subprocess.TimeoutExpired:
+            process.kill()
+            process.wait(timeout=STARTUP_S)
+    if process.stdout is not None:
+        process.stdout.close()
+
+
+@pytest.fixture(scope="module")
+def default_cell(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Cell]:
+    """`enip-farm serve --http 8044` of this tree in its own namespace; `enip-farm` on PATH is this tree's."""
+    prefix = own_network_namespace()
+    home = tmp_path_factory.mktemp("readme")
+    bin_dir = home / "bin"
+    bin_dir.mkdir()
+    shim = bin_dir / "enip-farm"
+    shim.write_text(f'#!/bin/sh\nexec {sys.executable} -m enip_farm "$@"\n')
+    shim.chmod(0o755)
+    env = {**os.environ, "PATH": f"{bin_dir}{os.pathsep}{os.environ['PATH']}"}
+    env.pop("ENIP_FARM_API", None)
+    env.pop("ENIP_FARM_TOKEN", None)
+    process = _serve_default_cell(prefix, [*CLI, "serve", "--http", "8044"], env, ROOT, home / "serve.log")
+    try:
+        yield Cell(process, env)
+    finally:
+        _stop(process)
+
+
+def _printed_values(code: str) -> list[str]:
+    """What each `print(...)  # VALUE` line of an example promises, in order."""
+    return [line.split("#", 1)[1].strip() for line in code.splitlines()
+            if line.strip().startswith("print(") and "#" in line]
+
+
+@pytest.mark.system
+@pytest.mark.parametrize("block", _of("run"), ids=str)
+def test_readme_example_runs_against_the_default_cell(default_cell: Cell, tmp_path: Path, block: Block) -> None:
+    script = tmp_path / ("example.py" if block.language == "python" else "example.sh")
+    script.write_text(block.text)
+    command = [sys.executable, str(script)] if block.language == "python" else ["bash", "-e", "-o", "pipefail",
+                                                                                 str(script)]
+    result = default_cell.inside(command, cwd=ROOT)
+    assert result.returncode == 0, f"{block} exited {result.returncode}:\n{block.text}\n{result.stdout}{result.stderr}"
+    promised = _printed_values(block.text) if block.language == "python" else []
+    if promised:
+        assert result.stdout.splitlines()[:len(promised)] == promised, f"{block}:\n{result.stdout}"
+
+
+# -- the quick start, as written, on the machine's python3 ---------------------------------------------
+
+
+def _system_python_dir() -> str:
+    """Where the machine's own python3 is: Debian's (/usr/bin, which refuses a bare `pip install`)
+    when there is one, else the first on PATH."""
+    if Path("/usr/bin/python3").exists():
+        return "/usr/bin"
+    found = shutil.which("python3")
+    if found is None:
+        pytest.skip("no python3 on PATH")
+    return str(Path(found).parent)
+
+
+@pytest.mark.system
+def test_quick_start_in_a_fresh_venv(tmp_path: Path) -> None:
+    """The quick start's first two lines, as written, in a copy of the tree: a venv of the machine's
+    python3, `pip install ".[clients]"`, `enip-farm serve --http 8044` (in a namespace); then the
+    pycomm3 example with the venv's own Python and `enip-farm io get io1`, nothing from this tree's
+    path."""
+    prefix = own_network_namespace()
+    (quick,) = [b for b in BLOCKS if b.language == "sh" and "enip-farm serve" in b.text][:1]
+    venv_line, serve_line = [line.split("  #")[0].strip() for line in quick.text.splitlines()[:2]]
+    install, _, serve = serve_line.partition(" && ")
+    assert venv_line.startswith("python3 -m venv") and install.startswith("pip install") and serve.startswith(
+        "enip-farm serve")
+    tree = tmp_path / "enip-farm"
+    files = subprocess.run(["git", "ls-files", "-z"], capture_output=True, text=True, cwd=ROOT, check=True,
+                           timeout=STARTUP_S).stdout.split("\0")
+    for name in filter(None, files):
+        if (ROOT / name).is_file():  # a file deleted in the working tree is not in the copy
+            (tree / name).parent.mkdir(parents=True, exist_ok=True)
+            shutil.copy2(ROOT / name, tree / name)
+    env = {key: value for key, value in os.environ.items()
+           if key not in ("PYTHONPATH", "VIRTUAL_ENV", "ENIP_FARM_API", "ENIP_FARM_TOKEN")}
+    env["PATH"] = f"{_system_python_dir()}{os.pathsep}{env['PATH']}"
+    installed = subprocess.run(["bash", "-e", "-c", f"{venv_line} && {install}"], capture_output=True, text=True,
+                               cwd=tree, env=env, timeout=600)
+    assert installed.returncode == 0, installed.stdout[-3000:] + installed.stderr[-3000:]
+    process = _serve_default_cell(prefix, ["bash", "-c", f". .venv/bin/activate && exec {serve}"], env, tree,
+                                  tmp_path / "serve.log")
+    try:
+        cell = Cell(process, env)
+        example = next(b for b in _of("run") if b.language == "python" and "pycomm3" in b.text)
+        script = tmp_path / "example.py"
+        script.write_text(example.text)
+        result = cell.inside([str(tree / ".venv" / "bin" / "python"), str(script)], cwd=tmp_path)
+        assert result.returncode == 0, result.stdout + result.stderr
+        assert result.stdout.splitlines() == _printed_values(example.text) == ["b'\\x10\\x00'", "DSQC1030"]
+        io = cell.inside(["bash", "-c", ". .venv/bin/activate && enip-farm io get io1"], cwd=tree)
+        assert io.returncode == 0 and io.stdout.startswith("inputs  0000\noutputs 1000\n"), io.stdout + io.stderr
+    finally:
+        _stop(process)
+    banner = (tmp_path / "serve.log").read_text()
+    assert "(the default cell)" in banner and "HTTP API on http://127.0.0.1:8044" in banner
+    assert "Traceback" not in banner

@@ -282,6 +282,7 @@ class Admission:
             originator_host=originator.host, opened_at=now, first_watchdog_ns=policy.first_watchdog_ns,
             t_o_address=t_o_address, multicast=multicast, o_t_point=consuming, t_o_point=producing,
             o_t_run_idle_header=kind is ConnectionKind.EXCLUSIVE_OWNER, o_t_variable=o_t.variable,
+            o_t_size=o_t.size, t_o_size=t_o.size,
         )
 
     @staticmethod
@@ -308,5 +309,5 @@ class Admission:
             kind=ConnectionKind.EXPLICIT, triad=request.triad, o_t_id=self._new_connection_id(taken_ids),
             t_o_id=request.t_o_connection_id, o_t_rpi=request.o_t_rpi, t_o_rpi=request.t_o_rpi,
             timeout_multiplier=request.timeout_multiplier, originator_host=originator.host, opened_at=now,
-            owner=originator.session,
+            owner=originator.session, o_t_size=request.o_t_parameters.size, t_o_size=request.t_o_parameters.size,
         )

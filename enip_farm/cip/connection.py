@@ -43,6 +43,8 @@ class Connection:
     t_o_point: int | None = None
     o_t_run_idle_header: bool = True
     o_t_variable: bool = False  # the originator may send less data than the assembly holds
+    o_t_size: int = 0  # connection sizes from the Forward Open, bytes
+    t_o_size: int = 0
     owner: object | None = None  # the encapsulation session of a class-3 connection
     last_received: int | None = None  # ns, the last valid packet consumed
     received: int = 0  # valid packets consumed

@@ -103,7 +103,7 @@ class ConnectionManager(CipClass):
             request = decode_forward_close(data)
         except DecodeError:
             return ServiceResult(GeneralStatus.NOT_ENOUGH_DATA)
-        if self.table.forward_close(request.triad, context.now) is None:
+        if self.table.forward_close(request.triad, context.now, context.peer_host) is None:
             return ServiceResult(GeneralStatus.CONNECTION_FAILURE, encode_connection_failure(request.triad),
                                  (X.CONNECTION_NOT_FOUND,))
         return ServiceResult(GeneralStatus.SUCCESS, encode_forward_close_reply(request.triad))

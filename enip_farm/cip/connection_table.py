@@ -49,6 +49,8 @@ from enip_farm.protocol.connection import (
 )
 from enip_farm.protocol.cpf import ItemType
 from enip_farm.protocol.session import ReplyItems
+from enip_farm.protocol.status import ExtendedStatus as X
+from enip_farm.protocol.status import GeneralStatus, describe_status
 
 _HALF = 0x80000000
 #: Identity status (Vol. 1, table 5-2.4): bit 0 owned; bits 4-7 extended device status.
@@ -58,6 +60,14 @@ _IO_RUN = 0x0060  # at least one I/O connection in run mode
 _IO_IDLE = 0x0070  # I/O connections established, all idle
 
 
+#: Why an O->T datagram was not taken; each reason is counted as `o_t_dropped_<reason>`.
+DROP_REASONS = ("malformed", "unknown_connection", "wrong_originator", "wrong_port", "stale", "wrong_size",
+                "io_stopped")
+#: The counters the table keeps (in the device's Counter).
+TABLE_COUNTERS = ("connection_timeouts", "o_t_packets", "t_o_packets", "o_t_short_data",
+                  *(f"o_t_dropped_{reason}" for reason in DROP_REASONS))
+
+
 class Opened(NamedTuple):
     connection: Connection
     reply_items: ReplyItems  # e.g. the multicast group (0x8001) of Vol. 2, 3-3.9.4
@@ -65,9 +75,9 @@ class Opened(NamedTuple):
 
 
 class ConnectionEvent(NamedTuple):
-    kind: str  # "connection opened", "connection closed", "connection timed out"
-    connection: Connection
-    reason: str
+    kind: str  # "connection opened", "connection closed", "connection timed out", "connection refused"
+    connection: Connection | None  # None for a refusal: no connection came of it
+    reason: str  # for a refusal: the request, who sent it and the status it got
     at: int  # ns
 
 
@@ -142,6 +152,8 @@ class ConnectionTable:
     def forward_open(self, request: ForwardOpenRequest, originator: Originator, now: int) -> Opened | Refusal:
         connection = self.admission.admit(request, originator, now, self.connections.values(), self._id_taken)
         if type(connection) is Refusal:
+            self._events.append(ConnectionEvent("connection refused", None, _refused_open(request, originator,
+                                                                                          connection), now))
             return connection
         if type(connection) is SafetyOpen:
             return self._safety_opened(connection, now)
@@ -187,11 +199,17 @@ class ConnectionTable:
         replies, self._replies = self._replies, []
         return replies
 
-    def forward_close(self, triad: ConnectionTriad, now: int) -> Connection | None:
-        """Close the connection of this triad; None if there is none (0x0107)."""
+    def forward_close(self, triad: ConnectionTriad, now: int, host: str = "") -> Connection | None:
+        """Close the connection of this triad; None if there is none (0x0107). `host`: who asked."""
         connection = self._by_triad.get(triad)
         if connection is not None:
             self.close(connection, "forward close", now)
+        else:
+            self._events.append(ConnectionEvent("connection refused", None, (
+                f"Forward Close from {host or '?'}: "
+                f"{describe_status(GeneralStatus.CONNECTION_FAILURE, X.CONNECTION_NOT_FOUND)} "
+                f"(connection serial 0x{triad.connection_serial:04X}, vendor {triad.originator_vendor_id}, "
+                f"originator serial 0x{triad.originator_serial:08X})"), now))
         return connection
 
     def session_closed(self, session: object, now: int) -> None:
@@ -413,3 +431,13 @@ class ConnectionTable:
         return connection
 
     # -- admission -------------------------------------------------------------------------------
+
+
+def _refused_open(request: ForwardOpenRequest, originator: Originator, refusal: Refusal) -> str:
+    """One line on a refused Forward Open: who asked for what, and the status it got."""
+    o_t, t_o = request.o_t_parameters, request.t_o_parameters
+    expected = f", {refusal.expected_size} bytes expected" if refusal.expected_size is not None else ""
+    return (f"{'Large ' if request.large else ''}Forward Open from {originator.host}: "
+            f"{describe_status(refusal.general, refusal.extended)}{expected} "
+            f"(class {request.transport_class}, O->T RPI {request.o_t_rpi} us {o_t.size} bytes, "
+            f"T->O RPI {request.t_o_rpi} us {t_o.size} bytes, path {request.connection_path.hex(' ')})")

@@ -28,6 +28,10 @@ MAX_NESTING = 4
 #: Replies by which the model says it does not implement a request: unknown object, service, attribute.
 _NOT_IMPLEMENTED = (0x05, 0x08, 0x14)
 log = logging.getLogger(__name__)
+#: One request as answered: (service, request path, general status, first extended status word or
+#: None, relayed) where `relayed` says the reply is an embedded request's, passed on as it is
+#: (Unconnected Send), so its status was counted for that request already.
+Handled = tuple[int, bytes, int, "int | None", bool]
 
 
 class MessageRouter(CipClass):
@@ -41,7 +45,7 @@ class MessageRouter(CipClass):
         self.objects: dict[int, CipClass] = {self.class_id: self}
         self.forced_status: dict[int, int] = {}  # fault injection: service -> general status
         self.request_counts: Counter[tuple[int, int]] = Counter()  # (service, general status)
-        self.handled: list[tuple[int, bytes, int]] = []  # (service, path, status) since pop_handled
+        self.handled: list[Handled] = []  # since pop_handled
         self.replay: dict[tuple[int, bytes, bytes], bytes] = {}  # a learned profile's replay table
         self._paths: dict[bytes, RequestPath | int] = {}
         self.handlers[Service.MULTIPLE_SERVICE_PACKET] = self.multiple_service_packet
@@ -76,11 +80,14 @@ class MessageRouter(CipClass):
                 status = recorded[2]
         service = message[0] if message else 0
         self.request_counts[service, status] += 1
-        self.handled.append((service, message[2 : 2 + 2 * message[1]] if len(message) > 1 else b"", status))
+        head = reply[0]
+        extended = head[4] | head[5] << 8 if status and len(head) >= 6 and head[3] else None
+        self.handled.append((service, message[2 : 2 + 2 * message[1]] if len(message) > 1 else b"", status,
+                             extended, type(reply) is Reply))
         return reply
 
-    def pop_handled(self) -> list[tuple[int, bytes, int]]:
-        """The requests answered since the last call (embedded ones too): (service, path, status)."""
+    def pop_handled(self) -> list[Handled]:
+        """The requests answered since the last call, embedded ones too (see `Handled`)."""
         handled, self.handled = self.handled, []
         return handled
 

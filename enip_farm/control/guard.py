@@ -40,16 +40,26 @@ def host_name(header: str) -> str:
     return text.rstrip(".")
 
 
+def is_loopback(bound: str) -> bool:
+    """Whether an API bound to `bound` is reachable from this host only (localhost, 127.0.0.0/8, ::1)."""
+    host = _normal(bound)
+    try:
+        return host == "localhost" or ipaddress.ip_address(host).is_loopback
+    except ValueError:
+        return False
+
+
+def needs_token(bound: str) -> bool:
+    """An API bound anywhere but loopback must be given a token: others on the network reach it."""
+    return not is_loopback(bound)
+
+
 def allowed_hosts(bound: str) -> frozenset[str] | None:
     """The Host names a request may carry for an API bound to `bound`; None: any (a wildcard)."""
     host = _normal(bound)
     if host in WILDCARDS:
         return None
-    try:
-        loopback = host == "localhost" or ipaddress.ip_address(host).is_loopback
-    except ValueError:
-        loopback = False
-    return frozenset({host, *LOCALHOST_NAMES}) if loopback else frozenset({host})
+    return frozenset({host, *LOCALHOST_NAMES}) if is_loopback(host) else frozenset({host})
 
 
 class Guard:

@@ -13,7 +13,9 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import errno
 import math
+import socket
 from collections.abc import Iterator
 from typing import Annotated, Any
 
@@ -23,16 +25,14 @@ from fastapi.exceptions import RequestValidationError
 from fastapi.responses import PlainTextResponse
 from prometheus_client import CollectorRegistry, generate_latest
 from prometheus_client.exposition import CONTENT_TYPE_LATEST
-from pydantic import BaseModel, Field
+from pydantic import BaseModel, Field, field_validator
 
-from enip_farm.control.guard import Guard
+from enip_farm.control.guard import Guard, needs_token
 from enip_farm.control.handle import FarmControl
 from enip_farm.control.metrics import FarmCollector
 from enip_farm.control.stream import EventHub, EventStream
 from enip_farm.device.faults import Fault, FaultError, FaultKind
 from enip_farm.device.signals import SignalError
-
-LOCALHOST = frozenset({"127.0.0.1", "localhost", "::1"})
 
 
 class IoWrite(BaseModel):
@@ -42,6 +42,18 @@ class IoWrite(BaseModel):
     outputs: str | None = Field(None, description="the whole output image, hex")
     signals: dict[str, int | float | list[int]] = Field({}, description="numbered (DI3, DO1-4) or named "
                                                          "signals (diGripperClosed, goProgramNo)")
+
+    @field_validator("signals", mode="before")
+    @classmethod
+    def _json_numbers(cls, value: Any) -> Any:
+        """Values as JSON numbers, never coerced: "1" or true is refused, not taken as 1."""
+        if isinstance(value, dict):
+            for name, given in value.items():
+                items = given if isinstance(given, list) else [given]
+                if not items or any(isinstance(item, bool) or not isinstance(item, (int, float)) for item in items) or (
+                        isinstance(given, list) and any(isinstance(item, float) for item in items)):
+                    raise ValueError(f"{name}: expected a number, or a list of integers for a range, got {given!r}")
+        return value
 
 
 class FaultRequest(BaseModel):
@@ -176,6 +188,35 @@ def _hex(field: str, text: str | None) -> bytes | None:
         raise ValueError(f"{field}: {error}") from None
 
 
+def listening_socket(host: str, port: int) -> socket.socket:
+    """A listening TCP socket for an HTTP server, bound here so that an address that cannot be
+    bound is an OSError the caller explains in one line (`bind_problem`), not uvicorn's exit."""
+    host = host.removeprefix("[").removesuffix("]")
+    sock = socket.socket(socket.AF_INET6 if ":" in host else socket.AF_INET, socket.SOCK_STREAM)
+    try:
+        sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+        sock.bind((host, port))
+        sock.listen(128)
+        sock.setblocking(False)
+    except OSError:
+        sock.close()
+        raise
+    return sock
+
+
+def bind_problem(host: str, port: int, error: OSError) -> str:
+    """One line on why the HTTP API cannot listen on host:port, and what to do."""
+    where = f"the HTTP API cannot listen on {host}:{port}"
+    if error.errno == errno.EADDRINUSE:
+        return (f"{where}: the port is already in use (another farm's HTTP API?); choose another port "
+                f"(--http {port + 1 if port < 65535 else 8044}), or --http 0 for any free one")
+    if error.errno == errno.EADDRNOTAVAIL:
+        return f"{where}: the address is not assigned to any interface of this host"
+    if error.errno == errno.EACCES:
+        return f"{where}: permission denied (ports below 1024 need root); choose a port from 1024 up"
+    return f"{where}: {error.strerror or error}"
+
+
 class _EmbeddedServer(uvicorn.Server):
     """uvicorn on the farm's loop; the farm, not uvicorn, owns the process's signals."""
 
@@ -186,10 +227,11 @@ class _EmbeddedServer(uvicorn.Server):
 
 class HttpApi:
     def __init__(self, farm: FarmControl, host: str, port: int, token: str | None) -> None:
-        if host not in LOCALHOST and not token:
+        if needs_token(host) and not token:
             raise ValueError(f"the HTTP API on {host} needs a token (--token or ENIP_FARM_TOKEN); "
-                             "only localhost is served without one")
+                             "only loopback (localhost, 127.x.y.z, ::1) is served without one")
         self.host = host
+        self._port = port
         self.hub = EventHub(farm.devices.values())
         self.app = create_app(farm, self.hub)
         self.server = _EmbeddedServer(uvicorn.Config(Guard(self.app, host, token), host=host, port=port,
@@ -198,7 +240,9 @@ class HttpApi:
         self.task: asyncio.Task | None = None
 
     async def start(self) -> None:
-        self.task = asyncio.get_running_loop().create_task(self.server.serve())
+        """Serve; OSError when the address cannot be bound."""
+        sock = listening_socket(self.host, self._port)
+        self.task = asyncio.get_running_loop().create_task(self.server.serve(sockets=[sock]))
         while not self.server.started:
             if self.task.done():  # e.g. the port is taken
                 self.task.result()
@@ -212,7 +256,8 @@ class HttpApi:
 
     @property
     def url(self) -> str:
-        return f"http://{self.host}:{self.port}"
+        host = f"[{self.host}]" if ":" in self.host and not self.host.startswith("[") else self.host
+        return f"http://{host}:{self.port}"
 
     async def stop(self) -> None:
         self.hub.close()

@@ -9,7 +9,7 @@ field, like the schema's own errors.
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Collection, Mapping
 
 import yaml
 from pydantic import ValidationError
@@ -27,22 +27,25 @@ def build_profiles(config: FarmConfig, catalogue: Catalogue) -> list[DeviceProfi
     redefine one of its models."""
     catalogue, models, problems = _with_profiles(config, catalogue)
     seen: set[tuple[int, str, str]] = set()
+    failed: set[str] = set()  # devices that cannot be built: wires to them are not checked further
     for device in config.devices:
-        for field, message in _device_problems(device, models.get(device.model, device.model), catalogue):
+        model = models.get(device.model, device.model)
+        device_problems = _device_problems(device, model, catalogue)
+        if device_problems or (is_profile_path(model) and device.model not in models):
+            failed.add(device.name)
+        for field, message in device_problems:
             if (device.entry, field, message) not in seen:  # a `count` entry's devices share their problems
                 seen.add((device.entry, field, message))
                 where = device_location(device.entry, device.name)
                 problems.append(f"{config.source}: {where}" + (f", {field}: " if field else ": ") + message)
-    if problems:
-        raise ConfigError("\n".join(problems))
     profiles = [resolve(device.model_copy(update={"model": models[device.model]}) if device.model in models
-                        else device, catalogue) for device in config.devices]
-    problems = list(dict.fromkeys(  # a `count` entry's devices share their problems
+                        else device, catalogue) for device in config.devices if device.name not in failed]
+    problems += list(dict.fromkeys(  # a `count` entry's devices share their problems
         f"{config.source}: {device_location(device.entry)}, {field}: {message}"
-        for device, profile in zip(config.devices, profiles, strict=True)
+        for device, profile in zip([d for d in config.devices if d.name not in failed], profiles, strict=True)
         for field, messages in (("assemblies", assembly_problems(profile)), ("signals", signal_problems(profile)))
         for message in messages))
-    problems += [f"{config.source}: {message}" for message in check_wiring(config, profiles)]
+    problems += [f"{config.source}: {message}" for message in check_wiring(config, profiles, failed)]
     if problems:
         raise ConfigError("\n".join(problems))
     return profiles
@@ -127,15 +130,22 @@ def signal_problems(profile: DeviceProfile) -> list[str]:
     return problems
 
 
-def check_wiring(config: FarmConfig, profiles: list[DeviceProfile]) -> list[str]:
-    """One message per wire or rule that does not fit the devices' signals; if all fit, a message
-    for a cycle (a change that would feed back into itself), if any."""
+def check_wiring(config: FarmConfig, profiles: list[DeviceProfile], failed: Collection[str] = ()) -> list[str]:
+    """One message per wire or rule that does not fit the devices' signals, and one per cycle (a
+    change that would feed back into itself) among those that fit. Wires and rules that touch a
+    device in `failed` (one that could not be built, reported already) are left out."""
     if not config.wires and not config.rules:
         return []
     maps: Mapping[str, SignalMap] = {profile.name: SignalMap(profile) for profile in profiles}
     problems: list[str] = []
     edges: dict[tuple[str, str], set[tuple[str, str]]] = {}
+
+    def touches_failed(*endpoints: str) -> bool:
+        return any(endpoint.rpartition(".")[0] in failed for endpoint in endpoints)
+
     for wire in config.wires:
+        if touches_failed(wire.source, wire.target):
+            continue
         try:
             source, target = parse_endpoint(wire.source, maps), parse_endpoint(wire.target, maps)
         except SignalError as error:
@@ -150,6 +160,8 @@ def check_wiring(config: FarmConfig, profiles: list[DeviceProfile]) -> list[str]
         else:
             edges.setdefault((source.device, "output"), set()).add((target.device, "input"))
     for rule in config.rules:
+        if touches_failed(rule.when, rule.set):
+            continue
         try:
             when, target = parse_endpoint(rule.when, maps), parse_endpoint(rule.set, maps)
         except SignalError as error:
@@ -159,10 +171,8 @@ def check_wiring(config: FarmConfig, profiles: list[DeviceProfile]) -> list[str]
             problems.append(f"rule {when} -> {target}: a rule watches one bit and sets one bit")
         else:
             edges.setdefault((when.device, when.signal.role), set()).add((target.device, target.signal.role))
-    if not problems:
-        cycle = _cycle(edges)
-        if cycle:
-            problems.append("wiring cycle: " + " -> ".join(f"{d}.{r}s" for d, r in cycle))
+    for cycle in _cycles(edges):
+        problems.append("wiring cycle: " + " -> ".join(f"{d}.{r}s" for d, r in cycle))
     return problems
 
 
@@ -173,25 +183,71 @@ def _named_kind(signal: object) -> str | None:
     return None
 
 
-def _cycle(edges: dict[tuple[str, str], set[tuple[str, str]]]) -> list[tuple[str, str]] | None:
-    """The nodes of one cycle of the graph (first node repeated at the end), or None."""
-    state: dict[tuple[str, str], int] = {}  # 1 visiting, 2 done
+def _cycles(edges: dict[tuple[str, str], set[tuple[str, str]]]) -> list[list[tuple[str, str]]]:
+    """One cycle (first node repeated at the end) per strongly connected part of the graph that
+    holds one, in a stable order: every separate feedback loop is reported once."""
+    order = sorted({node for node in edges} | {node for targets in edges.values() for node in targets})
+    index: dict[tuple[str, str], int] = {}
+    low: dict[tuple[str, str], int] = {}
+    stack: list[tuple[str, str]] = []
+    on_stack: set[tuple[str, str]] = set()
+    components: list[list[tuple[str, str]]] = []
 
-    def visit(node: tuple[str, str], path: list[tuple[str, str]]) -> list[tuple[str, str]] | None:
-        state[node] = 1
-        for following in edges.get(node, ()):
-            if state.get(following) == 1:
-                return path[path.index(following):] + [following] if following in path else [node, following]
-            if following not in state:
-                found = visit(following, path + [following])
-                if found:
-                    return found
-        state[node] = 2
-        return None
+    def connect(node: tuple[str, str]) -> None:  # Tarjan's algorithm; cells are small, recursion is fine
+        index[node] = low[node] = len(index)
+        stack.append(node)
+        on_stack.add(node)
+        for following in sorted(edges.get(node, ())):
+            if following not in index:
+                connect(following)
+                low[node] = min(low[node], low[following])
+            elif following in on_stack:
+                low[node] = min(low[node], index[following])
+        if low[node] == index[node]:
+            component = []
+            while True:
+                member = stack.pop()
+                on_stack.discard(member)
+                component.append(member)
+                if member == node:
+                    break
+            components.append(component)
 
-    for node in list(edges):
-        if node not in state:
-            found = visit(node, [node])
-            if found:
-                return found
-    return None
+    for node in order:
+        if node not in index:
+            connect(node)
+    cycles = []
+    for component in components:
+        members = set(component)
+        start = min(component)
+        if len(component) == 1 and start not in edges.get(start, ()):
+            continue
+        path, node = [start], start  # walk inside the component back to the start (it is strongly connected)
+        while True:
+            following = _next_towards(node, start, edges, members)
+            path.append(following)
+            if following == start:
+                break
+            node = following
+        cycles.append(path)
+    return sorted(cycles)
+
+
+def _next_towards(node: tuple[str, str], goal: tuple[str, str], edges: dict[tuple[str, str], set[tuple[str, str]]],
+                  members: set[tuple[str, str]]) -> tuple[str, str]:
+    """The first step of a shortest path from `node` to `goal` inside `members` (breadth first)."""
+    if goal in edges.get(node, ()):
+        return goal
+    first_step: dict[tuple[str, str], tuple[str, str]] = {}
+    queue = []
+    for following in sorted(edges.get(node, ()) & members):
+        first_step.setdefault(following, following)
+        queue.append(following)
+    for current in queue:
+        if current == goal:
+            return first_step[current]
+        for following in sorted(edges.get(current, ()) & members):
+            if following not in first_step:
+                first_step[following] = first_step[current]
+                queue.append(following)
+    raise AssertionError("a strongly connected component reaches every member")

@@ -19,10 +19,10 @@ from enip_farm.cip.admission import ConnectionPolicy, KeyIdentity
 from enip_farm.cip.assembly import AssemblyInstance, AssemblyObject
 from enip_farm.cip.connection import Connection
 from enip_farm.cip.connection_manager import ConnectionManager
-from enip_farm.cip.connection_table import ConnectionEvent, ConnectionTable
+from enip_farm.cip.connection_table import TABLE_COUNTERS, ConnectionEvent, ConnectionTable
 from enip_farm.cip.ethernet_link import EthernetLinkObject
 from enip_farm.cip.identity import IdentityObject
-from enip_farm.cip.message_router import MessageRouter
+from enip_farm.cip.message_router import Handled, MessageRouter
 from enip_farm.cip.object import ReplyItems
 from enip_farm.cip.safety.admission import SafetyPolicy
 from enip_farm.cip.safety.objects import SafetySupervisor, SafetyValidatorObject
@@ -50,6 +50,10 @@ from enip_farm.protocol.session import MessageContext, ReplyWithItems
 ENIP_PORT = 44818
 #: ListIdentity state: 3 = "operational" (Vol. 2, table 2-4.4 refers to the Identity state attribute).
 _STATE_OPERATIONAL = 3
+
+#: Every counter of a device, present (at 0) from the start: TCP, sessions, replies, class 1 (the table's).
+COUNTERS = ("tcp_connections", "tcp_refused", "tcp_write_paused", "tcp_inactivity_closed", "sessions",
+            "sessions_refused", "replies_dropped", "t_o_send_errors", *TABLE_COUNTERS)
 
 #: An observer of a device: called with every event (log entries, connection events, image changes).
 Observer = Callable[[Event], None]
@@ -94,7 +98,7 @@ class Device:
         }
         self.faults = DeviceFaults()
         self.recorder: TrafficTap | None = None  # serve --record
-        self.counters: Counter[str] = Counter()
+        self.counters: Counter[str] = Counter(dict.fromkeys(COUNTERS, 0))
         self.latency = LatencyHistogram()
         self._next_session_handle = 1
         self.sessions: set[int] = set()
@@ -165,17 +169,20 @@ class Device:
         return (bytes(output.data) if output is not None else b"", bytes(inputs.data) if inputs is not None else b"")
 
     def _publish(self, before: tuple[bytes, bytes], after: tuple[bytes, bytes],
-                 requests: Iterable[tuple[int, bytes, int]] = (), connections: Iterable[ConnectionEvent] = ()) -> None:
+                 requests: Iterable[Handled] = (), connections: Iterable[ConnectionEvent] = ()) -> None:
         observers = self._observers
-        for service, path, status in requests:
-            entry = self.events.request(service, path, status)
+        for handled in requests:
+            entry = self.events.request(handled)
             if observers:
                 event = self.events.event(entry)
                 for observer in observers:
                     observer(event)
         for change in connections:
-            self.record(change.kind, f"{describe(change.connection)}"
-                        + (f": {change.reason}" if change.reason else ""), change.at / 1e9)
+            if change.connection is None:  # a refusal: the reason says it all
+                self.record(change.kind, change.reason, change.at / 1e9)
+            else:
+                self.record(change.kind, describe(change.connection) + (f": {change.reason}" if change.reason else ""),
+                            change.at / 1e9)
         for role, old, new in (("output", before[0], after[0]), ("input", before[1], after[1])):
             if old != new and self._observers:
                 event = Event(time.monotonic(), time.time(), self.name, "image changed", ImageChange(role, old, new))
@@ -258,18 +265,18 @@ class Device:
     def list_interfaces_data(self) -> bytes:
         return encode_items([])
 
-    def register_session(self) -> int | None:
+    def register_session(self, peer_host: str = "") -> int | None:
         """A new session handle, or None when the device holds `limits.max_sessions` already."""
         if len(self.sessions) >= self.profile.limits.max_sessions:
             self.counters["sessions_refused"] += 1
-            return None
+            return None  # the session layer answers 0x0002, which the server reports
         self.counters["sessions"] += 1
         handle = self._next_session_handle
         while handle in self.sessions:
             handle = handle + 1 if handle < 0xFFFFFFFF else 1
         self._next_session_handle = handle + 1 if handle < 0xFFFFFFFF else 1
         self.sessions.add(handle)
-        self.record("session registered", f"handle {handle}")
+        self.record("session registered", f"handle {handle}" + (f" from {peer_host}" if peer_host else ""))
         return handle
 
     def unregister_session(self, session_handle: int) -> None:
@@ -287,8 +294,8 @@ class Device:
         if connections or before != after or self._observers:
             self._publish(before, after, requests, connections)
         else:  # the hot path: a request that changed nothing, nobody listening
-            for service, path, status in requests:
-                self.events.request(service, path, status)
+            for handled in requests:
+                self.events.request(handled)
         return reply
 
     def handle_connected(self, connection_id: int, sequence_count: int, message: bytes,
@@ -370,8 +377,13 @@ class Device:
 
 
 def describe(connection: Connection) -> str:
-    return (f"{connection.kind.value} O->T 0x{connection.o_t_id:08X} T->O 0x{connection.t_o_id:08X} "
-            f"from {connection.originator_host}, RPI {connection.o_t_rpi}/{connection.t_o_rpi} us")
+    """A connection in one line: kind, originator, each direction's id, RPI and size, where T->O goes."""
+    c = connection
+    text = (f"{c.kind.value} from {c.originator_host}: O->T 0x{c.o_t_id:08X} RPI {c.o_t_rpi} us {c.o_t_size} bytes, "
+            f"T->O 0x{c.t_o_id:08X} RPI {c.t_o_rpi} us {c.t_o_size} bytes")
+    if c.t_o_address is not None:
+        text += f" {'multicast ' if c.multicast else ''}to {c.t_o_address[0]}:{c.t_o_address[1]}"
+    return text
 
 
 def replace_image(image: bytearray, data: bytes, what: str) -> None:

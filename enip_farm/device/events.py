@@ -29,18 +29,28 @@ class Event(NamedTuple):
     wall: float
     device: str
     kind: str
-    detail: Any  # a string, or for "request" a (service, path bytes, general status) tuple
+    detail: Any  # a string; a dict (faults); for "request" the router's (service, path, status, extended, relayed)
 
     @property
     def text(self) -> str:
-        if self.kind == "request" and isinstance(self.detail, tuple):
-            service, path, status = self.detail
-            return f"service 0x{service:02X} path {path.hex(' ')} status 0x{status:02X}"
-        return str(self.detail)
+        detail = self.detail
+        if self.kind == "request" and isinstance(detail, tuple):
+            service, path, status, extended = detail[:4]
+            text = f"service 0x{service:02X} path {path.hex(' ')} status 0x{status:02X}"
+            return text if extended is None else f"{text} extended 0x{extended:04X}"
+        if isinstance(detail, dict):  # e.g. a fault: "delay (delay_ms 800, duration_s 10)"
+            rest = {key: value for key, value in detail.items() if key != "kind"}
+            parameters = ", ".join(f"{key} {value:g}" if isinstance(value, float) else f"{key} {value}"
+                                   for key, value in rest.items())
+            head = str(detail.get("kind", ""))
+            return f"{head} ({parameters})" if head and parameters else head or parameters
+        return str(detail)
 
     def as_dict(self) -> dict[str, Any]:
+        """The event as JSON takes it: a dict detail (a fault's parameters) stays a dict."""
+        detail = self.detail
         return {"time": self.wall, "monotonic": self.monotonic, "device": self.device, "kind": self.kind,
-                "detail": self.text}
+                "detail": dict(detail) if isinstance(detail, dict) else self.text}
 
 
 class EventLog:
@@ -59,10 +69,10 @@ class EventLog:
         self._entries.append(entry)
         return self._event(entry)
 
-    def request(self, service: int, path: bytes, status: int) -> tuple[float, str, Any]:
-        """One explicit request, as the message router answered it; the raw entry (`event` makes
-        it an Event), so that logging a request costs no more than a tuple."""
-        entry = (time.monotonic(), "request", (service, path, status))
+    def request(self, handled: tuple) -> tuple[float, str, Any]:
+        """One explicit request, as the message router answered it (its `Handled` tuple); the raw
+        entry (`event` makes it an Event), so that logging a request costs no more than a tuple."""
+        entry = (time.monotonic(), "request", handled)
         self._entries.append(entry)
         return entry
 

@@ -114,11 +114,18 @@ class Fault:
             return random.uniform(self.delay_ms, self.max_delay_ms) / 1000
         return self.delay_ms / 1000
 
-    def describe(self) -> dict:
+    def parameters(self) -> dict:
+        """The fault as JSON takes it: its kind and the parameters it was given (None left out),
+        e.g. {"kind": "delay", "delay_ms": 800.0, "duration_s": 10.0}."""
         out = {k: v for k, v in asdict(self).items() if v is not None and k != "started"}
         out["kind"] = self.kind.value
-        out["age_s"] = round(time.monotonic() - self.started, 3)
-        return out
+        if self.kind is not FaultKind.DELAY:
+            out.pop("delay_ms", None)  # only a delay holds replies back
+        return {"kind": out.pop("kind"), **out}
+
+    def describe(self) -> dict:
+        """`parameters` and how long the fault has been on (`age_s`)."""
+        return {**self.parameters(), "age_s": round(time.monotonic() - self.started, 3)}
 
 
 class DeviceFaults:

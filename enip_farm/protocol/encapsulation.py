@@ -39,6 +39,26 @@ class EncapsulationStatus(IntEnum):
     UNSUPPORTED_PROTOCOL = 0x0069
 
 
+_COMMAND_NAMES = {Command.NOP: "NOP", Command.LIST_SERVICES: "ListServices", Command.LIST_IDENTITY: "ListIdentity",
+                  Command.LIST_INTERFACES: "ListInterfaces", Command.REGISTER_SESSION: "RegisterSession",
+                  Command.UNREGISTER_SESSION: "UnRegisterSession", Command.SEND_RR_DATA: "SendRRData",
+                  Command.SEND_UNIT_DATA: "SendUnitData"}
+
+
+def command_name(command: int) -> str:
+    """A command as the spec names it (SendRRData), or its code."""
+    return _COMMAND_NAMES.get(command, f"command 0x{command:04X}")  # type: ignore[call-overload]
+
+
+def describe_encapsulation_status(status: int) -> str:
+    """An encapsulation status in hex and words, e.g. `0x0064 invalid session handle`."""
+    try:
+        words = EncapsulationStatus(status).name.lower().replace("_", " ")
+    except ValueError:
+        words = "unknown status"
+    return f"0x{status:04X} {words}"
+
+
 class EncapsulationHeader(NamedTuple):
     command: int
     length: int

@@ -36,6 +36,9 @@ _RR_PREFIX = struct.pack("<IHHHHH", 0, 0, 2, ItemType.NULL_ADDRESS, 0, ItemType.
 _UINT = struct.Struct("<H")
 _SEND_DATA_HEAD = struct.pack("<IH", 0, 0)  # interface handle, timeout
 _SEND_RR_DATA = int(Command.SEND_RR_DATA)
+#: Refusals kept until the caller empties `refusals` (the server does after every `receive`, which
+#: handles a bounded batch of frames); a caller that never looks costs no more than this.
+_MAX_REFUSALS = 256
 
 
 class MessageContext(NamedTuple):
@@ -72,8 +75,8 @@ class Target(Protocol):
 
     def list_interfaces_data(self) -> bytes: ...
 
-    def register_session(self) -> int | None:
-        """A new session handle, or None when the target takes no more sessions."""
+    def register_session(self, peer_host: str = "") -> int | None:
+        """A new session handle for a client at `peer_host`, or None when the target takes no more."""
         ...
 
     def unregister_session(self, session_handle: int) -> None: ...
@@ -102,7 +105,8 @@ def _reply(header: EncapsulationHeader, data: bytes = b"", session_handle: int |
 class EncapsulationSession:
     """One TCP connection: frames in, replies out; `closing` says the connection must end."""
 
-    __slots__ = ("target", "framer", "session_handle", "closing", "discarded", "peer_host", "last_frame_at", "_now")
+    __slots__ = ("target", "framer", "session_handle", "closing", "discarded", "peer_host", "last_frame_at", "_now",
+                 "refusals")
 
     def __init__(self, target: Target, peer_host: str = "0.0.0.0", max_length: int = MAX_DATA_LENGTH) -> None:
         self.target = target
@@ -113,6 +117,9 @@ class EncapsulationSession:
         self.peer_host = peer_host
         self.last_frame_at = 0  # ns: when the last whole frame arrived (encapsulation inactivity)
         self._now = 0
+        #: (command, encapsulation status) of every request answered with an error status since the
+        #: caller last emptied it (the server reports them as events)
+        self.refusals: list[tuple[int, int]] = []
 
     def receive(self, data: bytes, now: int = 0, limit: int | None = None) -> list[bytes]:
         """Bytes from the stream, received at `now` (ns, monotonic): the whole replies to send.
@@ -126,11 +133,14 @@ class EncapsulationSession:
         for frame in frames:
             if type(frame) is not Frame:  # OversizeFrame
                 replies.append(_reply(frame.header, status=EncapsulationStatus.INVALID_LENGTH))
+                self.refusals.append((frame.header.command, EncapsulationStatus.INVALID_LENGTH))
                 self.closing = True
             else:
                 reply = self.handle_frame(frame)
                 if reply is not None:
                     replies.append(reply)
+                    if (reply[8] or reply[9]) and len(self.refusals) < _MAX_REFUSALS:  # a non-zero status
+                        self.refusals.append((frame.header.command, reply[8] | reply[9] << 8))
             if self.closing:
                 break
         return replies
@@ -182,7 +192,7 @@ class EncapsulationSession:
             return _reply(header, _SUPPORTED_REGISTER, 0, EncapsulationStatus.UNSUPPORTED_PROTOCOL)
         if self.session_handle:  # one session per TCP connection
             return _reply(header, _SUPPORTED_REGISTER, self.session_handle, EncapsulationStatus.INVALID_COMMAND)
-        handle = self.target.register_session()
+        handle = self.target.register_session(self.peer_host)
         if handle is None:  # the device holds all the sessions it takes; this connection stays usable
             return _reply(header, _SUPPORTED_REGISTER, 0, EncapsulationStatus.INSUFFICIENT_MEMORY)
         self.session_handle = handle

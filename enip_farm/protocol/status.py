@@ -65,3 +65,98 @@ class ExtendedStatus(IntEnum):
     SCID_MISMATCH = 0x080C
     TUNID_NOT_SET = 0x080D
     TUNID_MISMATCH = 0x080E
+
+
+#: General status in words (Vol. 1, appendix B-1), for logs and messages.
+GENERAL_STATUS_TEXT: dict[int, str] = {
+    0x00: "success",
+    0x01: "connection failure",
+    0x02: "resource unavailable",
+    0x03: "invalid parameter value",
+    0x04: "path segment error",
+    0x05: "path destination unknown",
+    0x06: "partial transfer",
+    0x07: "connection lost",
+    0x08: "service not supported",
+    0x09: "invalid attribute value",
+    0x0A: "attribute list error",
+    0x0B: "already in requested mode/state",
+    0x0C: "object state conflict",
+    0x0D: "object already exists",
+    0x0E: "attribute not settable",
+    0x0F: "privilege violation",
+    0x10: "device state conflict",
+    0x11: "reply data too large",
+    0x12: "fragmentation of a primitive value",
+    0x13: "not enough data",
+    0x14: "attribute not supported",
+    0x15: "too much data",
+    0x16: "object does not exist",
+    0x17: "service fragmentation sequence not in progress",
+    0x18: "no stored attribute data",
+    0x19: "store operation failure",
+    0x1A: "routing failure, request packet too large",
+    0x1B: "routing failure, response packet too large",
+    0x1C: "missing attribute list entry data",
+    0x1D: "invalid attribute value list",
+    0x1E: "embedded service error",
+    0x1F: "vendor specific error",
+    0x20: "invalid parameter",
+    0x21: "write-once value or medium already written",
+    0x22: "invalid reply received",
+    0x25: "key failure in path",
+    0x26: "path size invalid",
+    0x27: "unexpected attribute in list",
+    0x28: "invalid member id",
+    0x29: "member not settable",
+}
+
+#: Connection Manager extended status in words (Vol. 1, table 3-5.33).
+EXTENDED_STATUS_TEXT: dict[int, str] = {
+    0x0100: "connection in use or duplicate Forward Open",
+    0x0103: "transport class and trigger combination not supported",
+    0x0106: "ownership conflict",
+    0x0107: "target connection not found",
+    0x0108: "invalid network connection parameter",
+    0x0109: "invalid connection size",
+    0x0110: "target for connection not configured",
+    0x0111: "RPI not supported",
+    0x0113: "out of connections",
+    0x0114: "vendor id or product code mismatch",
+    0x0115: "device type mismatch",
+    0x0116: "revision mismatch",
+    0x0119: "non-listen-only connection not opened",
+    0x0127: "invalid O->T connection size",
+    0x0128: "invalid T->O connection size",
+    0x0129: "invalid configuration application path",
+    0x012A: "invalid consuming application path",
+    0x012B: "invalid producing application path",
+    0x0132: "null Forward Open not supported",
+    0x0203: "connection timed out",
+    0x0205: "parameter error in a SafetyOpen",
+    0x0311: "invalid port in the route path",
+    0x0312: "invalid link address in the route path",
+    0x0315: "invalid segment in the connection path",
+    0x031C: "miscellaneous",
+    0x0802: "invalid safety connection size",
+    0x0803: "invalid safety connection format",
+    0x0804: "invalid time correction connection parameters",
+    0x0805: "invalid ping interval EPI multiplier",
+    0x0806: "invalid time coordination message min multiplier",
+    0x0807: "invalid network time expectation multiplier",
+    0x0808: "invalid timeout multiplier",
+    0x0809: "invalid max consumer number",
+    0x080A: "invalid CPCRC",
+    0x080B: "time correction connection id invalid",
+    0x080C: "SCID mismatch",
+    0x080D: "TUNID not set",
+    0x080E: "TUNID mismatch",
+}
+
+
+def describe_status(general: int, extended: int | None = None) -> str:
+    """A CIP status in hex and words, e.g. `0x01/0x0111 connection failure: RPI not supported`."""
+    words = GENERAL_STATUS_TEXT.get(general, "unknown status")
+    if extended is None:
+        return f"0x{general:02X} {words}"
+    return f"0x{general:02X}/0x{extended:04X} {words}: {EXTENDED_STATUS_TEXT.get(extended, 'unknown extended status')}"

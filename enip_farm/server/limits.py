@@ -1,10 +1,12 @@
 """Guards of the farm's TCP side: caps on TCP connections per device and for the whole farm (the
-latter also bounded by the process's open-file limit), and log lines that cannot flood the log."""
+latter also bounded by the process's open-file limit), and log lines that cannot flood the log
+(`RateLimitedLog`, which the console uses too)."""
 
 from __future__ import annotations
 
 import logging
 import resource
+import threading
 from collections import Counter
 
 #: Descriptors kept free for everything that is not a client connection (listeners, UDP sockets,
@@ -13,24 +15,58 @@ RESERVED_DESCRIPTORS = 64
 
 
 class RateLimitedLog:
-    """At most one line per key and interval; the lines held back are counted into the next one."""
+    """At most `burst` lines per key and interval (a window opened by the key's first line). Lines
+    held back are never lost: the next line of that key says how many there were, or, when no other
+    line comes, `flush` shows the last of them with the count of the others once the window is over.
+    Thread-safe; `now` is a monotonic time in seconds."""
 
-    def __init__(self, logger: logging.Logger, interval_s: float = 10.0) -> None:
+    def __init__(self, logger: logging.Logger, interval_s: float = 10.0, burst: int = 1) -> None:
         self.logger = logger
         self.interval_s = interval_s
-        self._last: dict[str, float] = {}
-        self._held: Counter[str] = Counter()
+        self.burst = burst
+        self._windows: dict[str, list[float]] = {}  # key -> [window start, lines shown in it]
+        self._held: dict[str, tuple[int, int, str, tuple]] = {}  # key -> (count, level, message, args) of the last
+        self._lock = threading.Lock()
 
-    def warning(self, key: str, now: float, message: str, *args: object) -> None:
-        last = self._last.get(key)
-        if last is not None and now - last < self.interval_s:
-            self._held[key] += 1
-            return
-        held = self._held.pop(key, 0)
-        self._last[key] = now
-        if held:
-            message += f" ({held} more like this since the last line)"
-        self.logger.warning(message, *args)
+    def log(self, level: int, key: str, now: float, message: str, *args: object) -> bool:
+        """Log the line unless its key has had `burst` lines in this window; True if it was shown."""
+        with self._lock:
+            window = self._windows.get(key)
+            held = None
+            if window is None or now - window[0] >= self.interval_s:
+                window = self._windows[key] = [now, 0]
+                held = self._held.pop(key, None)
+            if window[1] >= self.burst:
+                count = self._held[key][0] + 1 if key in self._held else 1
+                self._held[key] = (count, level, message, args)
+                return False
+            window[1] += 1
+        if held is not None:
+            message += f" ({held[0]} more like this since the last line)"
+        self.logger.log(level, message, *args)
+        return True
+
+    def warning(self, key: str, now: float, message: str, *args: object) -> bool:
+        return self.log(logging.WARNING, key, now, message, *args)
+
+    def flush(self, now: float) -> int:
+        """Show what each key whose window is over held back: its last line, with the count of the
+        others. Returns how many lines were shown."""
+        with self._lock:
+            due = [(key, held) for key, held in self._held.items() if now - self._windows[key][0] >= self.interval_s]
+            for key, _ in due:
+                del self._held[key]
+                self._windows[key] = [now, 1]  # the line shown now opens the next window
+        for _, (count, level, message, args) in due:
+            others = f" ({count - 1} more like this held back)" if count > 1 else ""
+            self.logger.log(level, message + others, *args)
+        return len(due)
+
+    @property
+    def holding(self) -> int:
+        """Lines held back and not yet told."""
+        with self._lock:
+            return sum(held[0] for held in self._held.values())
 
 
 class TcpLimits:

@@ -23,6 +23,7 @@ import time
 
 from enip_farm.device.device import Device
 from enip_farm.device.faults import FaultKind
+from enip_farm.protocol.encapsulation import command_name, describe_encapsulation_status
 from enip_farm.protocol.session import EncapsulationSession
 from enip_farm.server.limits import TcpLimits
 
@@ -79,10 +80,11 @@ class EncapsulationProtocol(asyncio.Protocol):
             self.kill(kind)
 
     def kill(self, kind: FaultKind) -> None:
-        """Close (FIN) or reset (RST) this connection, as an injected fault asks."""
+        """Close (FIN) or reset (RST) this connection, as an injected fault (or the farm's stop) asks."""
         transport = self.transport
         if transport is None:
             return
+        self._closed_by_us = True
         if kind is FaultKind.RESET:
             sock = transport.get_extra_info("socket")
             if sock is not None:
@@ -118,6 +120,8 @@ class EncapsulationProtocol(asyncio.Protocol):
             transport.close()  # type: ignore[union-attr]
             return
         closing = session.closing  # type: ignore[union-attr]
+        if session.refusals:  # type: ignore[union-attr]
+            self._report_refusals()
         if replies:
             out = replies[0] if len(replies) == 1 else b"".join(replies)
             faults = self.device.faults
@@ -145,6 +149,18 @@ class EncapsulationProtocol(asyncio.Protocol):
             self._scheduled = True
             asyncio.get_running_loop().call_soon(self._next_turn)
         self._set_reading(paused=backlog or self._write_paused)
+
+    def _report_refusals(self) -> None:
+        """An event per request answered with an encapsulation error status."""
+        session = self.session
+        peer = self._peer_text()
+        for command, status in session.refusals:  # type: ignore[union-attr]
+            self.device.record("encapsulation refused", f"{command_name(command)} from {peer}: encapsulation status "
+                               f"{describe_encapsulation_status(status)}")
+        session.refusals.clear()  # type: ignore[union-attr]
+
+    def _peer_text(self) -> str:
+        return f"{self._peer[0]}:{self._peer[1]}" if self._peer else "?"
 
     def _set_reading(self, paused: bool) -> None:
         if paused == self._reading_paused or self.transport is None or self.transport.is_closing():
@@ -221,7 +237,9 @@ class EncapsulationProtocol(asyncio.Protocol):
         if self.session is not None:
             self.session.connection_lost(time.monotonic_ns())
         self.connections.discard(self)
-        self.device.record("tcp closed", "")
+        who = "the farm" if self._closed_by_us else "the client"
+        self.device.record("tcp closed", f"{self._peer_text()} closed by {who} after "
+                           f"{(time.monotonic_ns() - self._opened_at) / 1e9:.1f} s")
         if self.device.recorder is not None:
             self.device.recorder.tcp_closed(self, by_client=not self._closed_by_us)
         self.transport = None
