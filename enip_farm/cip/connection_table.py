@@ -65,7 +65,12 @@ DROP_REASONS = ("malformed", "unknown_connection", "wrong_originator", "wrong_po
                 "io_stopped")
 #: The counters the table keeps (in the device's Counter).
 TABLE_COUNTERS = ("connection_timeouts", "o_t_packets", "t_o_packets", "o_t_short_data",
-                  *(f"o_t_dropped_{reason}" for reason in DROP_REASONS))
+                  *(f"o_t_dropped_{reason}" for reason in DROP_REASONS),
+                  # CIP Safety: connections opened, messages taken and produced, time coordination
+                  # answers, faults by kind (`safety_<crc|timing>_faults`), faulted connections, timeouts
+                  "safety_connections", "safety_packets_consumed", "safety_packets_produced",
+                  "safety_time_coordination_sent", "safety_crc_faults", "safety_timing_faults", "safety_faulted",
+                  "safety_timeouts")
 
 
 class Opened(NamedTuple):
