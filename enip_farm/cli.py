@@ -283,6 +283,59 @@ def io_set(device: str, assignments: tuple[str, ...], api: str, token: str | Non
     _print_io(_request("PUT", api, f"/devices/{device}/io", token, json={"signals": signals}))  # type: ignore[arg-type]
 
 
+@io.command("watch")
+@click.argument("device")
+@click.option("--json", "as_json", is_flag=True, help="print each event's JSON as the API sends it")
+@_api_option
+@_token_option
+def io_watch(device: str, as_json: bool, api: str, token: str | None) -> None:
+    """Print a device's I/O changes as they happen, one line each, until Ctrl-C.
+
+    Each line is one "io" event of the API's event stream: the signals of one image that changed
+    within 20 ms, with their old and new values (changes that undo themselves within it do not show)."""
+    try:
+        _watch(api, {"device": device, "kind": "io"}, token, as_json)
+    except KeyboardInterrupt:
+        return
+
+
+def _watch(api: str, params: dict[str, str], token: str | None, as_json: bool) -> None:
+    import json
+    from datetime import datetime
+
+    import httpx
+
+    headers = {"Authorization": f"Bearer {token}"} if token else {}
+    try:
+        with httpx.stream("GET", api.rstrip("/") + "/events", params=params, headers=headers,
+                          timeout=httpx.Timeout(10, read=None)) as response:
+            if response.status_code >= 400:
+                response.read()
+                detail = (response.json().get("detail") if "json" in response.headers.get("content-type", "")
+                          else response.text)
+                click.echo(f"GET /events: {response.status_code} {detail}", err=True)
+                sys.exit(1)
+            kind = "message"
+            for line in response.iter_lines():
+                if line.startswith("event: "):
+                    kind = line[7:]
+                elif line.startswith("data: ") and kind == "lost":
+                    click.echo(f"{json.loads(line[6:])['lost']} events lost: this reader fell behind", err=True)
+                elif line.startswith("data: ") and as_json:
+                    click.echo(line[6:])
+                elif line.startswith("data: "):
+                    event = json.loads(line[6:])
+                    clock = datetime.fromtimestamp(event["time"]).strftime("%H:%M:%S.%f")[:-3]
+                    click.echo(f"{clock} {event['device']} {event['detail']}")
+                elif not line:
+                    kind = "message"
+    except httpx.HTTPError as error:
+        click.echo(f"cannot reach the farm at {api}: {error}", err=True)
+        sys.exit(1)
+    click.echo("the farm ended the event stream", err=True)
+    sys.exit(1)
+
+
 @main.command()
 @click.argument("first")
 @click.argument("second", required=False)

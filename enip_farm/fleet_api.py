@@ -1,6 +1,7 @@
 """One HTTP API for a fleet of workers (`serve --workers N --http`): the parent routes a request
-for a device to the worker that serves it, and merges GET /devices, /events and /metrics from
-every worker. It stands behind the farm API's own Guard (Host, token, body size)."""
+for a device to the worker that serves it, and merges GET /devices, /state, /events and /metrics
+from every worker; the rest (/docs, the dashboard's page) comes from the first worker. It stands
+behind the farm API's own Guard (Host, token, body size)."""
 
 from __future__ import annotations
 
@@ -104,7 +105,8 @@ def create_router(owners: dict[str, int], apis: list[str]) -> Starlette:
         for name in names:
             if name not in owners:
                 return JSONResponse({"detail": f"no device named {name!r}"}, status_code=404)
-        kinds = [("kind", kind) for kind in request.query_params.getlist("kind")]
+        kinds = [(key, value) for key, value in request.query_params.multi_items()
+                 if key in ("kind", "exclude_kind")]
         workers = sorted({owners[name] for name in names}) if names else list(range(len(apis)))
         streams = []
         for worker in workers:
@@ -118,6 +120,22 @@ def create_router(owners: dict[str, int], apis: list[str]) -> Starlette:
                     await opened.aclose()
                 return response_of(reply)
         return StreamingResponse(_merged_events(streams), media_type="text/event-stream")
+
+    async def state(request: Request) -> Response:
+        names = request.query_params.getlist("device")
+        for name in names:
+            if name not in owners:
+                return JSONResponse({"detail": f"no device named {name!r}"}, status_code=404)
+        workers = sorted({owners[name] for name in names}) if names else list(range(len(apis)))
+        replies = await asyncio.gather(*(client().get(apis[i] + "/state", headers=headers_of(request), params=[
+            ("device", name) for name in names if owners[name] == i]) for i in workers))
+        failed = [reply for reply in replies if reply.status_code != 200]
+        if failed:
+            return response_of(failed[0])
+        merged = [device for reply in replies for device in reply.json()]
+        wanted = {name: position for position, name in enumerate(names)} if names else order
+        merged.sort(key=lambda device: wanted.get(device.get("name"), len(wanted)))
+        return JSONResponse(merged)
 
     async def other(request: Request) -> Response:  # /openapi.json, /docs: every worker has the same
         return await forward(request, 0)
@@ -135,6 +153,7 @@ def create_router(owners: dict[str, int], apis: list[str]) -> Starlette:
         Route("/devices/{name}/{rest:path}", device, methods=methods),
         Route("/metrics", metrics, methods=["GET"]),
         Route("/events", events, methods=["GET"]),
+        Route("/state", state, methods=["GET"]),
         Route("/{rest:path}", other, methods=methods),
     ], lifespan=lifespan)
 

@@ -138,6 +138,10 @@ def test_one_http_port_drives_the_devices_of_every_worker(free_address: AddressP
             assert [d["name"] for d in client.get("/devices").json()] == names
             assert all(client.get(f"/devices/{n}/io").json()["signals"]["DI"][2] == 1 for n in names)
             assert client.get("/devices/nope").status_code == 404
+            state = client.get("/state", params={"device": ["io6", "io1"]}).json()  # merged, in the asked order
+            assert [d["name"] for d in state] == ["io6", "io1"] and all(d["signals"][2]["value"] == 1 for d in state)
+            assert [d["name"] for d in client.get("/state").json()] == names
+            assert client.get("/state", params={"device": "nope"}).status_code == 404
             metrics = client.get("/metrics").text
             assert metrics.count("# HELP enip_farm_tcp_connections_total") == 1
             assert all(f'enip_farm_tcp_connections_total{{device="{n}"}}' in metrics for n in names)
@@ -154,7 +158,19 @@ def test_one_http_port_drives_the_devices_of_every_worker(free_address: AddressP
                     if seen == {"io1", "io6"}:
                         break
                 assert seen == {"io1", "io6"}
+            with client.stream("GET", "/events", params={"device": "io4", "exclude_kind": "fault injected"}) as stream:
+                lines = stream.iter_lines()
+                assert next(lines).startswith(": ")
+                assert client.post("/devices/io4/faults", json={"kind": "delay", "delay_ms": 1}).status_code == 201
+                assert client.put("/devices/io4/io", json={"signals": {"DI5": 1}}).status_code == 200
+                event = json.loads(next(text for text in lines if text.startswith("data: "))[6:])
+                assert (event["kind"], event["signals"]) == ("io", {"DI5": {"old": 0, "new": 1}})
+            assert client.put("/devices/io4/io", json={"signals": {"DI5": 0}}).status_code == 200
+            assert client.delete("/devices/io4/faults").status_code == 200
         assert httpx.get(f"{api}/devices", timeout=STARTUP_S).status_code == 401  # the farm API's guard, too
+        page = httpx.get(f"{api}/", timeout=STARTUP_S)  # the dashboard's page needs no token, here either
+        assert page.status_code == 200 and "dashboard/dashboard.js" in page.text
+        assert httpx.get(f"{api}/dashboard/dashboard.js", timeout=STARTUP_S).status_code == 200
         assert httpx.get(f"{api}/devices", headers={**auth, "Host": "rebound.example"},
                          timeout=STARTUP_S).status_code == 421
         with FleetClient(api, "s3cret") as fleet:  # the fixture handle's calls, for a fleet elsewhere

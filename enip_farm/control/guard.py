@@ -6,6 +6,9 @@
   token is required there, and a rebinding page does not have it.
 - **Token**: when one is set, every path needs it (the OpenAPI schema and /docs too), as
   `Authorization: Bearer <token>` with the scheme in any case (RFC 9110 11.1); 401 otherwise.
+  Only GET and HEAD of the dashboard's static page and assets (`PUBLIC_PATHS`: no farm data in
+  them) pass without it, since a browser cannot send the header when it opens a page; the page
+  sends it on every request it makes (control/dashboard.py).
 - **Body size**: at most `MAX_BODY` bytes (413, and the connection is closed). A larger
   Content-Length is refused before any of the body is read; a chunked body is read up to the limit
   and refused there, so no request holds more than `MAX_BODY` bytes in memory.
@@ -23,6 +26,16 @@ from starlette.types import ASGIApp, Message, Receive, Scope, Send
 MAX_BODY = 1 << 20  # 1 MiB: an image write is a few hundred bytes
 LOCALHOST_NAMES = frozenset({"localhost", "127.0.0.1", "::1"})
 WILDCARDS = frozenset({"", "0.0.0.0", "::"})
+#: The dashboard's page and its static assets (control/dashboard.py): served without the token.
+PUBLIC_PAGE = "/"
+PUBLIC_PREFIX = "/dashboard/"
+
+
+def public(scope: Scope) -> bool:
+    """A request for the dashboard's static page or assets, which hold no farm data."""
+    path = scope.get("path", "")
+    return scope.get("method") in ("GET", "HEAD") and (path == PUBLIC_PAGE or (
+        path.startswith(PUBLIC_PREFIX) and ".." not in path))
 
 
 def _normal(host: str) -> str:
@@ -77,7 +90,7 @@ class Guard:
             await self.app(scope, receive, send)
             return
         headers: list[tuple[bytes, bytes]] = scope["headers"]
-        refusal = self._check(headers)
+        refusal = self._check(headers, public(scope))
         if refusal is not None:
             await refusal(scope, receive, send)
             return
@@ -91,13 +104,13 @@ class Guard:
 
         await self.app(scope, replay, send)
 
-    def _check(self, headers: list[tuple[bytes, bytes]]) -> JSONResponse | None:
+    def _check(self, headers: list[tuple[bytes, bytes]], public_path: bool = False) -> JSONResponse | None:
         if self.hosts is not None:
             hosts = [value.decode("latin-1") for key, value in headers if key == b"host"]
             if len(hosts) > 1 or (hosts and host_name(hosts[0]) not in self.hosts):
                 return _answer(421, f"Host {', '.join(hosts)!r} is not this API's address "
                                     f"({' or '.join(sorted(self.hosts))})")
-        if self.token is not None:
+        if self.token is not None and not public_path:
             given = next((value for key, value in headers if key == b"authorization"), b"")
             scheme, _, credentials = given.strip().partition(b" ")
             if scheme.lower() != b"bearer" or not hmac.compare_digest(credentials.strip(), self.token):

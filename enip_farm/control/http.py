@@ -1,12 +1,14 @@
 """The farm's HTTP API (FastAPI, served by uvicorn on the farm's own event loop).
 
 GET /devices, GET /devices/{name}, GET and PUT /devices/{name}/io, GET /devices/{name}/io/{signal}
-(one signal by its number or name), POST and DELETE /devices/{name}/faults, GET /events (server-sent
-events, control/stream.py), GET /metrics (Prometheus), and the OpenAPI schema at /openapi.json and
-/docs. Bound to anything but localhost, every request needs `Authorization: Bearer <token>`. Host,
-token and body size are checked before FastAPI sees a request (control/guard.py). Fault parameters
-are checked by `Fault` itself (device/faults.py); an image write is all or nothing
-(`DeviceHandle.update`).
+(one signal by its number or name), POST and DELETE /devices/{name}/faults, GET /state (what the
+dashboard shows of each device: signals, connections, counters, faults), GET /events (server-sent
+events, control/stream.py), GET /metrics (Prometheus), the dashboard at / (control/dashboard.py),
+and the OpenAPI schema at /openapi.json with /docs and /redoc served from assets shipped in the
+package (no CDN). Bound to anything but localhost, every request needs `Authorization: Bearer
+<token>`. Host, token and body size are checked before FastAPI sees a request (control/guard.py).
+Fault parameters are checked by `Fault` itself (device/faults.py); an image write is all or
+nothing (`DeviceHandle.update`).
 """
 
 from __future__ import annotations
@@ -16,6 +18,7 @@ import contextlib
 import errno
 import math
 import socket
+import time
 from collections.abc import Iterator
 from typing import Annotated, Any
 
@@ -23,14 +26,17 @@ import uvicorn
 from fastapi import FastAPI, HTTPException, Query
 from fastapi.exceptions import RequestValidationError
 from fastapi.responses import PlainTextResponse
+from fastapi_offline import FastAPIOffline
 from prometheus_client import CollectorRegistry, generate_latest
 from prometheus_client.exposition import CONTENT_TYPE_LATEST
 from pydantic import BaseModel, Field, field_validator
 
+from enip_farm.control.dashboard import mount_dashboard
 from enip_farm.control.guard import Guard, needs_token
 from enip_farm.control.handle import FarmControl
 from enip_farm.control.metrics import FarmCollector
 from enip_farm.control.stream import EventHub, EventStream
+from enip_farm.device.device import Device
 from enip_farm.device.faults import Fault, FaultError, FaultKind
 from enip_farm.device.signals import SignalError
 
@@ -76,6 +82,31 @@ def _io(farm: FarmControl, name: str) -> dict[str, Any]:
     return {"inputs": handle.inputs.hex(), "outputs": handle.outputs.hex(), "signals": signals, "named": named}
 
 
+def _connections(device: Device) -> list[dict[str, Any]]:
+    return [{"kind": c.kind.value, "o_t_id": c.o_t_id, "t_o_id": c.t_o_id, "o_t_rpi_us": c.o_t_rpi,
+             "t_o_rpi_us": c.t_o_rpi, "originator": c.originator_host, "received": c.received,
+             "multicast": c.multicast} for c in device.connections.values()]
+
+
+STATE_COUNTERS = ("o_t_packets", "t_o_packets", "connection_timeouts", "tcp_connections", "sessions")
+
+
+def _state(farm: FarmControl, name: str) -> dict[str, Any]:
+    """One device as the dashboard shows it. `monotonic` is read before the images: an "io" event
+    of the stream with an earlier `monotonic` is already in `signals`."""
+    handle = farm[name]
+    device = handle.device
+    monotonic = time.monotonic()
+    connections = _connections(device)
+    return {
+        "name": name, "monotonic": monotonic, "signals": handle.signal_table(), "status": device.status,
+        "owners": sorted({c["originator"] for c in connections if c["kind"] == "exclusive owner"}),
+        "connections": connections,
+        "counters": {key: device.counters.get(key, 0) for key in STATE_COUNTERS},
+        "faults": handle.faults,
+    }
+
+
 def _device(farm: FarmControl, name: str, detail: bool = False) -> dict[str, Any]:
     device = farm.devices[name]
     p = device.profile
@@ -85,9 +116,7 @@ def _device(farm: FarmControl, name: str, detail: bool = False) -> dict[str, Any
                      "revision": list(p.revision), "serial_number": p.serial_number, "product_name": p.product_name,
                      "status": device.status},
         "input_size": p.input_size, "output_size": p.output_size,
-        "connections": [{"kind": c.kind.value, "o_t_id": c.o_t_id, "t_o_id": c.t_o_id, "o_t_rpi_us": c.o_t_rpi,
-                         "t_o_rpi_us": c.t_o_rpi, "originator": c.originator_host, "received": c.received,
-                         "multicast": c.multicast} for c in list(device.connections.values())],
+        "connections": _connections(device),
         "faults": farm[name].faults,
         "unverified": list(p.unverified),
     }
@@ -99,7 +128,8 @@ def _device(farm: FarmControl, name: str, detail: bool = False) -> dict[str, Any
 
 def create_app(farm: FarmControl, hub: EventHub | None = None) -> FastAPI:
     """The API's routes; `HttpApi` serves them behind `Guard` (Host, token, body size)."""
-    app = FastAPI(title="enip-farm", description="Drive and observe a farm of virtual EtherNet/IP devices.")
+    app = FastAPIOffline(title="enip-farm", description="Drive and observe a farm of virtual EtherNet/IP devices. "
+                         "The dashboard is at /.")
     registry = CollectorRegistry()
     registry.register(FarmCollector(farm.devices.values()))
     hub = hub if hub is not None else EventHub(farm.devices.values())
@@ -158,20 +188,30 @@ def create_app(farm: FarmControl, hub: EventHub | None = None) -> FastAPI:
         cleared = await farm.clear_faults(known(name), kind)
         return {"cleared": [k.value for k in cleared]}
 
+    @app.get("/state")
+    def state(device: Annotated[list[str], Query()] = []) -> list[dict[str, Any]]:  # noqa: B006
+        """What the dashboard shows of each device (all, or those named by `device`): every signal
+        with its value, the connections and their owners, packet and timeout counters, faults."""
+        return [_state(farm, known(name)) for name in device or farm.devices]
+
     @app.get("/events", responses={200: {"content": {"text/event-stream": {}}},
                                     503: {"description": "too many event streams are open"}})
     async def events(device: Annotated[list[str], Query()] = [],  # noqa: B006 (FastAPI copies defaults)
-                     kind: Annotated[list[str], Query()] = []) -> EventStream:  # noqa: B006
+                     kind: Annotated[list[str], Query()] = [],  # noqa: B006
+                     exclude_kind: Annotated[list[str], Query()] = []) -> EventStream:  # noqa: B006
         """Server-sent events: one `data:` line of JSON per event, as they happen; `event: lost` with
-        a count where a slow reader's queue overflowed. 503 when too many streams are open."""
+        a count where a slow reader's queue overflowed. 503 when too many streams are open. I/O
+        changes come as `io` events (role, and each changed signal's old and new value), one per
+        device and image every 20 ms at most."""
         for name in device:
             known(name)
-        return EventStream(hub, device, kind)
+        return EventStream(hub, device, kind, exclude_kind)
 
     @app.get("/metrics", response_class=PlainTextResponse)
     def metrics() -> PlainTextResponse:
         return PlainTextResponse(generate_latest(registry), media_type=CONTENT_TYPE_LATEST)
 
+    mount_dashboard(app)
     return app
 
 
