@@ -105,6 +105,17 @@ class LimitsConfig(_Strict):
                               "encapsulation status 0x0002 (insufficient memory)")
 
 
+class SafetyConfig(_Strict):
+    """Per-device overrides of a safety model's CIP Safety identity (from the safety configuration
+    of your controller): safety network number and configuration signature, hex as on the wire."""
+
+    snn: str | None = Field(None, pattern=r"^[0-9A-Fa-f]{12}$", description="safety network number (6 bytes hex)")
+    node_address: int | None = Field(None, ge=0, le=0xFFFFFFFF, description="TUNID node address; default: the "
+                                     "device's IPv4 address as a UDINT")
+    scid: str | None = Field(None, pattern=r"^[0-9A-Fa-f]{20}$", description="SCCRC + SCTS (10 bytes hex); "
+                             "zeros: no signature held, only SafetyOpens with a zero SCID are taken")
+
+
 class SignalConfig(_Strict):
     """A named signal, as RobotWare's EIO_SIGNAL entry gives it (`enip-farm eio import` writes these)."""
 
@@ -149,6 +160,7 @@ class DeviceConfig(_Strict):
         1.0, ge=0, le=3600, allow_inf_nan=False, description="Identity Reset: how long the device does not "
         "answer (no TCP listener, UDP dropped) after it has replied, as a module restarts")
     signals: list[SignalConfig] = Field([], description="named signals (RobotWare EIO_SIGNAL) beside DI1.., DO1..")
+    safety: SafetyConfig = SafetyConfig()
     extra: dict[str, EioValue] = Field({}, description="other attributes of the controller's ETHERNETIP_DEVICE "
                                        "entry (VendorName, Label...), kept as they were for `enip-farm eio export`")
     _entry: int = PrivateAttr(0)

@@ -322,6 +322,17 @@ def test_tcpip_get_attributes_all_layout() -> None:
     assert len(named) == 96 + 4 and named[40:46] == b"\x03\x00abc\x00"
 
 
+def test_tcpip_safety_network_number_of_a_safety_target() -> None:
+    """A CIP Safety target (DSQC1042) shows its safety network number (the catalogue's, unverified)
+    as attribute 7, alone and in Get Attributes All; other devices have none."""
+    config = parse_config({"devices": [{"name": "s1", "address": "127.0.0.2", "model": "DSQC1042"}]})
+    (profile,) = build_profiles(config, shipped_catalogue())
+    device = Device(profile)
+    assert ask(device, encode_request(0x0E, encode_request_path(0xF5, 1, 7))).data == profile.safety.snn
+    assert ask(device, encode_request(0x01, encode_request_path(0xF5, 1))).data[42:48] == profile.safety.snn
+    assert ask(make_device(), encode_request(0x0E, encode_request_path(0xF5, 1, 7))).general_status == 0x14
+
+
 def test_tcpip_multicast_config_from_the_configuration() -> None:
     device = make_device(implicit={"multicast_group": "239.192.5.32"})
     assert ask(device, encode_request(0x0E, encode_request_path(0xF5, 1, 9))).data == bytes.fromhex("01000100 2005c0ef")

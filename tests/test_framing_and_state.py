@@ -110,7 +110,7 @@ def test_addon_sizes(make_farm) -> None:
             c.register()
             assert c.get(4, 101, 4).data == inputs.to_bytes(2, "little")
             assert c.get(4, 100, 4).data == outputs.to_bytes(2, "little")
-    with RawClient(farm.device("s1").profile.address) as c:  # safety base: identity only
+    with RawClient(farm.device("s1").profile.address) as c:  # safety base: its safety assemblies
         c.register()
         assert c.get(1, 1, 7).data == b"\x08DSQC1042"
-        assert c.get(4, 100, 3).general_status == 0x05
+        assert c.get(4, 100, 4).data == b"\x01\x00" and c.get(4, 101, 4).data == b"\x02\x00"  # 4 DO, 12 DI

@@ -1,6 +1,7 @@
 """Admission of a Forward Open or Large Forward Open (CIP Networks Library Vol. 1, 3-5.5.2 and
 table 3-5.33): connection path, electronic key (C-1.4.2), transport class and trigger, connection
-types, RPI, sizes, ownership and limits. Each refusal carries its extended status and, for sizes,
+types, RPI, sizes, ownership and limits; a SafetyOpen (a safety network segment in the path) goes
+to cip/safety/admission.py (Vol. 5). Each refusal carries its extended status and, for sizes,
 the size the target expects as a second additional status word (as OpENer sends it). Sans-IO:
 the time is a parameter; nothing here is changed, the connection table keeps what is admitted.
 """
@@ -15,6 +16,7 @@ from typing import NamedTuple
 
 from enip_farm.cip.assembly import AssemblyInstance
 from enip_farm.cip.connection import Connection, ConnectionKind
+from enip_farm.cip.safety.admission import SafetyOpen, SafetyPolicy, admit_safety, safety_segment_of
 from enip_farm.protocol.commands import SocketAddress
 from enip_farm.protocol.connection import ConnectionType, ForwardOpenRequest
 from enip_farm.protocol.epath import (
@@ -51,6 +53,7 @@ class ConnectionPolicy:
     input_only_point: int | None
     listen_only_point: int | None
     multicast_group: str
+    safety: SafetyPolicy | None = None  # a CIP Safety target: SafetyOpens admitted, class-1 refused
 
 
 class KeyIdentity(NamedTuple):
@@ -102,15 +105,51 @@ class Admission:
         self.policy = policy
         self.identity = identity
         self._rng = rng or random.SystemRandom()  # connection ids nobody can predict
+        self._initial_rc_offset = 0  # CIP Safety: Initial_RC_Offset, one more per consuming connection
 
     def admit(self, request: ForwardOpenRequest, originator: Originator, now: int,
-              connections: Collection[Connection], taken_ids: Callable[[int], bool]) -> Connection | Refusal:
-        """The connection a Forward Open asks for, or why not. `connections`: those open now;
-        `taken_ids(id)`: whether a connection id is in use."""
+              connections: Collection[Connection],
+              taken_ids: Callable[[int], bool]) -> Connection | SafetyOpen | Refusal:
+        """The connection a Forward Open asks for (a SafetyOpen: with its application reply), or
+        why not. `connections`: those open now; `taken_ids(id)`: whether a connection id is in use."""
         try:
+            safety = self._safety(request, originator, now, connections, taken_ids)
+            if safety is not None:
+                return safety
             return self._admit(request, originator, now, connections, taken_ids)
         except _Refused as refused:
             return refused.refusal
+
+    def _safety(self, request: ForwardOpenRequest, originator: Originator, now: int,
+                connections: Collection[Connection], taken_ids: Callable[[int], bool]) -> SafetyOpen | None:
+        """A SafetyOpen (a path with a safety network segment) admitted by cip/safety/admission.py;
+        None for any other Forward Open. A device that is no safety target refuses it (0x0315)."""
+        if 0x50 not in request.connection_path:
+            return None
+        try:
+            segments = decode_epath(request.connection_path)
+        except PathError:
+            raise _refuse(X.INVALID_SEGMENT) from None
+        route = 0
+        while segments and segments[0] == _SELF:
+            segments.pop(0)
+            route += 2
+        if safety_segment_of(segments) is None:
+            return None
+        policy = self.policy.safety
+        if policy is None:
+            raise _refuse(X.INVALID_SEGMENT)
+        output, inputs = self.assemblies["output"], self.assemblies["input"]
+        self._initial_rc_offset = (self._initial_rc_offset + 1) & 0xFFFF
+        used = {c.instance for c in connections if c.safety is not None}
+        result = admit_safety(
+            request, segments, route, policy, self._check_key, (len(output.data), len(inputs.data)), originator.host,
+            self._point_to_point_address(originator), now, connections, lambda: self._new_connection_id(taken_ids),
+            lambda: next(i for i in range(1, len(used) + 2) if i not in used), self.policy.first_watchdog_ns,
+            self._initial_rc_offset)
+        if not isinstance(result, SafetyOpen):
+            raise _refuse(result.extended, result.expected_size)
+        return result
 
     def _new_connection_id(self, taken_ids: Callable[[int], bool]) -> int:
         while True:
@@ -129,8 +168,8 @@ class Admission:
         transport = request.transport_class
         if transport == _CLASS_3 and request.transport_type_trigger & 0x80:
             return self._admit_explicit(request, originator, now, connections, taken_ids)
-        if transport != _CLASS_1 or request.production_trigger != 0:  # class 1, cyclic
-            raise _refuse(X.TRANSPORT_TRIGGER_NOT_SUPPORTED)
+        if transport != _CLASS_1 or request.production_trigger != 0 or self.policy.safety is not None:
+            raise _refuse(X.TRANSPORT_TRIGGER_NOT_SUPPORTED)  # class 1 cyclic; a safety target: SafetyOpens only
         return self._admit_io(request, self._io_points(request.connection_path), originator, now, connections,
                               taken_ids)
 

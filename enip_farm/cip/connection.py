@@ -1,6 +1,7 @@
 """Connections as the Connection Manager opens them (CIP Networks Library Vol. 1, 3-4 and 3-5):
-class-1 I/O connections (exclusive owner, input only, listen only) and class-3 explicit
-connections, with their supervision deadline (3-4.4.9) and their T->O production stream.
+class-1 I/O connections (exclusive owner, input only, listen only), class-3 explicit
+connections and CIP Safety connections (Vol. 5, server and client), with their supervision
+deadline (3-4.4.9) and their T->O production stream.
 
 Times are integers in nanoseconds of a monotonic clock that the caller passes in.
 """
@@ -10,6 +11,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 from enum import Enum
 
+from enip_farm.cip.safety.segment import Unid
+from enip_farm.cip.safety.validator import SafetyConsumer, SafetyProducer
 from enip_farm.protocol.connection import ConnectionTriad
 
 
@@ -18,6 +21,8 @@ class ConnectionKind(str, Enum):
     INPUT_ONLY = "input only"
     LISTEN_ONLY = "listen only"
     EXPLICIT = "explicit (class 3)"
+    SAFETY_OUTPUT = "safety output (server)"  # CIP Safety: the target consumes the safe outputs
+    SAFETY_INPUT = "safety input (client)"  # CIP Safety: the target produces the safe inputs
 
 
 @dataclass(eq=False)
@@ -48,7 +53,10 @@ class Connection:
     run: bool = False
     closed: bool = False
     last_reply: tuple[int, bytes, tuple] | None = None  # class 3: (sequence count, reply, items) for duplicates
-
+    safety: SafetyConsumer | SafetyProducer | None = None  # CIP Safety: the connection's Safety Validator
+    instance: int = 0  # CIP Safety: the Safety Validator instance id
+    ounid: Unid | None = None  # CIP Safety: the originator's UNID
+    t_o_sequence: int = 0  # CIP Safety server: the sequence of its time coordination messages
     @property
     def timeout_ns(self) -> int:
         """Connection timeout: O->T RPI x 2^(2 + multiplier) (Vol. 1, 3-4.4.9)."""
@@ -63,6 +71,8 @@ class Connection:
     def deadline(self) -> int:
         """When the connection times out unless a valid packet arrives before: the first watchdog
         (from the Forward Open) until the first packet, then the last valid packet + the timeout."""
+        if self.safety is not None:
+            return self.safety.deadline
         if self.last_received is None:
             return self.opened_at + max(self.timeout_ns, self.first_watchdog_ns)
         return self.last_received + self.timeout_ns
@@ -85,6 +95,7 @@ class Production:
     sequence: int = 0
     users: int = 1
     late: int = 0  # periods skipped because the producer fell a whole period behind
+    safety: SafetyProducer | None = None  # CIP Safety client: the SafetyProducer that encodes each packet (class 0)
 
     @property
     def due(self) -> int:

@@ -89,7 +89,7 @@ class ConnectionManager(CipClass):
                                  result.additional_status)
         connection = result.connection
         reply = ForwardOpenReply(connection.o_t_id, connection.t_o_id, request.triad, request.o_t_rpi,
-                                 request.t_o_rpi)
+                                 request.t_o_rpi, result.application_reply)
         return ServiceResult(GeneralStatus.SUCCESS, encode_forward_open_reply(reply), (), result.reply_items)
 
     def large_forward_open(self, instance: CipInstance, path: RequestPath, data: bytes,

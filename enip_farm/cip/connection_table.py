@@ -6,7 +6,12 @@ Vol. 2, 3-2 and 3-3), in the style of aioquic's `QuicConnection`:
 - consumption of O->T packets (`receive_datagram`): originator, sequence window, run/idle, size;
 - production of T->O packets on absolute deadlines (`datagrams_to_send`);
 - supervision (`get_timer`, `handle_timer`): the first watchdog, then exactly the last valid
-  packet + RPI x 2^(2 + multiplier).
+  packet + RPI x 2^(2 + multiplier);
+- CIP Safety connections (Vol. 5): a server consumes the safe outputs through its Safety Validator
+  (integrity, sequence and age checks; its time coordination answers go out with
+  `pop_replies`), a client produces the safe inputs on the T->O schedule; their supervision is
+  the validator's (network time expectation; time coordination), and the end of a server
+  connection, whatever ends it, puts the safe outputs in the safe state (all off).
 
 Time is always a parameter (integer nanoseconds of a monotonic clock), never read here. The
 caller holds the device lock around every call: the table reads and writes the assemblies' bytes.
@@ -30,8 +35,18 @@ from enip_farm.cip.admission import (
 )
 from enip_farm.cip.assembly import AssemblyInstance
 from enip_farm.cip.connection import Connection, ConnectionKind, Production
+from enip_farm.cip.safety.admission import SafetyOpen
+from enip_farm.cip.safety.validator import SafetyConsumer, SafetyProducer
 from enip_farm.protocol.commands import SocketAddress, encode_sockaddr
-from enip_farm.protocol.connection import ConnectionTriad, ForwardOpenRequest, decode_io_packet, encode_io_packet
+from enip_farm.protocol.connection import (
+    ConnectionTriad,
+    ForwardOpenRequest,
+    IoPacket,
+    class0_data,
+    decode_io_packet,
+    encode_class0_packet,
+    encode_io_packet,
+)
 from enip_farm.protocol.cpf import ItemType
 from enip_farm.protocol.session import ReplyItems
 from enip_farm.protocol.status import ExtendedStatus as X
@@ -50,12 +65,18 @@ DROP_REASONS = ("malformed", "unknown_connection", "wrong_originator", "wrong_po
                 "io_stopped")
 #: The counters the table keeps (in the device's Counter).
 TABLE_COUNTERS = ("connection_timeouts", "o_t_packets", "t_o_packets", "o_t_short_data",
-                  *(f"o_t_dropped_{reason}" for reason in DROP_REASONS))
+                  *(f"o_t_dropped_{reason}" for reason in DROP_REASONS),
+                  # CIP Safety: connections opened, messages taken and produced, time coordination
+                  # answers, faults by kind (`safety_<crc|timing>_faults`), faulted connections, timeouts
+                  "safety_connections", "safety_packets_consumed", "safety_packets_produced",
+                  "safety_time_coordination_sent", "safety_crc_faults", "safety_timing_faults", "safety_faulted",
+                  "safety_timeouts")
 
 
 class Opened(NamedTuple):
     connection: Connection
     reply_items: ReplyItems  # e.g. the multicast group (0x8001) of Vol. 2, 3-3.9.4
+    application_reply: bytes = b""  # a SafetyOpen's (Vol. 5, 3-5.4.2)
 
 
 class ConnectionEvent(NamedTuple):
@@ -82,6 +103,8 @@ class ConnectionTable:
         self._by_triad: dict[ConnectionTriad, Connection] = {}
         self._events: list[ConnectionEvent] = []
         self._short_data_reported: set[int] = set()
+        self._replies: list[tuple[bytes, tuple[str, int]]] = []  # CIP Safety time coordination, to send now
+        self._safety_connections = 0
 
     # -- what the table says -------------------------------------------------------------------
 
@@ -119,6 +142,10 @@ class ConnectionTable:
             deadline = connection.deadline
             if earliest is None or deadline < earliest:
                 earliest = deadline
+            safety = connection.safety
+            if type(safety) is SafetyConsumer and safety.tcoo_due is not None and (
+                    earliest is None or safety.tcoo_due < earliest):
+                earliest = safety.tcoo_due
         return earliest
 
     def supervision_due(self, now: int) -> bool:
@@ -133,6 +160,8 @@ class ConnectionTable:
             self._events.append(ConnectionEvent("connection refused", None, _refused_open(request, originator,
                                                                                           connection), now))
             return connection
+        if type(connection) is SafetyOpen:
+            return self._safety_opened(connection, now)
         self.connections[connection.o_t_id] = connection
         self._by_triad[connection.triad] = connection
         items: ReplyItems = ()
@@ -150,6 +179,30 @@ class ConnectionTable:
                 items = ((ItemType.SOCKADDR_T_O, encode_sockaddr(SocketAddress(*connection.t_o_address))),)  # type: ignore[misc]
         self._events.append(ConnectionEvent("connection opened", connection, "", now))
         return Opened(connection, items)
+
+    def _safety_opened(self, opened: SafetyOpen, now: int) -> Opened:
+        connection = opened.connection
+        self.connections[connection.o_t_id] = connection
+        self._by_triad[connection.triad] = connection
+        if connection.kind is ConnectionKind.SAFETY_OUTPUT:
+            self.assemblies["output"].owned = True
+        else:
+            self.productions[(connection.t_o_id, connection.t_o_address)] = Production(  # type: ignore[index]
+                connection.t_o_id, connection.t_o_address, connection.t_o_rpi * 1000, now,  # type: ignore[arg-type]
+                safety=connection.safety)  # type: ignore[arg-type]
+        self.counters["safety_connections"] += 1
+        self._safety_connections += 1
+        self._events.append(ConnectionEvent("connection opened", connection, "", now))
+        return Opened(connection, (), opened.application_reply)
+
+    @property
+    def has_replies(self) -> bool:
+        return bool(self._replies)
+
+    def pop_replies(self) -> list[tuple[bytes, tuple[str, int]]]:
+        """Datagrams to send at once (CIP Safety time coordination answering a ping)."""
+        replies, self._replies = self._replies, []
+        return replies
 
     def forward_close(self, triad: ConnectionTriad, now: int, host: str = "") -> Connection | None:
         """Close the connection of this triad; None if there is none (0x0107). `host`: who asked."""
@@ -169,10 +222,13 @@ class ConnectionTable:
         for connection in [c for c in self.connections.values() if c.owner is session]:
             self.close(connection, "TCP connection closed", now)
 
-    def close(self, connection: Connection, reason: str, now: int, timed_out: bool = False) -> None:
+    def close(self, connection: Connection, reason: str, now: int, timed_out: bool = False,
+              kind: str | None = None) -> None:
         if connection.closed:
             return
         connection.closed = True
+        if connection.safety is not None:
+            self._safety_connections -= 1
         self.connections.pop(connection.o_t_id, None)
         self._by_triad.pop(connection.triad, None)
         self._short_data_reported.discard(connection.o_t_id)
@@ -188,8 +244,13 @@ class ConnectionTable:
             output.owned = False
             if self.policy.outputs_off_on_fault if timed_out else self.policy.outputs_off_on_idle:
                 output.data[:] = bytes(len(output.data))
-        kind = "connection timed out" if timed_out else "connection closed"
+        kind = kind or ("connection timed out" if timed_out else "connection closed")
         self._events.append(ConnectionEvent(kind, connection, reason, now))
+        if connection.kind is ConnectionKind.SAFETY_OUTPUT:  # whatever ends it: the safe state
+            output = self.assemblies["output"]
+            output.owned = False
+            output.data[:] = bytes(len(output.data))
+            self._events.append(ConnectionEvent("safe state", connection, f"safe outputs off: {reason}", now))
         if connection.multicast and connection.kind is not ConnectionKind.LISTEN_ONLY and not any(
                 c.multicast and c.t_o_point == connection.t_o_point and c.kind is not ConnectionKind.LISTEN_ONLY
                 for c in self.connections.values()):
@@ -203,7 +264,18 @@ class ConnectionTable:
         """Close every connection whose deadline has come (at the deadline, not a tick before)."""
         for connection in [c for c in self.connections.values() if c.deadline <= now]:
             self.counters["connection_timeouts"] += 1
-            self.close(connection, f"no packet for {connection.timeout_ns / 1e6:g} ms", now, timed_out=True)
+            safety = connection.safety
+            if type(safety) is SafetyConsumer:
+                self.counters["safety_timeouts"] += 1
+                reason = (f"safety timeout: no valid data for the network time expectation, "
+                          f"{safety.nte_ns / 1e6:g} ms" if safety.last_valid is not None else
+                          f"safety timeout: no valid data within {(safety.deadline - safety.opened_at) / 1e6:g} ms")
+            elif type(safety) is SafetyProducer:
+                self.counters["safety_timeouts"] += 1
+                reason = f"safety timeout: no time coordination for {(safety.timeout_pi + 2)} ping intervals"
+            else:
+                reason = f"no packet for {connection.timeout_ns / 1e6:g} ms"
+            self.close(connection, reason, now, timed_out=True)
 
     # -- class-1 consumption and production --------------------------------------------------------
 
@@ -226,6 +298,8 @@ class ConnectionTable:
         last = connection.last_sequence
         if last is not None and not 0 < (packet.sequence - last) & 0xFFFFFFFF < _HALF:
             return self._drop("stale")  # a duplicate or older than what was consumed (Vol. 2, 3-2.1)
+        if connection.safety is not None:
+            return self._receive_safety(connection, packet, now, port)
         payload = packet.data
         if connection.o_t_run_idle_header:
             if len(payload) < RUN_IDLE_HEADER_SIZE:
@@ -264,6 +338,42 @@ class ConnectionTable:
                     f"{len(image)} of {len(output.data)} bytes: not applied to the outputs", now))
         return True
 
+    def _receive_safety(self, connection: Connection, packet: IoPacket, now: int, port: int | None) -> bool:
+        """A class-0 CIP Safety packet: safe output data on a server connection, a time
+        coordination message on a client connection (Vol. 5, 2-4.6 and 2-4.7)."""
+        connection.last_sequence = packet.sequence
+        if connection.o_t_port is None:
+            connection.o_t_port = port
+        safety = connection.safety
+        result = safety.receive(class0_data(packet), now)  # type: ignore[union-attr]
+        if result.fault is not None:
+            self.counters[f"safety_{result.fault}_faults"] += 1
+            self._events.append(ConnectionEvent(f"safety {result.fault} fault", connection, result.detail, now))
+            if result.faulted:
+                self.counters["safety_faulted"] += 1
+                self.close(connection, f"safety {result.fault} fault: {result.detail}", now, timed_out=True,
+                           kind="connection faulted")
+            return False
+        connection.last_received = now
+        connection.received += 1
+        self.counters["safety_packets_consumed"] += 1
+        if type(safety) is SafetyConsumer:
+            connection.run = result.run
+            output = self.assemblies["output"]
+            if result.run:
+                output.data[:] = result.data  # type: ignore[index]
+            else:
+                output.data[:] = bytes(len(output.data))  # idle: the safe state
+            answer = safety.time_coordination(now)
+            if answer is not None:
+                connection.t_o_sequence += 1
+                self._replies.append((encode_class0_packet(connection.t_o_id, connection.t_o_sequence, answer),
+                                      connection.t_o_address))  # type: ignore[arg-type]
+                self.counters["safety_time_coordination_sent"] += 1
+        else:
+            connection.run = True
+        return True
+
     def _drop(self, reason: str) -> bool:
         self.counters[f"o_t_dropped_{reason}"] += 1
         return False
@@ -272,14 +382,20 @@ class ConnectionTable:
         """The T->O packets due by `now`, one per stream; a stream that fell a whole period behind
         skips the missed periods rather than bursting."""
         due = [p for p in self.productions.values() if p.due <= now]
+        out = self._pending_time_coordination(now) if self._safety_connections and self._safety_pending else []
         if not due:
-            return []
+            return out
         data = bytes(self.assemblies["input"].data)
-        out = []
         for production in due:
             production.sequence += 1
-            out.append((encode_io_packet(production.connection_id, production.sequence, production.sequence, data),
-                        production.address))
+            if production.safety is None:
+                out.append((encode_io_packet(production.connection_id, production.sequence, production.sequence,
+                                             data), production.address))
+            else:
+                message = production.safety.produce(data, now)
+                out.append((encode_class0_packet(production.connection_id, production.sequence, message),
+                            production.address))
+                self.counters["safety_packets_produced"] += 1
             production.count += 1
             behind = now - production.due
             if behind >= 0:  # the next one is already due: skip to the first deadline after now
@@ -287,6 +403,24 @@ class ConnectionTable:
                 production.count += skipped
                 production.late += skipped
         self.counters["t_o_packets"] += len(out)
+        return out
+
+    @property
+    def _safety_pending(self) -> bool:
+        return any(type(c.safety) is SafetyConsumer and c.safety.tcoo_due is not None
+                   for c in self.connections.values())
+
+    def _pending_time_coordination(self, now: int) -> list[tuple[bytes, tuple[str, int]]]:
+        """Time coordination messages held back by the min multiplier and due by `now`."""
+        out = []
+        for connection in self.connections.values():
+            safety = connection.safety
+            if type(safety) is SafetyConsumer:
+                answer = safety.time_coordination(now)
+                if answer is not None:
+                    connection.t_o_sequence += 1
+                    out.append((encode_class0_packet(connection.t_o_id, connection.t_o_sequence, answer),
+                                connection.t_o_address))  # type: ignore[arg-type]
         return out
 
     # -- class-3 consumption -----------------------------------------------------------------------

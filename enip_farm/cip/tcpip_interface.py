@@ -7,7 +7,7 @@ attributes 1-13 from the device's own address and configuration.
 | 4 | physical link object | path to Ethernet Link instance 1 |
 | 5 | interface configuration | address, mask, gateway of the device; no name servers or domain; read-only |
 | 6 | host name (STRING) | settable: up to 64 letters, digits and inner hyphens (RFC 1123 label) |
-| 7 | safety network number | not a safety device: 0x14; six zero bytes in Get Attributes All |
+| 7 | safety network number | a CIP Safety target's SNN, read-only; else 0x14 (six zero bytes in Get Attributes All) |
 | 8 | TTL value (USINT) | settable 1-255, default 1 |
 | 9 | multicast configuration | the device's T->O group: allocation 0 (CIP algorithm) or 1 (configured); read-only |
 | 10 | SelectAcd (BOOL) | settable 0/1, default 0 (stored; the farm runs no address conflict detection) |
@@ -101,7 +101,7 @@ class TcpIpInterfaceObject(CipClass):
 
     def __init__(self, *, address: str, netmask: str, gateway: str, host_name: str,
                  inactivity_timeout_s: int = 120, multicast_group: str = "0.0.0.0",
-                 multicast_configured: bool = False) -> None:
+                 multicast_configured: bool = False, safety_network_number: bytes | None = None) -> None:
         super().__init__()
         self._out_of_box = TcpIpSettings(host_name, inactivity_timeout_s)
         self.settings = self._out_of_box.copy()
@@ -111,6 +111,8 @@ class TcpIpInterfaceObject(CipClass):
         )
         multicast = _MCAST_CONFIG.pack(ALLOC_CONFIGURED if multicast_configured else ALLOC_ALGORITHM, 0, 1,
                                        int.from_bytes(socket.inet_aton(multicast_group), "big"))
+        if safety_network_number is not None and len(safety_network_number) != len(_NO_SAFETY_NETWORK_NUMBER):
+            raise ValueError("a safety network number has 6 bytes")
         self.instances[1] = CipInstance(
             {
                 1: udint(_STATUS_VALID),
@@ -131,6 +133,8 @@ class TcpIpInterfaceObject(CipClass):
             all_ids=tuple(range(1, 14)),
             all_defaults={7: _NO_SAFETY_NETWORK_NUMBER},
         )
+        if safety_network_number is not None:
+            self.instances[1].attributes[7] = constant(safety_network_number)
 
     @property
     def inactivity_timeout_s(self) -> int:

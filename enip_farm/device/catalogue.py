@@ -65,6 +65,20 @@ class AssemblySizes(_Strict):
     configuration: int = Field(0, ge=0, le=MAX_ASSEMBLY_SIZE)
 
 
+class SafetyDefaults(_Strict):
+    """A CIP Safety target (Vol. 5): its safety network number and configuration signature, and
+    the null connection point of its SafetyOpens. The model's `assemblies` are its safety
+    assemblies: output = the safe outputs a server connection consumes, input = the safe inputs a
+    client connection produces."""
+
+    snn: str = Field(pattern=r"^[0-9A-Fa-f]{12}$", description="safety network number, 6 bytes hex as on the wire")
+    scid: str = Field("0" * 20, pattern=r"^[0-9A-Fa-f]{20}$",
+                      description="SCCRC + SCTS, 10 bytes hex as on the wire; zeros: none held")
+    null_point: int = Field(0, ge=0, le=0xFFFF, description="the connection point a server does not produce "
+                            "and a client does not consume")
+    max_connections: int = Field(8, ge=1, le=64)
+
+
 class ReplayEntry(_Strict):
     """A request the object model does not implement, and the reply a capture showed for it;
     matched on service, path and request data exactly (hex)."""
@@ -94,6 +108,7 @@ class Model(_Strict):
                                     "listed as unverified")
     unverified: tuple[str, ...] = ()
     replay: tuple[ReplayEntry, ...] = ()
+    safety: SafetyDefaults | None = Field(None, description="a CIP Safety target (safety I/O over CIP Safety only)")
 
     @model_validator(mode="before")
     @classmethod

@@ -33,6 +33,9 @@ from enip_farm.cip.ethernet_link import EthernetLinkObject, InterfaceCounters
 from enip_farm.cip.identity import RESET_OUT_OF_BOX, STATE_OPERATIONAL, STATE_SELF_TESTING, IdentityObject
 from enip_farm.cip.message_router import Handled, MessageRouter
 from enip_farm.cip.object import ReplyItems
+from enip_farm.cip.safety.admission import SafetyPolicy
+from enip_farm.cip.safety.objects import SafetySupervisor, SafetyValidatorObject
+from enip_farm.cip.safety.segment import Unid
 from enip_farm.cip.tcpip_interface import TcpIpInterfaceObject
 from enip_farm.device.events import Event, EventLog, ImageChange
 from enip_farm.device.faults import DeviceFaults
@@ -68,6 +71,18 @@ Observer = Callable[[Event], None]
 SendDatagram = Callable[[bytes, tuple[str, int]], None]
 
 
+def _safety_policy(profile: DeviceProfile) -> SafetyPolicy | None:
+    safety, output, inputs = profile.safety, profile.assembly("output"), profile.assembly("input")
+    if safety is None or output is None or inputs is None:
+        return None
+    configuration = profile.assembly("configuration")
+    return SafetyPolicy(
+        vendor_id=profile.vendor_id, serial_number=profile.serial_number, tunid=Unid(safety.snn, safety.node_address),
+        scid=safety.scid, output_point=output.instance_id, input_point=inputs.instance_id,
+        configuration_point=configuration.instance_id if configuration else safety.null_point,
+        null_point=safety.null_point, max_connections=safety.max_connections)
+
+
 def _policy(profile: DeviceProfile) -> ConnectionPolicy:
     implicit = profile.implicit
     return ConnectionPolicy(
@@ -77,7 +92,7 @@ def _policy(profile: DeviceProfile) -> ConnectionPolicy:
         outputs_off_on_idle=implicit.idle_state == "off", outputs_off_on_fault=implicit.fault_state == "off",
         first_watchdog_ns=round(implicit.first_watchdog_s * 1e9),
         input_only_point=profile.input_only_point, listen_only_point=profile.listen_only_point,
-        multicast_group=profile.multicast_group,
+        multicast_group=profile.multicast_group, safety=_safety_policy(profile),
     )
 
 
@@ -107,7 +122,8 @@ class Device:
                                            host_name=profile.host_name,
                                            inactivity_timeout_s=profile.encapsulation_inactivity_timeout_s,
                                            multicast_group=profile.multicast_group,
-                                           multicast_configured=profile.multicast_configured)
+                                           multicast_configured=profile.multicast_configured,
+                                           safety_network_number=profile.safety.snn if profile.safety else None)
         self.link = EthernetLinkObject(mac=profile.mac)
         #: Interface counters (Ethernet Link attribute 4): the event loop's sockets (TCP and UDP
         #: 44818) count into `traffic`, the cyclic I/O thread's (UDP 2222) into `io_traffic`.
@@ -134,6 +150,12 @@ class Device:
             self.link,
         ):
             self.router.register(obj)
+        safety = self.table.policy.safety
+        if safety is not None:
+            def open_connections() -> list[Connection]:
+                return list(self.table.connections.values())
+            self.router.register(SafetySupervisor(safety, open_connections))
+            self.router.register(SafetyValidatorObject(open_connections, lambda: self.counters["safety_faulted"]))
         service = ServiceItem(PROTOCOL_VERSION, CAPABILITY_TCP | CAPABILITY_UDP_CLASS_0_1, "Communications")
         self._list_services = encode_items([(ItemType.LIST_SERVICES, encode_service_item(service))])
         self._output = self.assemblies.get("output")
@@ -388,8 +410,9 @@ class Device:
 
     # -- class-1 I/O (the cyclic I/O thread) --------------------------------------------------------
 
-    def receive_io(self, data: bytes, source: tuple[str, int], now: int) -> bool:
-        """An O->T datagram from `source` (host, port), received at `now`: True if a connection took it."""
+    def receive_io(self, data: bytes, source: tuple[str, int], now: int, send: SendDatagram | None = None) -> bool:
+        """An O->T datagram from `source` (host, port), received at `now`: True if a connection took it.
+        What must answer it at once (CIP Safety time coordination) goes out through `send`."""
         if self.faults.io_stopped:
             self.counters["o_t_dropped_io_stopped"] += 1
             return False
@@ -400,6 +423,10 @@ class Device:
         with self.lock:  # O->T changes the outputs only: the inputs need no snapshot
             old = bytes(output.data) if output is not None else b""
             taken = table.receive_datagram(data, source[0], now, source[1])
+            if table.has_replies:
+                for packet, address in table.pop_replies():
+                    if send is not None:
+                        send(packet, address)
             connections = table.pop_events() if table.has_events else ()
             changed = output is not None and output.data != old
             new = bytes(output.data) if changed else old

@@ -35,6 +35,18 @@ class ModuleSlot:
 
 
 @dataclass(frozen=True)
+class SafetyProfile:
+    """A CIP Safety target's identity: TUNID (safety network number + node address), SCID, and the
+    null connection point of its SafetyOpens."""
+
+    snn: bytes
+    node_address: int
+    scid: bytes
+    null_point: int
+    max_connections: int
+
+
+@dataclass(frozen=True)
 class DeviceProfile:
     name: str
     address: str
@@ -64,6 +76,7 @@ class DeviceProfile:
     reset_time_s: float = 1.0  # Identity Reset: how long the device does not answer
     multicast_configured: bool = False  # the multicast group comes from the configuration
     signals: tuple[NamedSignal, ...] = ()  # named signals (EIO_SIGNAL), beside DI1.., DO1..
+    safety: SafetyProfile | None = None  # a CIP Safety target: its assemblies are safety assemblies
 
     def assembly(self, role: str) -> AssemblySpec | None:
         return next((a for a in self.assemblies if a.role == role), None)
@@ -101,6 +114,7 @@ def resolve(config: DeviceConfig, catalogue: Catalogue) -> DeviceProfile:
     overridden = {name for name, value in identity.model_dump().items() if value is not None}
     overridden |= {f"assemblies.{name}" for name, value in config.assemblies.model_dump().items()
                    if value is not None}
+    overridden |= {f"safety.{name}" for name, value in config.safety.model_dump().items() if value is not None}
     unverified = [f"{config.model}.{item}" for item in model.unverified
                   if item.removeprefix("identity.") not in overridden and item not in overridden]
 
@@ -126,11 +140,20 @@ def resolve(config: DeviceConfig, catalogue: Catalogue) -> DeviceProfile:
             if instance_id is None:
                 continue
             size = getattr(overrides, f"{role}_size")
-            settable = role != "input" or config.writable_inputs
+            # a safety target's safe outputs are written by its safety connection only
+            settable = (role != "input" or config.writable_inputs) and not (model.safety and role == "output")
             assemblies.append(AssemblySpec(role, instance_id, sizes[role] if size is None else size, settable))
 
     address = str(config.address)
     raw = _address_bytes(address)
+    safety = None
+    if model.safety is not None:
+        own = config.safety
+        safety = SafetyProfile(
+            snn=bytes.fromhex(own.snn or model.safety.snn),
+            node_address=own.node_address if own.node_address is not None else int(ipaddress.IPv4Address(address)),
+            scid=bytes.fromhex(own.scid or model.safety.scid), null_point=model.safety.null_point,
+            max_connections=model.safety.max_connections)
     mac = bytes.fromhex(config.mac.replace(":", "").replace("-", "")) if config.mac else b"\x02\x00" + raw
     return DeviceProfile(
         name=config.name,
@@ -163,4 +186,5 @@ def resolve(config: DeviceConfig, catalogue: Catalogue) -> DeviceProfile:
         routing=model.effective_routing,
         reset_time_s=config.reset_time_s,
         multicast_configured=config.implicit.multicast_group is not None,
+        safety=safety,
     )

@@ -176,6 +176,10 @@ def write_eds(profile: DeviceProfile, created: datetime.datetime) -> str:
     if output is None or inputs is None:
         lines += ["", "$ No assemblies: identity and explicit messaging only (no I/O connections)."]
         return "\n".join(lines) + "\n"
+    if profile.safety is not None:
+        lines += ["", "$ A CIP Safety target: its safe I/O travels over CIP Safety connections only (no class-1",
+                  "$ I/O connections); this file does not describe them."]
+        return "\n".join(lines) + "\n"
 
     params = _Params()
     default_rpi = min(max(10_000, implicit.rpi_min_us), implicit.rpi_max_us)

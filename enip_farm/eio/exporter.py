@@ -56,7 +56,8 @@ def device_entry(device: DeviceConfig, profile: DeviceProfile) -> list[tuple[str
         attributes.append(("Label", extra.pop("Label")))
     attributes += [("Address", profile.address), ("VendorId", profile.vendor_id),
                    ("ProductCode", profile.product_code), ("DeviceType", profile.device_type)]
-    roles = {spec.role: spec for spec in profile.assemblies}
+    # a CIP Safety target's assemblies are for safety connections, not for a class-1 scanner
+    roles = {spec.role: spec for spec in profile.assemblies} if profile.safety is None else {}
     for role, attribute in (("output", "OutputAssembly"), ("input", "InputAssembly"),
                             ("configuration", "ConfigurationAssembly")):
         if role in roles:

@@ -17,6 +17,7 @@ _FO_REPLY = struct.Struct("<IIHHIIIBB")
 _TRIAD = struct.Struct("<HHI")
 _FC_HEAD = struct.Struct("<BBHHI")
 _IO_HEADER = struct.Struct("<HHHIIHHH")  # count, 0x8002 item, conn id, seq, 0x00B1 item, seq count
+_CLASS_0_HEADER = struct.Struct("<HHHIIHH")  # the same without the sequence count (class 0)
 
 
 class ConnectionType(IntEnum):
@@ -180,6 +181,17 @@ class IoPacket(NamedTuple):
 def encode_io_packet(connection_id: int, sequence: int, sequence_count: int, data: bytes) -> bytes:
     return _IO_HEADER.pack(2, ItemType.SEQUENCED_ADDRESS, 8, connection_id, sequence & 0xFFFFFFFF,
                            ItemType.CONNECTED_DATA, 2 + len(data), sequence_count & 0xFFFF) + data
+
+
+def encode_class0_packet(connection_id: int, sequence: int, data: bytes) -> bytes:
+    """A class-0 packet (CIP Safety connections): no 16-bit sequence count before the data."""
+    return _CLASS_0_HEADER.pack(2, ItemType.SEQUENCED_ADDRESS, 8, connection_id, sequence & 0xFFFFFFFF,
+                                ItemType.CONNECTED_DATA, len(data)) + data
+
+
+def class0_data(packet: IoPacket) -> bytes:
+    """The connected data of a class-0 packet that `decode_io_packet` read as class 1."""
+    return packet.sequence_count.to_bytes(2, "little") + packet.data
 
 
 def decode_io_packet(datagram: bytes) -> IoPacket | None:

@@ -2,7 +2,8 @@
 
 Logical segments (class, instance, member, connection point, attribute; 8, 16 and 32-bit formats;
 the electronic key), port segments (with extended link addresses and extended port numbers),
-network segments and simple data segments. Decoding errors carry the CIP general status that the
+network segments (the safety network segment 0x50 kept whole, Vol. 5, 3-5.3) and simple data
+segments. Decoding errors carry the CIP general status that the
 message router returns for them: 0x04 (path segment error) or 0x26 (path size invalid).
 """
 
@@ -59,7 +60,13 @@ class DataSegment(NamedTuple):
     data: bytes
 
 
-Segment = LogicalSegment | ElectronicKey | PortSegment | NetworkSegment | DataSegment
+class SafetyNetworkSegment(NamedTuple):
+    """The safety network segment (0x50, then its size in words), its bytes from the 0x50 on."""
+
+    raw: bytes
+
+
+Segment = LogicalSegment | ElectronicKey | PortSegment | NetworkSegment | DataSegment | SafetyNetworkSegment
 
 
 class PathError(ValueError):
@@ -88,6 +95,12 @@ def decode_epath(path: bytes) -> list[Segment]:
                 raise _segment_error("truncated network segment")
             segment = NetworkSegment(kind, path[offset + 1])
             offset += 2
+        elif kind == 0x50:
+            if offset + 2 > end or offset + 2 + 2 * path[offset + 1] > end:
+                raise _segment_error("truncated safety network segment")
+            stop = offset + 2 + 2 * path[offset + 1]
+            segment = SafetyNetworkSegment(path[offset:stop])
+            offset = stop
         elif kind == 0x80:
             if offset + 2 > end:
                 raise _segment_error("truncated data segment")

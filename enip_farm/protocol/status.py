@@ -49,9 +49,25 @@ class ExtendedStatus(IntEnum):
     INVALID_PRODUCING_PATH = 0x012B
     NULL_FORWARD_OPEN_NOT_SUPPORTED = 0x0132
     CONNECTION_TIMED_OUT = 0x0203
+    PARAMETER_ERROR = 0x0205  # parameter error in a SafetyOpen (Vol. 5)
     INVALID_PORT = 0x0311
     INVALID_LINK_ADDRESS = 0x0312
     INVALID_SEGMENT = 0x0315
+    MISCELLANEOUS = 0x031C  # no other extended status applies
+    # CIP Safety (Vol. 5, table 3-5.33 extended): refusals of a SafetyOpen
+    INVALID_SAFETY_CONNECTION_SIZE = 0x0802
+    INVALID_SAFETY_FORMAT = 0x0803
+    INVALID_TIME_CORRECTION_PARAMETERS = 0x0804
+    INVALID_PING_INTERVAL_EPI_MULTIPLIER = 0x0805
+    INVALID_TIME_COORD_MSG_MIN_MULTIPLIER = 0x0806
+    INVALID_NETWORK_TIME_EXPECTATION_MULTIPLIER = 0x0807
+    INVALID_SAFETY_TIMEOUT_MULTIPLIER = 0x0808
+    INVALID_MAX_CONSUMER_NUMBER = 0x0809
+    INVALID_CPCRC = 0x080A
+    INVALID_TIME_CORRECTION_CONNECTION_ID = 0x080B
+    SCID_MISMATCH = 0x080C
+    TUNID_NOT_SET = 0x080D
+    TUNID_MISMATCH = 0x080E
 
 
 #: General status in words (Vol. 1, appendix B-1), for logs and messages.
@@ -120,9 +136,24 @@ EXTENDED_STATUS_TEXT: dict[int, str] = {
     0x012B: "invalid producing application path",
     0x0132: "null Forward Open not supported",
     0x0203: "connection timed out",
+    0x0205: "parameter error in a SafetyOpen",
     0x0311: "invalid port in the route path",
     0x0312: "invalid link address in the route path",
     0x0315: "invalid segment in the connection path",
+    0x031C: "miscellaneous",
+    0x0802: "invalid safety connection size",
+    0x0803: "invalid safety connection format",
+    0x0804: "invalid time correction connection parameters",
+    0x0805: "invalid ping interval EPI multiplier",
+    0x0806: "invalid time coordination message min multiplier",
+    0x0807: "invalid network time expectation multiplier",
+    0x0808: "invalid timeout multiplier",
+    0x0809: "invalid max consumer number",
+    0x080A: "invalid CPCRC",
+    0x080B: "time correction connection id invalid",
+    0x080C: "SCID mismatch",
+    0x080D: "TUNID not set",
+    0x080E: "TUNID mismatch",
 }
 
 

@@ -152,7 +152,7 @@ class DeviceIo:
 
     def read(self) -> None:
         """In the I/O thread: hand the datagrams waiting on this device's socket to the device."""
-        recvfrom, receive = self.sock.recvfrom, self.device.receive_io
+        recvfrom, receive, send = self.sock.recvfrom, self.device.receive_io, self.send
         traffic = self.device.io_traffic
         address = (self.device.profile.address, IO_PORT)
         for _ in range(_READS_PER_WAKE):
@@ -168,7 +168,7 @@ class DeviceIo:
             recorder = self.device.recorder
             if recorder is not None:
                 recorder.udp(addr, address, data)
-            if not receive(data, addr, now):
+            if not receive(data, addr, now, send):
                 traffic.discarded()
 
     def service(self, now: int) -> int | None:

@@ -1,0 +1,234 @@
+"""Admission of a SafetyOpen: a Forward Open whose connection path carries a safety network
+segment (CIP Networks Library Vol. 5, 3-5.3 and 3-5.4; the order of checks and the extended
+statuses are those of table 3-5.33 of Vol. 1 extended by Vol. 5, as the HMS CIP Safety target
+stack applies them): CPCRC, TUNID, duplicate, electronic key, connection parameters (transport,
+network parameters, sizes, RPIs, safety parameters), application paths, SCID, ownership, limits.
+
+Two single-cast connection types (transport type/trigger, class 0, application triggered):
+0xA0 "server": the target consumes safe outputs O->T and answers with time coordination T->O;
+0x20 "client": the target produces safe inputs T->O and consumes time coordination O->T.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Collection
+from dataclasses import dataclass
+from typing import NamedTuple
+
+from enip_farm.cip.connection import Connection, ConnectionKind
+from enip_farm.cip.safety.crc import Seeds
+from enip_farm.cip.safety.messages import TCOO_SIZE, data_length
+from enip_farm.cip.safety.segment import (
+    NOT_USED,
+    TIME_CORRECTION_NOT_USED,
+    SafetySegment,
+    SegmentError,
+    Unid,
+    compute_cpcrc,
+    decode_segment,
+)
+from enip_farm.cip.safety.validator import SafetyConsumer, SafetyProducer
+from enip_farm.protocol.connection import ConnectionType, ForwardOpenRequest, NetworkParameters, encode_forward_open
+from enip_farm.protocol.epath import ElectronicKey, LogicalSegment, LogicalType, SafetyNetworkSegment
+from enip_farm.protocol.status import ExtendedStatus as X
+
+SERVER, CLIENT = 0xA0, 0x20  # transport type/trigger of a safety connection (Vol. 5, 3-5.4)
+_HIGH, _SCHEDULED = 1, 2  # network connection priority of a safety connection
+_MAX_PIEM = 999
+_MAX_TCOO_MIN_MULTIPLIER = 7813  # 1 s in 128 us ticks
+_MAX_NTE_MULTIPLIER = 45313  # 5.8 s
+_MAX_CONNECTION_TIMEOUT_MULTIPLIER = 7
+_MAX_CONSUMERS_MULTICAST = 15
+_MIN_RPI_US, _MAX_RPI_BASE_US, _MAX_RPI_EXTENDED_US = 1_000, 100_000, 1_000_000
+_MAX_RPI_TCOO_US = 10_000_000
+_ASSEMBLY = 0x04
+SCID_SIZE = 10
+
+
+@dataclass(frozen=True)
+class SafetyPolicy:
+    """What a safety target is: its identity for the CRC seeds, its TUNID and SCID, its safety
+    assemblies (the same instances as its output and input images) and its limits."""
+
+    vendor_id: int
+    serial_number: int
+    tunid: Unid
+    scid: bytes  # SCCRC + SCTS; all zero: no configuration signature is held
+    output_point: int  # consumed by server connections (the safe outputs)
+    input_point: int  # produced by client connections (the safe inputs)
+    configuration_point: int
+    null_point: int  # the connection point a server does not produce / a client does not consume
+    max_connections: int = 8
+
+    @property
+    def tunid_set(self) -> bool:
+        return self.tunid.snn != b"\xff" * 6 and self.tunid.node_address != 0xFFFFFFFF
+
+
+class SafetyRefusal(NamedTuple):
+    extended: int
+    expected_size: int | None = None
+
+
+class SafetyOpen(NamedTuple):
+    connection: Connection
+    application_reply: bytes
+
+
+def safety_segment_of(segments: list) -> SafetyNetworkSegment | None:
+    return next((s for s in segments if isinstance(s, SafetyNetworkSegment)), None)
+
+
+def admit_safety(request: ForwardOpenRequest, segments: list, route_size: int, policy: SafetyPolicy,
+                 check_key: Callable[[ElectronicKey], None], sizes: tuple[int, int], originator_host: str,
+                 t_o_address: tuple[str, int], now: int, connections: Collection[Connection],
+                 new_id: Callable[[], int], instance_id: Callable[[], int], first_watchdog_ns: int,
+                 initial_rc_offset: int) -> SafetyOpen | SafetyRefusal:
+    """`segments`: the connection path after the route to this device (`route_size` bytes);
+    `sizes`: the output and input images' sizes; `check_key` raises the admission's refusal for a
+    key mismatch."""
+    raw = safety_segment_of(segments)
+    assert raw is not None
+    application = segments[:segments.index(raw)]
+    try:
+        segment = decode_segment(raw.raw)
+    except SegmentError as error:
+        return SafetyRefusal(X.INVALID_SAFETY_FORMAT if error.format_error else X.INVALID_SEGMENT)
+    if segments[-1] is not raw:
+        return SafetyRefusal(X.INVALID_SEGMENT)  # nothing may follow the safety segment
+    application_path = request.connection_path[route_size:len(request.connection_path) - len(raw.raw)]
+    fixed = encode_forward_open(request._replace(connection_path=b""))
+    fixed = fixed[:-1] + bytes(((len(application_path) + len(raw.raw)) // 2,))
+    if compute_cpcrc(fixed, application_path, raw.raw) != segment.cpcrc:
+        return SafetyRefusal(X.INVALID_CPCRC)
+    if not policy.tunid_set:
+        return SafetyRefusal(X.TUNID_NOT_SET)
+    if segment.tunid != policy.tunid:
+        return SafetyRefusal(X.TUNID_MISMATCH)
+    if any(c.triad == request.triad for c in connections):
+        return SafetyRefusal(X.CONNECTION_IN_USE)
+    if application and isinstance(application[0], ElectronicKey):
+        check_key(application.pop(0))
+    refusal = _parameters(request, segment, sizes)
+    if refusal is not None:
+        return refusal
+    server = request.transport_type_trigger == SERVER
+    points = _points(application)
+    if points is None:
+        return SafetyRefusal(X.INVALID_SEGMENT)
+    configuration, consuming, producing = points
+    if configuration not in (policy.configuration_point, policy.null_point):
+        return SafetyRefusal(X.INVALID_CONFIGURATION_PATH)
+    if server:
+        if producing != policy.null_point:
+            return SafetyRefusal(X.INVALID_PRODUCING_PATH)
+        if consuming != policy.output_point:
+            return SafetyRefusal(X.INVALID_CONSUMING_PATH)
+    else:
+        if consuming != policy.null_point:
+            return SafetyRefusal(X.INVALID_CONSUMING_PATH)
+        if producing != policy.input_point:
+            return SafetyRefusal(X.INVALID_PRODUCING_PATH)
+    if any(segment.scid) and segment.scid != policy.scid:
+        return SafetyRefusal(X.SCID_MISMATCH)
+    safety = [c for c in connections if c.safety is not None]
+    if server and any(c.kind is ConnectionKind.SAFETY_OUTPUT for c in safety):
+        return SafetyRefusal(X.OWNERSHIP_CONFLICT)  # one owner of the safe outputs
+    if len(safety) >= policy.max_connections:
+        return SafetyRefusal(X.OUT_OF_CONNECTIONS)
+
+    instance = instance_id()
+    target = Seeds.of(policy.vendor_id, policy.serial_number, instance)
+    originator = Seeds.of(request.triad.originator_vendor_id, request.triad.originator_serial,
+                          request.triad.connection_serial)
+    if server:
+        validator: SafetyConsumer | SafetyProducer = SafetyConsumer(
+            segment, sizes[0], pid=originator, cid=target, now=now, first_watchdog_ns=first_watchdog_ns,
+            initial_rc_offset=initial_rc_offset)
+        initial = (validator.initial_timestamp, validator.initial_rollover)
+    else:
+        validator = SafetyProducer(segment, sizes[1], pid=target, cid=originator, epi_ns=request.t_o_rpi * 1000,
+                                   now=now, first_watchdog_ns=first_watchdog_ns)
+        initial = (segment.initial_timestamp, segment.initial_rollover_value)
+    # application reply (Vol. 5, 3-5.4.2): consumer number (0xFFFF: single-cast), target vendor id,
+    # serial number and connection serial number (the Safety Validator instance); extended format:
+    # initial timestamp and initial rollover value
+    reply = (0xFFFF).to_bytes(2, "little") + policy.vendor_id.to_bytes(2, "little") + \
+        policy.serial_number.to_bytes(4, "little") + instance.to_bytes(2, "little")
+    if segment.extended:
+        reply += initial[0].to_bytes(2, "little") + initial[1].to_bytes(2, "little")
+    connection = Connection(
+        kind=ConnectionKind.SAFETY_OUTPUT if server else ConnectionKind.SAFETY_INPUT, triad=request.triad,
+        o_t_id=new_id(), t_o_id=request.t_o_connection_id, o_t_rpi=request.o_t_rpi, t_o_rpi=request.t_o_rpi,
+        timeout_multiplier=request.timeout_multiplier, originator_host=originator_host, opened_at=now,
+        first_watchdog_ns=first_watchdog_ns, t_o_address=t_o_address, o_t_point=consuming, t_o_point=producing,
+        o_t_run_idle_header=False, safety=validator, instance=instance, ounid=segment.ounid,
+    )
+    return SafetyOpen(connection, reply)
+
+
+def _points(application: list) -> tuple[int, int, int] | None:
+    if not application or application[0] != LogicalSegment(LogicalType.CLASS_ID, _ASSEMBLY):
+        return None
+    values = []
+    for segment in application[1:]:
+        if not isinstance(segment, LogicalSegment) or segment.type not in (
+                LogicalType.INSTANCE_ID, LogicalType.CONNECTION_POINT):
+            return None
+        values.append(segment.value)
+    return (values[0], values[1], values[2]) if len(values) == 3 else None
+
+
+def _network_ok(p: NetworkParameters, size: int | None) -> bool:
+    """Point to point, high or scheduled priority, fixed size (Vol. 5, 3-5.4.1)."""
+    return (p.connection_type == ConnectionType.POINT_TO_POINT and p.priority in (_HIGH, _SCHEDULED)
+            and not p.variable and not p.redundant_owner and (size is None or p.size == size))
+
+
+def _parameters(request: ForwardOpenRequest, segment: SafetySegment, sizes: tuple[int, int]) -> SafetyRefusal | None:
+    """Connection and safety parameters (Vol. 5, 3-5.4.1), in the order a target checks them."""
+    if request.timeout_multiplier > _MAX_CONNECTION_TIMEOUT_MULTIPLIER:
+        return SafetyRefusal(X.INVALID_SAFETY_TIMEOUT_MULTIPLIER)
+    transport = request.transport_type_trigger
+    if transport not in (SERVER, CLIENT):
+        return SafetyRefusal(X.TRANSPORT_TRIGGER_NOT_SUPPORTED)
+    server = transport == SERVER
+    data, tcoo = (request.o_t_parameters, request.t_o_parameters) if server else (
+        request.t_o_parameters, request.o_t_parameters)
+    if not _network_ok(data, None) or not _network_ok(tcoo, TCOO_SIZE):
+        return SafetyRefusal(X.INVALID_CONNECTION_TYPE)
+    if segment.time_correction_parameters != 0:
+        return SafetyRefusal(X.INVALID_TIME_CORRECTION_PARAMETERS)
+    length = data_length(data.size)
+    if length is None:
+        return SafetyRefusal(X.INVALID_SAFETY_CONNECTION_SIZE)
+    expected = sizes[0] if server else sizes[1]
+    if length != expected:
+        wire = expected + 6 if expected <= 2 else 2 * expected + 8
+        return SafetyRefusal(X.INVALID_O_T_SIZE if server else X.INVALID_T_O_SIZE, wire)
+    data_rpi, tcoo_rpi = (request.o_t_rpi, request.t_o_rpi) if server else (request.t_o_rpi, request.o_t_rpi)
+    max_rpi = _MAX_RPI_EXTENDED_US if segment.extended else _MAX_RPI_BASE_US
+    if not (_MIN_RPI_US <= data_rpi <= max_rpi and _MIN_RPI_US <= tcoo_rpi <= _MAX_RPI_TCOO_US):
+        return SafetyRefusal(X.RPI_NOT_SUPPORTED)
+    if segment.time_correction_epi != 0:
+        return SafetyRefusal(X.MISCELLANEOUS)
+    piem_min = min(segment.timeout_multiplier, 4) * segment.max_consumer_number + _MAX_CONSUMERS_MULTICAST
+    if not piem_min <= segment.ping_interval_epi_multiplier <= _MAX_PIEM or (
+            data_rpi * segment.ping_interval_epi_multiplier > 100_000_000):
+        return SafetyRefusal(X.INVALID_PING_INTERVAL_EPI_MULTIPLIER)
+    if segment.time_coord_msg_min_multiplier > _MAX_TCOO_MIN_MULTIPLIER:
+        return SafetyRefusal(X.INVALID_TIME_COORD_MSG_MIN_MULTIPLIER)
+    if not 1 <= segment.network_time_expectation_multiplier <= _MAX_NTE_MULTIPLIER:
+        return SafetyRefusal(X.INVALID_NETWORK_TIME_EXPECTATION_MULTIPLIER)
+    if segment.timeout_multiplier < 1 or (not segment.extended and segment.timeout_multiplier > 4):
+        return SafetyRefusal(X.INVALID_SAFETY_TIMEOUT_MULTIPLIER)
+    if segment.max_consumer_number != 1:
+        return SafetyRefusal(X.INVALID_MAX_CONSUMER_NUMBER)
+    if segment.time_correction_connection_id != TIME_CORRECTION_NOT_USED:
+        return SafetyRefusal(X.INVALID_TIME_CORRECTION_CONNECTION_ID)
+    if segment.extended:
+        if segment.max_fault_number > 255:
+            return SafetyRefusal(X.MISCELLANEOUS)
+        if server and (segment.initial_timestamp, segment.initial_rollover_value) != (NOT_USED, NOT_USED):
+            return SafetyRefusal(X.PARAMETER_ERROR)
+    return None

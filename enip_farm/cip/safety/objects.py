@@ -1,0 +1,71 @@
+"""The Safety Supervisor (class 0x39) and Safety Validator (class 0x3A) objects of a safety target
+(CIP Networks Library Vol. 5, chapter 5; attribute numbers as Wireshark's CIP Safety dissector
+names them). The supervisor holds the device's TUNID and SCID and the configuration owner's UNID
+(the OUNID of the safety connections open); each open safety connection is one validator instance
+(its instance id is the target connection serial number of the SafetyOpen reply)."""
+
+from __future__ import annotations
+
+import struct
+from collections.abc import Callable, Iterable
+
+from enip_farm.cip.connection import Connection
+from enip_farm.cip.object import Attribute, CipClass, CipInstance, constant
+from enip_farm.cip.safety.admission import SafetyPolicy
+from enip_farm.cip.safety.segment import Unid
+from enip_farm.cip.safety.validator import SafetyConsumer
+
+_NO_UNID = bytes(10)
+#: Safety Validator state (attribute 1): 0 unallocated, 1 initializing, 2 established, 3 failed.
+_INITIALIZING, _ESTABLISHED = 1, 2
+#: Safety Validator type (attribute 2): bit 7 consumer (1) / producer (0), bits 0-6 1 = single-cast.
+_CONSUMER, _SINGLE_CAST = 0x80, 0x01
+
+
+class SafetySupervisor(CipClass):
+    class_id = 0x39
+    revision = 1
+
+    def __init__(self, policy: SafetyPolicy, connections: Callable[[], Iterable[Connection]]) -> None:
+        super().__init__()
+
+        def owner() -> bytes:
+            ounid: Unid | None = next((c.ounid for c in connections() if c.ounid is not None), None)
+            return ounid.encode() if ounid is not None else _NO_UNID
+
+        self.instances[1] = CipInstance({
+            25: Attribute(owner),  # Configuration UNID (CFUNID)
+            26: constant(policy.scid),  # Safety Configuration Identifier (SCID): SCCRC + SCTS
+            27: constant(policy.tunid.encode()),  # Target UNID (TUNID): SNN + node address
+        })
+
+
+class SafetyValidatorObject(CipClass):
+    class_id = 0x3A
+    revision = 1
+
+    def __init__(self, connections: Callable[[], Iterable[Connection]], fault_count: Callable[[], int]) -> None:
+        super().__init__()
+        self._connections = connections
+        self.class_instance.attributes[8] = Attribute(lambda: struct.pack("<H", fault_count() & 0xFFFF))
+
+    def _validators(self) -> dict[int, Connection]:
+        return {c.instance: c for c in self._connections() if c.safety is not None}
+
+    def instance(self, instance_id: int) -> CipInstance | None:
+        if instance_id == 0:
+            self.instances = {i: CipInstance({}) for i in self._validators()}  # class attributes 2, 3
+            return self.class_instance
+        connection = self._validators().get(instance_id)
+        if connection is None:
+            return None
+        safety = connection.safety
+        consumer = type(safety) is SafetyConsumer
+        state = _ESTABLISHED if (safety.init_complete if consumer else safety.consumer_active) else _INITIALIZING  # type: ignore[union-attr]
+        attributes = {
+            1: constant(bytes((state,))),
+            2: constant(bytes(((_CONSUMER if consumer else 0) | _SINGLE_CAST,))),
+        }
+        if consumer:
+            attributes[12] = constant(struct.pack("<H", safety.max_data_age))  # type: ignore[union-attr]
+        return CipInstance(attributes)

@@ -1,0 +1,63 @@
+"""The DSQC1042 as the farm builds it: a CIP Safety target whose 12 safe inputs and 4 safe outputs
+are signals like any (Python and HTTP APIs), whose safe outputs no explicit write can set, whose
+Safety Supervisor answers its TUNID, and whose placeholders are listed as unverified."""
+
+from __future__ import annotations
+
+import ipaddress
+import struct
+
+import httpx
+from pycomm3 import CIPDriver, Services
+
+from enip_farm.config import DeviceConfig
+from enip_farm.device.catalogue import shipped_catalogue
+from enip_farm.device.profile import resolve
+from enip_farm.device.signals import SignalMap
+
+
+def test_dsqc1042_profile_signals_and_placeholders() -> None:
+    profile = resolve(DeviceConfig(name="s1", address="127.0.30.1", model="DSQC1042"), shipped_catalogue())
+    assert (profile.input_size, profile.output_size) == (2, 1)
+    assert SignalMap(profile).names() == {"DI": 12, "DO": 4, "AI": 0, "AO": 0}
+    output = profile.assembly("output")
+    assert output is not None and not output.settable  # the safety connection writes the safe outputs
+    assert profile.safety is not None and profile.safety.node_address == 0x7F001E01
+    assert {"DSQC1042.safety.snn", "DSQC1042.safety.scid", "DSQC1042.safety.null_point",
+            "DSQC1042.assemblies.output", "DSQC1042.assemblies.input"} <= set(profile.unverified)
+    own = resolve(DeviceConfig(name="s1", address="127.0.30.1", model="DSQC1042",
+                               safety={"snn": "0102030405a6", "scid": "11" * 10}), shipped_catalogue())
+    assert own.safety is not None and own.safety.snn == bytes.fromhex("0102030405a6")
+    assert "DSQC1042.safety.snn" not in own.unverified and "DSQC1042.safety.scid" not in own.unverified
+    plain = resolve(DeviceConfig(name="io", address="127.0.30.2", model="DSQC1030"), shipped_catalogue())
+    assert plain.safety is None
+
+
+def test_safe_signals_through_the_python_and_http_apis(enip_farm) -> None:
+    farm = enip_farm(name="s1", model="DSQC1042", http=True)
+    handle = farm["s1"]
+    url = f"http://127.0.0.1:{farm.http.port}/devices/s1/io"
+    handle.set(DI3=1)
+    body = httpx.put(url, json={"signals": {"DI12": 1}}).json()
+    assert body["signals"]["DI"] == [0, 0, 1, 0, 0, 0, 0, 0, 0, 0, 0, 1] and body["signals"]["DO"] == [0, 0, 0, 0]
+    assert handle.inputs == b"\x04\x08" and handle.get("DI12") == 1
+    assert httpx.put(url, json={"signals": {"DI13": 1}}).status_code == 422  # 12 safe inputs only
+    assert {row["name"] for row in handle.signal_table()} >= {"DI1", "DI12", "DO1", "DO4"}
+
+
+def test_explicit_messaging_on_a_safety_target(enip_farm) -> None:
+    farm = enip_farm(name="s1", model="DSQC1042")
+    address = farm["s1"].address
+    with CIPDriver(address) as plc:
+        write = plc.generic_message(service=Services.set_attribute_single, class_code=4, instance=100, attribute=3,
+                                    request_data=b"\x0f", connected=False, route_path=False)
+        tunid = plc.generic_message(service=Services.get_attribute_single, class_code=0x39, instance=1,
+                                    attribute=27, connected=False, route_path=False)
+        scid = plc.generic_message(service=Services.get_attribute_single, class_code=0x39, instance=1,
+                                   attribute=26, connected=False, route_path=False)
+        validators = plc.generic_message(service=Services.get_attribute_single, class_code=0x3A, instance=1,
+                                         attribute=1, connected=False, route_path=False)
+    assert "not settable" in str(write.error).lower() and farm["s1"].outputs == b"\x00"
+    assert tunid.value == bytes.fromhex("000000000001") + struct.pack("<I", int(ipaddress.IPv4Address(address)))
+    assert scid.value == bytes(10)
+    assert validators.error  # no safety connection open: no Safety Validator instance
