@@ -137,7 +137,10 @@ def test_session_send_rr_data_any_cip(profile: DeviceProfile, requests: list[tup
         body = struct.pack("<IHHHHHH", 0, 0, 2, 0, 0, 0xB2, len(message)) + message
         stream += HEADER.pack(SEND_RR_DATA, len(body), FIRST_HANDLE, 0, context, 0) + body
     mirror = feed_session(profile, split(stream, cuts))
-    assert mirror.replies == 1 + len(requests)
+    if mirror.restarted:  # an Identity Reset among them: the mirror checked that nothing was answered after it
+        assert 2 <= mirror.replies <= 1 + len(requests)
+    else:
+        assert mirror.replies == 1 + len(requests)
 
 
 @budget(300)
