@@ -91,14 +91,14 @@ def test_every_example_says_what_becomes_of_it() -> None:
 
 def test_the_quick_start_keeps_its_two_commands_and_ci_runs_the_test_command() -> None:
     (quick,) = [b for b in BLOCKS if b.language == "sh" and "enip-farm serve" in b.text][:1]
-    commands = [line.split("#")[0].strip() for line in quick.text.splitlines()]
-    assert commands[0].startswith("python3 -m venv .venv && . .venv/bin/activate")
-    assert any(c.startswith('pip install ".[clients]" && enip-farm serve') for c in commands)
-    test_command = next(c for c in commands if "pytest" in c)
-    assert test_command == 'pip install -e ".[test]" && python -m pytest'
+    commands = [line.split("  #")[0].strip() for line in quick.text.splitlines()]
+    assert len(commands) == 2
+    venv = "python3 -m venv .venv && . .venv/bin/activate && "
+    assert commands[0] == venv + 'pip install ".[clients]" && enip-farm serve --http 8044'
+    assert commands[1] == venv + 'pip install -e ".[test]" && python -m pytest'
     ci = (ROOT / ".ci" / "run").read_text()
-    assert 'python3 -m pip install -e ".[test]" && python3 -m pytest' in ci  # the same command, python3's pip
-    assert "python3-venv" in ci  # Debian's venv module, for the quick start's first line
+    assert commands[1] in ci.splitlines()  # CI runs the README's test command as written
+    assert "python3-venv" in ci  # Debian's venv module, for both commands
 
 
 @pytest.mark.parametrize("block", _of("config"), ids=str)
@@ -234,15 +234,15 @@ def _system_python_dir() -> str:
 
 @pytest.mark.system
 def test_quick_start_in_a_fresh_venv(tmp_path: Path) -> None:
-    """The quick start's first two lines, as written, in a copy of the tree: a venv of the machine's
+    """The quick start's first command, as written, in a copy of the tree: a venv of the machine's
     python3, `pip install ".[clients]"`, `enip-farm serve --http 8044` (in a namespace); then the
     pycomm3 example with the venv's own Python and `enip-farm io get io1`, nothing from this tree's
     path."""
     prefix = own_network_namespace()
     (quick,) = [b for b in BLOCKS if b.language == "sh" and "enip-farm serve" in b.text][:1]
-    venv_line, serve_line = [line.split("  #")[0].strip() for line in quick.text.splitlines()[:2]]
-    install, _, serve = serve_line.partition(" && ")
-    assert venv_line.startswith("python3 -m venv") and install.startswith("pip install") and serve.startswith(
+    first = quick.text.splitlines()[0].split("  #")[0].strip()
+    setup, _, serve = first.rpartition(" && ")  # the venv, its activation and the install; then serve
+    assert setup.startswith("python3 -m venv") and setup.endswith('pip install ".[clients]"') and serve.startswith(
         "enip-farm serve")
     tree = tmp_path / "enip-farm"
     files = subprocess.run(["git", "ls-files", "-z"], capture_output=True, text=True, cwd=ROOT, check=True,
@@ -254,7 +254,7 @@ def test_quick_start_in_a_fresh_venv(tmp_path: Path) -> None:
     env = {key: value for key, value in os.environ.items()
            if key not in ("PYTHONPATH", "VIRTUAL_ENV", "ENIP_FARM_API", "ENIP_FARM_TOKEN")}
     env["PATH"] = f"{_system_python_dir()}{os.pathsep}{env['PATH']}"
-    installed = subprocess.run(["bash", "-e", "-c", f"{venv_line} && {install}"], capture_output=True, text=True,
+    installed = subprocess.run(["bash", "-e", "-c", setup], capture_output=True, text=True,
                                cwd=tree, env=env, timeout=600)
     assert installed.returncode == 0, installed.stdout[-3000:] + installed.stderr[-3000:]
     process = _serve_default_cell(prefix, ["bash", "-c", f". .venv/bin/activate && exec {serve}"], env, tree,
