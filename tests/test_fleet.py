@@ -318,7 +318,7 @@ def test_two_hosts_serve_one_cell_by_shard_and_reach_each_others_devices(tmp_pat
             assert read_lines(farm.stdout, 1)[0].startswith("NAME")
         for host in hosts:
             health = run(host, str(ROOT / "docker" / "healthcheck.sh"))
-            assert health.returncode == 0 and f"{len(own[host])} devices accept" in health.stdout, health.stderr
+            assert health.returncode == 0 and f"{len(own[host])} devices listen" in health.stdout, health.stderr
         for host, other in (("a", "b"), ("b", "a")):  # each host probes the other's devices
             probe = run(host, *CLI, "probe", "--config", str(config), "--shard", shards[other],
                         "--timeout", str(STARTUP_S))
