@@ -234,7 +234,8 @@ class SessionMirror:
         self.buffer = b""
         self.handle = 0  # the session handle registered on this connection
         self.closed = False  # an UnregisterSession, an oversize header or an Identity Reset ended it
-        self.restarted = False  # a successful Identity Reset's reply was the connection's last
+        self.reset_frame: int | None = None  # index (from 0, among frames taken) of the frame whose
+        # successful Identity Reset restarted the device: its reply was the connection's last
         self.frames = 0  # complete frames (or oversize headers) taken
         self.replies = 0
         self.connections: dict[int, None] = {}  # O->T ids handed out in Forward Open replies, in order
@@ -353,7 +354,7 @@ class SessionMirror:
             expect(all(t in SOCKADDR_ITEMS and len(d) == 16 for t, d in items[2:]), "items beside the reply")
             general = check_cip_reply(items[1][1], request)
             self.cip_statuses[general] = self.cip_statuses.get(general, 0) + 1
-            self.closed = self.restarted = restarts_device(items[1][1])
+            self._restarts(items[1][1])
             if request[0] in (0x54, 0x5B) and general == 0:
                 cip = items[1][1]
                 reply_data = cip[4 + 2 * cip[3] :]
@@ -382,8 +383,14 @@ class SessionMirror:
         else:
             check_cip_reply(cip, request)
         self.last_connected[connection_id] = (sequence_count, cip)
-        self.closed = self.restarted = restarts_device(cip)
+        self._restarts(cip)
         return None
+
+    def _restarts(self, cip_reply: bytes) -> None:
+        """A successful Identity Reset (alone or in a Multiple Service Packet) ends the connection."""
+        if restarts_device(cip_reply):
+            self.closed = True
+            self.reset_frame = self.frames - 1
 
 
 # -- structure-aware generators --------------------------------------------------------------------------

@@ -188,9 +188,10 @@ def test_a_1khz_change_rate_is_coalesced_to_one_event_per_tick(enip_farm) -> Non
                 received.append(json.loads(line[6:]))
                 if "DI16" in received[-1]["signals"]:
                     break
-    ticks = (time.monotonic() - started) / hub.tick_s + 2  # call_later(tick_s) after each tick: no more than this
+    # coalesced: call_later(tick_s) after each tick, so no more events than ticks went by, however
+    # fast the changes came (about 1 kHz, 20 a tick: the bound holds whatever time.sleep really slept)
+    ticks = (time.monotonic() - started) / hub.tick_s + 2
     assert 2 <= len(received) <= ticks, (len(received), ticks, elapsed)
-    assert len(received) < changes / 5  # coalesced: at 1 kHz, 20 changes a tick
     assert sum(e["changes"] for e in received) <= changes + 1
     state = {"DI1": 0, "DI2": 0, "DI16": 0}
     for event in received:  # replayed from the start, the events reach the device's state

@@ -137,10 +137,12 @@ def test_session_send_rr_data_any_cip(profile: DeviceProfile, requests: list[tup
         body = struct.pack("<IHHHHHH", 0, 0, 2, 0, 0, 0xB2, len(message)) + message
         stream += HEADER.pack(SEND_RR_DATA, len(body), FIRST_HANDLE, 0, context, 0) + body
     mirror = feed_session(profile, split(stream, cuts))
-    if mirror.restarted:  # an Identity Reset among them: the mirror checked that nothing was answered after it
-        assert 2 <= mirror.replies <= 1 + len(requests)
-    else:
+    if mirror.reset_frame is None:  # every frame answered: RegisterSession and each request
         assert mirror.replies == 1 + len(requests)
+    else:  # an Identity Reset among the requests: answered up to it, nothing after (the mirror checks)
+        reset_index = mirror.reset_frame - 1  # frame 0 is the RegisterSession
+        assert 0 <= reset_index < len(requests)
+        assert mirror.replies == reset_index + 2
 
 
 @budget(300)
