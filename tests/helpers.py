@@ -1,5 +1,6 @@
-"""Test helpers: loopback address allocation, a raw client built on the project's own codec, and
-bounded reads of a subprocess's output (a test never blocks on a pipe without a deadline)."""
+"""Test helpers: loopback address allocation, a raw client built on the project's own codec,
+bounded reads of a subprocess's output (a test never blocks on a pipe without a deadline) and the
+one bounded wait for a condition."""
 
 from __future__ import annotations
 
@@ -10,7 +11,7 @@ import socket
 import subprocess
 import sys
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
 from typing import IO
@@ -32,6 +33,18 @@ ENIP_PORT = 44818
 ROOT = Path(__file__).resolve().parent.parent
 CLI = [sys.executable, "-m", "enip_farm"]  # the tree under test (conftest puts ROOT on PYTHONPATH)
 STARTUP_S = 60.0  # a subprocess's bound to print its table, generous for a loaded machine
+
+
+def wait_for(predicate: Callable[[], object], timeout: float = 10.0) -> bool:
+    """Poll `predicate` until it holds (True at once) or `timeout` seconds pass (its last answer, so
+    a condition that became true at the deadline still counts). Use as `assert wait_for(...), what`:
+    the timeout only bounds a failing test, a passing one waits no longer than the condition takes."""
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        if predicate():
+            return True
+        time.sleep(0.005)
+    return bool(predicate())
 
 
 def read_lines(stream: IO[str], count: int, timeout: float = STARTUP_S) -> list[str]:

@@ -34,8 +34,8 @@ from enip_farm.protocol.epath import encode_request_path
 from enip_farm.protocol.session import EncapsulationSession, MessageContext
 from enip_farm.pytest_plugin import AddressPool
 from enip_farm.server.limits import RateLimitedLog
-from tests.helpers import CLI, STARTUP_S, RawClient, read_lines, serving
-from tests.test_implicit import forward_close, forward_open, wait_for
+from tests.helpers import CLI, STARTUP_S, RawClient, read_lines, serving, wait_for
+from tests.test_implicit import forward_close, forward_open
 
 MS = 1_000_000
 SCANNER = "127.0.0.9"

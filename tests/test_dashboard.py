@@ -29,7 +29,7 @@ from enip_farm.device.catalogue import shipped_catalogue
 from enip_farm.device.events import Event, ImageChange
 from enip_farm.device.faults import FaultKind
 from enip_farm.device.signals import SignalMap
-from tests.helpers import CLI, ROOT, read_lines
+from tests.helpers import CLI, ROOT, read_lines, wait_for
 
 DEADLINE_S = 30.0  # generous: conditions end the waits as soon as they hold
 NAMED = [{"name": "diGripperClosed", "type": "DI", "device_map": "3"},
@@ -44,14 +44,6 @@ def _diff(**device: object) -> SignalDiff:
 
 def _change(device: str, role: str, old: str, new: str, at: float = 1.0) -> Event:
     return Event(at, at + 1000, device, "image changed", ImageChange(role, bytes.fromhex(old), bytes.fromhex(new)))
-
-
-def wait_until(condition, what: str, timeout: float = DEADLINE_S) -> None:
-    deadline = time.monotonic() + timeout
-    while not condition():
-        if time.monotonic() > deadline:
-            raise AssertionError(f"not within {timeout} s: {what}")
-        time.sleep(0.005)
 
 
 # -- signals by name (unit) -------------------------------------------------------------------------------
@@ -225,7 +217,7 @@ def test_state_shows_signals_connections_counters_and_faults(enip_farm) -> None:
         assert conn.sendFwdOpenReq(101, 100, 1, torpi=10, otrpi=10, multiplier=2,
                                    originator_udp_port=enip.originator_udp_port) == 0
         conn.produce()
-        wait_until(lambda: farm.devices["io"].counters["o_t_packets"] >= 3, "O->T packets")
+        assert wait_for(lambda: farm.devices["io"].counters["o_t_packets"] >= 3, timeout=DEADLINE_S), "O->T packets"
         io.inject("status", service=0x0E, status=0x08)
         (state,) = httpx.get(f"{base}/state", params={"device": "io"}).json()
         (connection,) = state["connections"]
@@ -299,7 +291,7 @@ def test_io_watch_streams_changes_and_ends_on_ctrl_c(enip_farm) -> None:
     watch = subprocess.Popen([*CLI, "io", "watch", "io", "--api", f"http://127.0.0.1:{farm.http.port}"],
                              stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
-        wait_until(lambda: hub.subscribers, "io watch subscribed")
+        assert wait_for(lambda: hub.subscribers, timeout=DEADLINE_S), "io watch subscribed"
         io.set(DI4=1)
         first = read_lines(watch.stdout, 1, DEADLINE_S)
         io.set(goProgramNo=5)
@@ -343,7 +335,8 @@ def test_io_watch_ends_when_the_farm_stops(free_address) -> None:
     with farm.running_in_thread():
         watch = subprocess.Popen([*CLI, "io", "watch", "io", "--api", f"http://127.0.0.1:{farm.http.port}"],
                                  stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-        wait_until(lambda: farm.http.hub.subscribers or watch.poll() is not None, "io watch subscribed")
+        assert wait_for(lambda: farm.http.hub.subscribers or watch.poll() is not None,
+                        timeout=DEADLINE_S), "io watch subscribed"
     try:
         out, errors = watch.communicate(timeout=DEADLINE_S)
     finally:

@@ -9,7 +9,6 @@ import json
 import math
 import socket
 import time
-from collections.abc import Callable
 
 import httpx
 import pytest
@@ -18,16 +17,9 @@ from enip_farm.config import parse_config
 from enip_farm.control.guard import MAX_BODY, allowed_hosts, host_name
 from enip_farm.device.faults import MAX_DELAY_MS, Fault, FaultError
 from enip_farm.pytest_plugin import AddressPool
+from tests.helpers import wait_for
 
 DEADLINE_S = 30.0  # generous: conditions end the waits as soon as they hold
-
-
-def wait_until(condition: Callable[[], bool], what: str, timeout: float = DEADLINE_S) -> None:
-    deadline = time.monotonic() + timeout
-    while not condition():
-        if time.monotonic() > deadline:
-            raise AssertionError(f"not within {timeout} s: {what}")
-        time.sleep(0.01)
 
 
 def raw(port: int, request: bytes, host: str = "127.0.0.1", rcvbuf: int | None = None) -> socket.socket:
@@ -227,11 +219,11 @@ def test_subscriber_cap_and_a_freed_slot(enip_farm) -> None:
     refused = httpx.get(f"http://127.0.0.1:{port}/events")
     assert refused.status_code == 503 and "2 event streams are open" in refused.json()["detail"]
     first.close()
-    wait_until(lambda: len(hub.subscribers) == 1, "the closed stream's slot is free")
+    assert wait_for(lambda: len(hub.subscribers) == 1, timeout=DEADLINE_S), "the closed stream's slot is free"
     third = _subscribe(port)
     second.close()
     third.close()
-    wait_until(lambda: not hub.subscribers, "every slot is free")
+    assert wait_for(lambda: not hub.subscribers, timeout=DEADLINE_S), "every slot is free"
     assert all(not device._observers or all(o != hub.deliver for o in device._observers)
                for device in farm.devices.values())  # nobody listens: the devices carry no observer of the hub
 

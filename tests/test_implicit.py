@@ -29,7 +29,7 @@ from enip_farm.protocol.connection import (
 )
 from enip_farm.protocol.cpf import ItemType
 from enip_farm.protocol.epath import ElectronicKey, encode_electronic_key, encode_request_path
-from tests.helpers import RawClient
+from tests.helpers import RawClient, wait_for
 
 P2P, MULTICAST, NULL = ConnectionType.POINT_TO_POINT, ConnectionType.MULTICAST, ConnectionType.NULL
 ASSEMBLY_PATH = bytes.fromhex("20 04 24 01 2C 64 2C 65")  # config 1, O->T 100, T->O 101
@@ -54,15 +54,6 @@ def forward_open(path: bytes = ASSEMBLY_PATH, o_t_size: int = 8, t_o_size: int =
 def forward_close(triad: ConnectionTriad, path: bytes = ASSEMBLY_PATH) -> bytes:
     return encode_request(0x4E, encode_request_path(6, 1),
                           encode_forward_close(ForwardCloseRequest(0x0A, 0x0E, triad, path)))
-
-
-def wait_for(predicate, timeout: float = 5.0) -> bool:
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        if predicate():
-            return True
-        time.sleep(0.005)
-    return predicate()
 
 
 @pytest.fixture
