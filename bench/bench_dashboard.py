@@ -27,22 +27,18 @@ import argparse
 import json
 import os
 import random
-import shutil
 import statistics
 import subprocess
 import sys
-import tempfile
 import time
 from pathlib import Path
 
 from pycomm3 import CIPDriver, Services
-from selenium import webdriver
-from selenium.webdriver.chrome.service import Service
 
 ROOT = Path(__file__).resolve().parent.parent
-FLAGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
-         "--disable-background-networking", "--disable-component-update", "--disable-sync", "--window-size=1400,1000"]
-WAIT_S = 30.0
+sys.path.insert(0, str(ROOT))
+
+from tests.browser import FILTER_ROUND_TRIP, MEASURE_FRAMES, RECORD_CHANGES, chromium, open_page, until  # noqa: E402
 
 FARM = """
 import sys, threading, time
@@ -80,47 +76,6 @@ with farm.running_in_thread():
         done[0], since, rate[0] = 0, now, float(line)
 """
 
-RECORD_CHANGES = """
-window.seen = [];
-new MutationObserver(records => {
-  const now = performance.timeOrigin + performance.now();
-  for (const r of records) {
-    const e = r.target;
-    if (e.dataset && e.dataset.signal) window.seen.push([e.closest('.card').dataset.device, e.dataset.signal,
-                                                         e.classList.contains('on') ? 1 : 0, now]);
-  }
-}).observe(document.getElementById('sizer'), {subtree: true, attributes: true, attributeFilter: ['class']});
-"""
-
-MEASURE_FRAMES = """
-window.frameGaps = {max: 0, last: performance.now()};
-(function tick(now) {
-  window.frameGaps.max = Math.max(window.frameGaps.max, now - window.frameGaps.last);
-  window.frameGaps.last = now;
-  requestAnimationFrame(tick);
-})(performance.now());
-"""
-
-FILTER = """
-const [text, done] = [arguments[0], arguments[arguments.length - 1]];
-const started = performance.now();
-const input = document.getElementById('filter');
-input.value = text;
-input.dispatchEvent(new Event('input'));
-requestAnimationFrame(() => requestAnimationFrame(() => done({
-  ms: performance.now() - started, cards: document.querySelectorAll('.card').length,
-  count: document.getElementById('count').textContent})));
-"""
-
-
-def until(condition, what: str, timeout: float = WAIT_S):
-    deadline = time.monotonic() + timeout
-    while not (value := condition()):
-        if time.monotonic() > deadline:
-            raise TimeoutError(f"not within {timeout} s: {what}")
-        time.sleep(0.01)
-    return value
-
 
 class FarmProcess:
     def __init__(self, first: str, count: int) -> None:
@@ -142,16 +97,6 @@ class FarmProcess:
             self.process.wait(timeout=60)
         except subprocess.TimeoutExpired:
             self.process.kill()
-
-
-def open_page(driver, url: str) -> float:
-    driver.get("about:blank")
-    started = time.monotonic()
-    driver.get(url)
-    until(lambda: driver.execute_script("return document.querySelector(\".card[data-device='io1'] [data-signal]\")"
-                                        " !== null && document.getElementById('stream').textContent === 'live'"),
-          "io1's card with signals")
-    return time.monotonic() - started
 
 
 def latencies(driver, address: str, changes: int, size: int, seed: int = 13) -> list[float]:
@@ -191,16 +136,8 @@ def main() -> None:
     parser.add_argument("--load-changes", type=int, default=50, help="CIP writes timed at each load")
     parser.add_argument("--first", default="127.0.205.1", help="the first device's address")
     args = parser.parse_args()
-    options = webdriver.ChromeOptions()
-    options.binary_location = "/usr/bin/chromium"
-    for flag in FLAGS:
-        options.add_argument(flag)
-    profile = tempfile.mkdtemp(prefix="enip-farm-bench-")
-    options.add_argument(f"--user-data-dir={profile}")
-    driver = webdriver.Chrome(options=options, service=Service("/usr/bin/chromedriver"))
-    driver.set_script_timeout(WAIT_S)
     result: dict = {}
-    try:
+    with chromium() as driver:
         farm = FarmProcess(args.first, 1)
         try:
             open_page(driver, farm.url)
@@ -212,8 +149,8 @@ def main() -> None:
         try:
             driver.execute_cdp_cmd("Page.addScriptToEvaluateOnNewDocument", {"source": MEASURE_FRAMES})
             loaded = open_page(driver, farm.url)
-            filtered = driver.execute_async_script(FILTER, "io99")
-            cleared = driver.execute_async_script(FILTER, "")
+            filtered = driver.execute_async_script(FILTER_ROUND_TRIP, "io99")
+            cleared = driver.execute_async_script(FILTER_ROUND_TRIP, "")
             many = result["many_devices"] = {
                 "devices": args.devices, "page_with_cards_s": round(loaded, 2), "filter_ms": round(filtered["ms"]),
                 "unfilter_ms": round(cleared["ms"]), "cards_in_dom": cleared["cards"],
@@ -233,9 +170,6 @@ def main() -> None:
             farm.load(0)
         finally:
             farm.close()
-    finally:
-        driver.quit()
-        shutil.rmtree(profile, ignore_errors=True)
     print(json.dumps(result))
 
 

@@ -10,30 +10,18 @@ Binds the default cell's addresses (127.0.10.1-8): stop a farm serving them firs
 from __future__ import annotations
 
 import argparse
-import shutil
-import tempfile
+import sys
 import time
 from pathlib import Path
 
 import ethernetip
 from pycomm3 import CIPDriver, Services
-from selenium import webdriver
-from selenium.webdriver.chrome.service import Service
 
-from enip_farm.config import default_config_path, load_config
-from enip_farm.farm import Farm
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-FLAGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
-         "--disable-background-networking", "--disable-component-update", "--disable-sync",
-         "--window-size=1500,1000", "--hide-scrollbars"]
-
-
-def until(condition, what: str, timeout: float = 30.0) -> None:
-    deadline = time.monotonic() + timeout
-    while not condition():
-        if time.monotonic() > deadline:
-            raise TimeoutError(what)
-        time.sleep(0.05)
+from enip_farm.config import default_config_path, load_config  # noqa: E402
+from enip_farm.farm import Farm  # noqa: E402
+from tests.browser import chromium, open_page  # noqa: E402
 
 
 def main() -> None:
@@ -41,21 +29,11 @@ def main() -> None:
     parser.add_argument("-o", "--output", type=Path, default=Path(__file__).with_name("dashboard.png"))
     args = parser.parse_args()
     farm = Farm(load_config(default_config_path()), http=("127.0.0.1", 0))
-    options = webdriver.ChromeOptions()
-    options.binary_location = "/usr/bin/chromium"
-    for flag in FLAGS:
-        options.add_argument(flag)
-    profile = tempfile.mkdtemp(prefix="enip-farm-shot-")
-    options.add_argument(f"--user-data-dir={profile}")
-    with farm.running_in_thread():
-        driver = webdriver.Chrome(options=options, service=Service("/usr/bin/chromedriver"))
+    with farm.running_in_thread(), chromium("--hide-scrollbars", window=(1500, 1000)) as driver:
         enip = ethernetip.EtherNetIP(farm["io2"].address)  # a scanner owning io2's outputs
         conn = enip.explicit_conn(farm["io2"].address)
         try:
-            driver.get(f"{farm.http.url}/")
-            until(lambda: driver.execute_script("return document.getElementById('stream').textContent === 'live'"
-                                                " && document.querySelectorAll('.card [data-signal]').length > 0"),
-                  "the page")
+            open_page(driver, f"{farm.http.url}/", "io1")
             assert conn.registerSession() == 0
             enip.registerAssembly(ethernetip.EtherNetIP.ENIP_IO_TYPE_INPUT, 2, 101, conn)
             outputs = enip.registerAssembly(ethernetip.EtherNetIP.ENIP_IO_TYPE_OUTPUT, 2, 100, conn)
@@ -77,8 +55,6 @@ def main() -> None:
         finally:
             conn.stopProduce()
             enip.stopIO()
-            driver.quit()
-            shutil.rmtree(profile, ignore_errors=True)
     print(f"{args.output}: {args.output.stat().st_size} bytes")
 
 

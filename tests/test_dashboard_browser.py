@@ -1,114 +1,52 @@
 """The dashboard in a real browser: Debian's chromium, headless, driven by Selenium through Debian's
 chromedriver (`.ci/run` installs both). Clicking an input LED changes the device's input image; an
 output written over CIP by a real client (pycomm3) shows on the page within 200 ms, timed in the
-page itself; faults are injected and cleared from a card; the filter; the token; and 1000 devices
-load, filter and scroll without freezing the page.
-
-Timing is taken inside the page (a MutationObserver stamps each LED's class change with
-`performance.timeOrigin + performance.now()`, the same wall clock as Python's `time.time()`), so the
-waits here (polling the page every 10 ms) do not add to what is measured. bench/bench_dashboard.py
-reports the same figures over more changes.
+page itself (tests/browser.py: the page's own clock, so polling it does not add to what is
+measured); faults are injected and cleared from a card; the filter; the token; and 1000 devices
+load, filter and scroll without freezing the page. bench/bench_dashboard.py reports the same
+figures over more changes.
 """
 
 from __future__ import annotations
 
 import os
 import random
-import shutil
 import statistics
-import tempfile
 import time
-from collections.abc import Callable, Iterator
-from pathlib import Path
+from collections.abc import Iterator
 
 import pytest
 from pycomm3 import CIPDriver, Services
 
+from tests.browser import (
+    FILTER_ROUND_TRIP,
+    MEASURE_FRAMES,
+    RECORD_CHANGES,
+    WAIT_S,
+    chromium,
+    installed,
+    open_page,
+    page_errors,
+    until,
+)
+
 pytestmark = pytest.mark.system
 
-CHROMIUM = "/usr/bin/chromium"
-CHROMEDRIVER = "/usr/bin/chromedriver"
-# Without the background-networking flags a closed network makes Chromium slow (it waits for hosts
-# it cannot reach); a fresh profile per session keeps runs apart.
-CHROMIUM_FLAGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
-                  "--disable-background-networking", "--disable-component-update", "--disable-sync",
-                  "--window-size=1400,1000"]
-DEADLINE_S = 30.0  # generous: conditions end the waits as soon as they hold
+DEADLINE_S = WAIT_S  # generous: conditions end the waits as soon as they hold
 LATENCY_BOUND_S = 0.200  # the issue's requirement: a CIP output change on the page within 200 ms
 
 NAMED = [{"name": "diGripperClosed", "type": "DI", "device_map": "3"},
          {"name": "goProgramNo", "type": "GO", "device_map": "8-15"}]
 
-# Installs the page's own clock on every LED change of the page; `window.seen` is read by the test.
-RECORD_CHANGES = """
-window.seen = [];
-new MutationObserver(records => {
-  const now = performance.timeOrigin + performance.now();
-  for (const record of records) {
-    const element = record.target;
-    if (!element.dataset || !element.dataset.signal) continue;
-    const card = element.closest('.card');
-    window.seen.push([card && card.dataset.device, element.dataset.signal,
-                      element.classList.contains('on') ? 1 : 0, now]);
-  }
-}).observe(document.getElementById('sizer'), {subtree: true, attributes: true, attributeFilter: ['class']});
-"""
-
-
-def browser_options(user_data_dir: str):
-    from selenium import webdriver
-
-    options = webdriver.ChromeOptions()
-    options.binary_location = CHROMIUM
-    for flag in CHROMIUM_FLAGS:
-        options.add_argument(flag)
-    options.add_argument(f"--user-data-dir={user_data_dir}")
-    options.set_capability("goog:loggingPrefs", {"browser": "ALL"})
-    return options
-
 
 @pytest.fixture(scope="module")
 def browser() -> Iterator:
-    if not (Path(CHROMIUM).exists() and Path(CHROMEDRIVER).exists()):
+    if not installed():
         if os.environ.get("CI"):
             pytest.fail("chromium and chromium-driver are not installed (.ci/run installs them)")
         pytest.skip("needs Debian's chromium and chromium-driver (apt-get install chromium chromium-driver)")
-    from selenium import webdriver
-    from selenium.webdriver.chrome.service import Service
-
-    profile = tempfile.mkdtemp(prefix="enip-farm-chromium-")
-    driver = webdriver.Chrome(options=browser_options(profile), service=Service(CHROMEDRIVER))
-    driver.set_script_timeout(DEADLINE_S)
-    try:
+    with chromium() as driver:
         yield driver
-    finally:
-        driver.quit()
-        shutil.rmtree(profile, ignore_errors=True)
-
-
-def page_errors(driver) -> list[str]:
-    return [entry["message"] for entry in driver.get_log("browser") if entry["level"] == "SEVERE"]
-
-
-def until(condition: Callable[[], object], what: str | Callable[[], str], timeout: float = DEADLINE_S,
-          step: float = 0.01) -> object:
-    deadline = time.monotonic() + timeout
-    while True:
-        value = condition()
-        if value:
-            return value
-        if time.monotonic() > deadline:
-            raise AssertionError(f"not within {timeout} s: {what() if callable(what) else what}")
-        time.sleep(step)
-
-
-def open_page(driver, url: str, device: str) -> None:
-    driver.get("about:blank")  # the last test's page is gone: its messages, drained here, are not this test's
-    driver.get_log("browser")
-    driver.get(url)
-    until(lambda: driver.execute_script(
-        "return document.querySelector(`.card[data-device='${arguments[0]}'] [data-signal]`) !== null"
-        " && document.getElementById('stream').textContent === 'live'", device), f"{device}'s card with signals")
 
 
 def led(driver, device: str, signal: str):
@@ -280,26 +218,6 @@ def _alert(driver):
     except NoAlertPresentException:
         return None
 
-
-MEASURE_FRAMES = """
-window.frameGaps = {max: 0, last: performance.now()};
-(function tick(now) {
-  window.frameGaps.max = Math.max(window.frameGaps.max, now - window.frameGaps.last);
-  window.frameGaps.last = now;
-  requestAnimationFrame(tick);
-})(performance.now());
-"""
-
-FILTER_ROUND_TRIP = """
-const [text, done] = [arguments[0], arguments[arguments.length - 1]];
-const started = performance.now();
-const input = document.getElementById('filter');
-input.value = text;
-input.dispatchEvent(new Event('input'));
-requestAnimationFrame(() => requestAnimationFrame(() => done({
-  ms: performance.now() - started, cards: document.querySelectorAll('.card').length,
-  count: document.getElementById('count').textContent})));
-"""
 
 
 def test_a_thousand_devices_load_filter_and_scroll_without_freezing(enip_farm, browser) -> None:
