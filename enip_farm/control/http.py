@@ -5,8 +5,10 @@ GET /devices, GET /devices/{name}, GET and PUT /devices/{name}/io, GET /devices/
 dashboard shows of each device: signals, connections, counters, faults), GET /events (server-sent
 events, control/stream.py), GET /metrics (Prometheus), the dashboard at / (control/dashboard.py),
 and the OpenAPI schema at /openapi.json with /docs and /redoc served from assets shipped in the
-package (no CDN). Bound to anything but localhost, every request needs `Authorization: Bearer
-<token>`. Host, token and body size are checked before FastAPI sees a request (control/guard.py).
+package (no CDN). Bound to a loopback address (localhost, 127.x.y.z, ::1) the API may run without
+a token; bound to any other address it needs one, and every request then carries `Authorization:
+Bearer <token>` (so does every request when a token is set on loopback). Host, token and body size
+are checked before FastAPI sees a request (control/guard.py).
 Fault parameters are checked by `Fault` itself (device/faults.py); an image write is all or
 nothing (`DeviceHandle.update`).
 """
