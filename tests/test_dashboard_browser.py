@@ -187,6 +187,34 @@ def test_the_filter_shows_the_matching_devices(enip_farm, browser) -> None:
     until(lambda: shown() == ["weld1"], "only the faulted device")
 
 
+def test_the_cards_identity_marks_the_catalogues_unverified_placeholders(enip_farm, browser) -> None:
+    farm = enip_farm({"devices": [
+        {"name": "stock", "model": "DSQC1030"},
+        {"name": "measured", "model": "DSQC1030", "identity": {"product_code": 4242, "device_type": 12}}]}, http=True)
+    open_page(browser, f"http://127.0.0.1:{farm.http.port}/", "measured")
+    until(lambda: browser.execute_script("return document.querySelector(\".card[data-device='stock']\") !== null"),
+          "both cards")
+
+    def fields(device: str) -> dict[str, tuple[str, str, str]]:
+        """field -> (text, title, text decoration) of the card's identity line."""
+        return {field: tuple(values) for field, *values in browser.execute_script(
+            "return [...document.querySelectorAll(`.card[data-device='${arguments[0]}'] .identity [data-field]`)]"
+            ".map(e => [e.dataset.field, e.textContent, e.title, getComputedStyle(e).textDecorationStyle])",
+            device)}
+
+    placeholders = {"device_type", "product_code", "revision", "product_name"}  # the catalogue's unverified list
+    stock, measured = fields("stock"), fields("measured")
+    assert set(stock) == set(measured) == placeholders | {"vendor_id", "serial_number"}
+    assert {f for f, (_, title, _) in stock.items() if title} == placeholders
+    assert all(stock[f][1:] == ("unverified placeholder", "dotted") for f in placeholders)
+    assert stock["vendor_id"][1:] == ("", "solid") and stock["serial_number"][1:] == ("", "solid")
+    # the values a config gives are its own, not placeholders: only the rest stays marked
+    assert measured["product_code"] == ("4242", "", "solid") and measured["device_type"] == ("12", "", "solid")
+    assert {f for f, (_, title, _) in measured.items() if title} == {"revision", "product_name"}
+    assert stock["vendor_id"][0] == measured["vendor_id"][0] == "75"  # ABB's published vendor id, not marked
+    assert page_errors(browser) == []
+
+
 def test_the_token_from_the_address_or_a_prompt(free_address, browser) -> None:
     from enip_farm.config import parse_config
     from enip_farm.farm import Farm

@@ -7,8 +7,8 @@
 - **Token**: when one is set, every path needs it (the OpenAPI schema and /docs too), as
   `Authorization: Bearer <token>` with the scheme in any case (RFC 9110 11.1); 401 otherwise.
   Only GET and HEAD of the dashboard's static page and assets (`PUBLIC_PAGE` and what is under
-  `PUBLIC_PREFIX`: no farm data in them) pass without it, since a browser cannot send the header when it opens a page; the page
-  sends it on every request it makes (control/dashboard.py).
+  `PUBLIC_PREFIX`: no farm data in them) pass without it, since a browser cannot send the header
+  when it opens a page; the page sends it on every request it makes (control/dashboard.py).
 - **Body size**: at most `MAX_BODY` bytes (413, and the connection is closed). A larger
   Content-Length is refused before any of the body is read; a chunked body is read up to the limit
   and refused there, so no request holds more than `MAX_BODY` bytes in memory.

@@ -276,6 +276,25 @@
     return typeof value === 'number' && !Number.isInteger(value) ? value.toFixed(3).replace(/\.?0+$/, '') : String(value);
   }
 
+  // The identity line, one span a field; a catalogue placeholder nobody has published (listed in the
+  // device's `unverified` as MODEL.identity.FIELD) is marked as such, not shown as plain fact.
+  const IDENTITY_FIELDS = [['product_name', ''], ['vendor_id', 'vendor '], ['device_type', 'type '],
+                           ['product_code', 'code '], ['revision', 'rev '], ['serial_number', 'serial ']];
+
+  function fillIdentity(line, info) {
+    const unverified = new Set(info.unverified || []);
+    IDENTITY_FIELDS.forEach(([field, label], i) => {
+      const value = info.identity[field];
+      const span = el('span', 'field', Array.isArray(value) ? value.join('.') : String(value));
+      span.dataset.field = field;
+      if (unverified.has(`${info.model}.identity.${field}`)) {
+        span.classList.add('unverified');
+        span.title = 'unverified placeholder';
+      }
+      line.append(i ? ' · ' + label : label, span);
+    });
+  }
+
   function buildCard(device) {
     const card = template.content.firstElementChild.cloneNode(true);
     const info = device.info, identity = info.identity;
@@ -283,9 +302,7 @@
     $('.name', card).textContent = device.name;
     $('.address', card).textContent = info.address;
     $('.model', card).textContent = [info.model, ...info.addons].join(' + ');
-    $('.identity', card).textContent = `${identity.product_name} · vendor ${identity.vendor_id} · type ` +
-      `${identity.device_type} · code ${identity.product_code} · rev ${identity.revision.join('.')} · ` +
-      `serial ${identity.serial_number}`;
+    fillIdentity($('.identity', card), info);
     const kinds = $('.fault-kind', card);
     for (const kind of FAULT_KINDS) kinds.appendChild(el('option', '', kind));
     $('.fault-param', card).placeholder = PARAM_HINT[kinds.value] || '';
