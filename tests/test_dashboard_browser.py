@@ -143,6 +143,9 @@ def test_a_fault_is_injected_and_cleared_from_the_card(enip_farm, browser) -> No
         read = driver.generic_message(service=Services.get_attribute_single, class_code=4, instance=100,
                                       attribute=3, connected=False, route_path=False)
     assert read.error == "Service not supported"  # general status 0x08
+    logged = until(lambda: [line.text for line in browser.find_elements("css selector", "#log li")
+                            if "fault injected" in line.text], "the fault in the events panel")
+    assert logged[0].endswith("fault injected kind=status service=14 status=8"), logged  # not [object Object]
     chip = until(lambda: card.find_elements("css selector", ".chip"), "the fault's chip")[0]
     assert chip.text.startswith("status (service 14, status 8")
     assert "faulted" in card.get_attribute("class").split()

@@ -502,6 +502,14 @@
 
   const logIo = $('#log-io'), logPause = $('#log-pause');
 
+  function detailText(detail) {
+    // a fault's parameters come as an object: kind=delay delay_ms=250
+    if (detail && typeof detail === 'object') {
+      return Object.entries(detail).map(([key, value]) => `${key}=${value}`).join(' ');
+    }
+    return detail || '';
+  }
+
   function clock(seconds) {
     const time = new Date(seconds * 1000);
     return time.toLocaleTimeString([], { hour12: false }) + '.' + String(time.getMilliseconds()).padStart(3, '0');
@@ -536,7 +544,7 @@
       item.appendChild(name);
       const kind = event.kind === 'io' ? 'k k-io' : event.kind.startsWith('fault') ? 'k k-fault' : 'k';
       item.appendChild(el('span', kind, ` ${event.kind} `));
-      item.append(event.detail || '');
+      item.append(detailText(event.detail));
       fragment.appendChild(item);
     }
     log.insertBefore(fragment, log.firstChild);
