@@ -410,7 +410,7 @@ class Device:
 
     # -- class-1 I/O (the cyclic I/O thread) --------------------------------------------------------
 
-    def receive_io(self, data: bytes, source: tuple[str, int], now: int, send: SendDatagram | None = None) -> bool:
+    def receive_io(self, data: bytes, source: tuple[str, int], now: int, send: SendDatagram) -> bool:
         """An O->T datagram from `source` (host, port), received at `now`: True if a connection took it.
         What must answer it at once (CIP Safety time coordination) goes out through `send`."""
         if self.faults.io_stopped:
@@ -425,8 +425,7 @@ class Device:
             taken = table.receive_datagram(data, source[0], now, source[1])
             if table.has_replies:
                 for packet, address in table.pop_replies():
-                    if send is not None:
-                        send(packet, address)
+                    send(packet, address)
             connections = table.pop_events() if table.has_events else ()
             changed = output is not None and output.data != old
             new = bytes(output.data) if changed else old
