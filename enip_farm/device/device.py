@@ -63,7 +63,7 @@ _RESET_KINDS = {0: "power cycle", 1: "out-of-box configuration"}
 #: Every counter of a device, present (at 0) from the start: TCP, sessions, replies, class 1 (the table's).
 COUNTERS = ("tcp_connections", "tcp_refused", "tcp_write_paused", "tcp_inactivity_closed", "sessions",
             "sessions_refused", "replies_dropped", "t_o_send_errors", "tcp_refused_resetting", "o_t_dropped_resetting",
-            *TABLE_COUNTERS)
+            "io_errors", *TABLE_COUNTERS)
 
 #: An observer of a device: called with every event (log entries, connection events, image changes).
 Observer = Callable[[Event], None]
