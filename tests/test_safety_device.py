@@ -34,7 +34,8 @@ def test_dsqc1042_profile_signals_and_placeholders() -> None:
     assert output is not None and not output.settable  # the safety connection writes the safe outputs
     assert profile.safety is not None and profile.safety.node_address == 0x7F001E01
     assert {"DSQC1042.safety.snn", "DSQC1042.safety.scid", "DSQC1042.safety.null_point",
-            "DSQC1042.assemblies.output", "DSQC1042.assemblies.input"} <= set(profile.unverified)
+            "DSQC1042.assemblies.output", "DSQC1042.assemblies.input", "DSQC1042.io counts",
+            "DSQC1042.class-1 I/O refused"} <= set(profile.unverified)
     own = resolve(DeviceConfig(name="s1", address="127.0.30.1", model="DSQC1042",
                                safety={"snn": "0102030405a6", "scid": "11" * 10}), shipped_catalogue())
     assert own.safety is not None and own.safety.snn == bytes.fromhex("0102030405a6")

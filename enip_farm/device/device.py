@@ -22,7 +22,8 @@ from __future__ import annotations
 import threading
 import time
 from collections import Counter
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Iterable, Mapping
+from types import MappingProxyType
 
 from enip_farm.cip.admission import ConnectionPolicy, KeyIdentity
 from enip_farm.cip.assembly import AssemblyInstance, AssemblyObject
@@ -58,7 +59,7 @@ from enip_farm.protocol.cpf import ItemType, encode_items
 from enip_farm.protocol.session import MessageContext, ReplyWithItems
 
 ENIP_PORT = 44818
-_RESET_KINDS = {0: "power cycle", 1: "out-of-box configuration"}
+_RESET_KINDS: Mapping[int, str] = MappingProxyType({0: "power cycle", 1: "out-of-box configuration"})
 
 #: Every counter of a device, present (at 0) from the start: TCP, sessions, replies, class 1 (the table's).
 COUNTERS = ("tcp_connections", "tcp_refused", "tcp_write_paused", "tcp_inactivity_closed", "sessions",
