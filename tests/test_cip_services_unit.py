@@ -44,6 +44,10 @@ SCANNER = "127.0.0.9"
 P2P = ConnectionType.POINT_TO_POINT
 
 
+def _unsent(data: bytes, address: tuple[str, int]) -> None:
+    raise AssertionError(f"nothing is sent at once here: {data.hex()} to {address}")
+
+
 def make_device(**fields: object) -> Device:
     config = parse_config({"devices": [{"name": "io1", "address": "127.0.0.1", "model": "DSQC1030", **fields}]})
     (profile,) = build_profiles(config, shipped_catalogue())
@@ -197,7 +201,7 @@ def open_everything(device: Device) -> None:
     assert ask(device, CLASS1).general_status == 0 and ask(device, CLASS3, session=owner).general_status == 0
     (class1,) = [c for c in device.connections.values() if c.is_io]
     assert device.receive_io(encode_io_packet(class1.o_t_id, 1, 1, b"\x01\x00\x00\x00\x10\x02"), (SCANNER, 2222),
-                             T0 + MS)
+                             T0 + MS, _unsent)
     device.set_inputs(b"\x81\x00")
     assert device.outputs == b"\x10\x02" and len(device.connections) == 2 and device.status == 0x0061
 
@@ -220,7 +224,7 @@ def test_reset_type_0_ends_connections_clears_outputs_and_answers_again_at_its_d
     assert device.restarts == 1 and device.resetting and device.identity_state == 1
     deadline = T0 + 2 * MS + 1_500 * MS
     assert device.reset_window.due() == deadline
-    assert device.receive_io(encode_io_packet(1, 2, 2, b""), (SCANNER, 2222), deadline - 1) is False
+    assert device.receive_io(encode_io_packet(1, 2, 2, b""), (SCANNER, 2222), deadline - 1, _unsent) is False
     assert device.counters["o_t_dropped_resetting"] == 1
     assert device.end_reset(deadline - 1) is False and device.resetting
     assert device.end_reset(deadline) is True and not device.resetting and device.identity_state == 3

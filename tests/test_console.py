@@ -22,13 +22,15 @@ import pytest
 from click.testing import CliRunner
 from pycomm3 import CIPDriver, Services
 
+from enip_farm.cip.safety.messages import encode_data, mode_byte
+from enip_farm.cip.safety.validator import ticks
 from enip_farm.cli import main
 from enip_farm.console import Console
 from enip_farm.device.device import Device
 from enip_farm.device.faults import Fault
 from enip_farm.farm import Farm
 from enip_farm.protocol.cip import encode_multiple_service, encode_request, encode_unconnected_send
-from enip_farm.protocol.connection import ConnectionTriad
+from enip_farm.protocol.connection import ConnectionTriad, encode_class0_packet, encode_forward_open
 from enip_farm.protocol.encapsulation import Command, encode_frame
 from enip_farm.protocol.epath import encode_request_path
 from enip_farm.protocol.session import EncapsulationSession, MessageContext
@@ -36,6 +38,7 @@ from enip_farm.pytest_plugin import AddressPool
 from enip_farm.server.limits import RateLimitedLog
 from tests.helpers import CLI, STARTUP_S, RawClient, read_lines, serving, wait_for
 from tests.test_implicit import forward_close, forward_open
+from tests.test_safety import T0, _pid, safety_open
 
 MS = 1_000_000
 SCANNER = "127.0.0.9"
@@ -166,6 +169,31 @@ def test_each_event_is_one_line_naming_device_peer_and_status(lines) -> None:
     console.close()
     device.register_session(SCANNER)
     assert handler.take() == []  # detached
+
+
+def test_a_faulting_safety_connection_is_told_at_warning(lines) -> None:
+    logger, handler = lines
+    logger.setLevel(logging.WARNING)  # what --quiet shows
+    farm = Farm({"devices": [{"name": "s1", "address": "127.0.77.1", "model": "DSQC1042"}]})  # built, not started
+    device = farm.devices["s1"]
+    Console([device], logger).attach()
+    prefix = "s1 127.0.77.1: "
+    for n, bad_crc in enumerate((True, False), 1):
+        request = safety_open()
+        _ask(device, encode_request(0x54, encode_request_path(6, 1), encode_forward_open(request)), now=T0)
+        (connection,) = device.connections.values()
+        now = T0 + n * 1_000 * MS
+        stamp = (ticks(now) - 1_000) & 0xFFFF  # 1000 ticks old: over the network time expectation (781)
+        message = bytearray(encode_data(b"\x0f", mode_byte(True, 0), stamp, _pid(request), False))
+        if bad_crc:
+            message[2] ^= 0x01
+        assert not device.receive_io(encode_class0_packet(connection.o_t_id, 1, bytes(message)),
+                                     (SCANNER, 2222), now, lambda *_: None)
+        fault = "safety crc fault" if bad_crc else "safety timing fault"
+        taken = handler.take()
+        assert [(level, line.split(": ", 2)[1]) for level, line in taken] == [
+            ("WARNING", fault), ("WARNING", "connection faulted"), ("WARNING", "safe state")], taken
+        assert all(line.startswith(prefix) for _, line in taken)
 
 
 def test_debug_tells_every_request_and_image_change(lines) -> None:

@@ -75,7 +75,7 @@ def test_silence_closes_at_the_deadline_with_outputs_off_and_observers_told() ->
     opened = decode_forward_open_reply(decode_reply(request(device, forward_open(), T0)).data)
     for n in range(1, 101):  # fed for 1 s at the RPI
         assert device.receive_io(encode_io_packet(opened.o_t_connection_id, n, n, b"\x01\x00\x00\x00\x10\x00"),
-                                 (SCANNER, 2222), T0 + n * 10 * MS)
+                                 (SCANNER, 2222), T0 + n * 10 * MS, lambda *_: None)
     last = T0 + 100 * 10 * MS
     assert device.outputs == b"\x10\x00" and device.status == 0x0061
     assert device.service_io(last + 40 * MS - 1, lambda *_: None) <= last + 40 * MS

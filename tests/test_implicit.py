@@ -447,3 +447,39 @@ def test_images_never_tear(make_farm) -> None:
     assert len(seen_t_o) >= 50 and len(seen_get) >= 50
     assert set(seen_t_o) <= whole and set(seen_get) <= whole
     assert len(set(seen_get) | set(seen_t_o)) == 2  # both states were seen: the race was real
+
+
+# -- one device's bug does not stop the others' cyclic I/O --------------------------------------------
+
+
+def test_an_exception_in_one_device_leaves_the_others_cyclic_io_running(make_farm, monkeypatch, caplog) -> None:
+    farm = make_farm(*({"name": name, "model": "DSQC1030", "implicit": {"first_watchdog_s": 30}}
+                       for name in ("io1", "io2")))
+    broken, healthy = farm.device("io1"), farm.device("io2")
+
+    def receive_io(*_: object) -> bool:
+        raise RuntimeError("a bug in io1's O->T path")
+
+    monkeypatch.setattr(broken, "receive_io", receive_io)
+    opened = {}
+    for device in (broken, healthy):
+        with RawClient(device.profile.address) as c:
+            c.register()
+            opened[device.name] = decode_forward_open_reply(c.request(forward_open(multiplier=7)[0]).data)  # 10 s
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as udp:
+        udp.bind(("127.0.0.1", 0))
+        udp.sendto(encode_io_packet(opened["io1"].o_t_connection_id, 1, 1, b"\x01\x00\x00\x00\x33\x00"),
+                   (broken.profile.address, 2222))
+        assert wait_for(lambda: broken.counters["io_errors"] == 1)
+        produced = (broken.counters["t_o_packets"], healthy.counters["t_o_packets"])
+        udp.sendto(encode_io_packet(opened["io2"].o_t_connection_id, 1, 1, b"\x01\x00\x00\x00\x44\x00"),
+                   (healthy.profile.address, 2222))
+        assert wait_for(lambda: healthy.outputs == b"\x44\x00")  # the thread still takes O->T
+        # and both devices still produce T->O on their schedules (RPI 20 ms)
+        assert wait_for(lambda: broken.counters["t_o_packets"] >= produced[0] + 5
+                        and healthy.counters["t_o_packets"] >= produced[1] + 5)
+    assert broken.outputs == b"\x00\x00" and broken.counters["io_errors"] == 1
+    assert healthy.counters["io_errors"] == 0
+    (record,) = [r for r in caplog.records if r.name == "enip_farm.server.implicit" and r.levelname == "ERROR"]
+    assert record.getMessage() == "io1: cyclic I/O error taking an O->T datagram"
+    assert record.exc_info is not None and "a bug in io1's O->T path" in str(record.exc_info[1])

@@ -7,10 +7,14 @@ import random
 
 import pytest
 
+from enip_farm import console
+from enip_farm.cip.safety import segment
 from enip_farm.config import parse_config
+from enip_farm.device import device as device_module
 from enip_farm.device.build import build_profiles
 from enip_farm.device.catalogue import shipped_catalogue
 from enip_farm.device.device import Device
+from enip_farm.protocol import encapsulation, status
 from enip_farm.protocol.cip import (
     CipDecodeError,
     decode_multiple_service_request,
@@ -153,3 +157,14 @@ def device_session(device: Device):
     session = EncapsulationSession(device)
     session.receive(encode_frame(Command.REGISTER_SESSION, b"\x01\x00\x00\x00"))
     return session
+
+
+def test_status_words_and_module_constants_are_read_only() -> None:
+    assert status.describe_status(0x01, 0x0205) == (
+        "0x01/0x0205 connection failure: parameter error in unconnected request service")  # Vol. 1, 3-5.33
+    tables = (status.GENERAL_STATUS_TEXT, status.EXTENDED_STATUS_TEXT, segment.SIZE_WORDS, console._LEVELS,
+              encapsulation._COMMAND_NAMES, device_module._RESET_KINDS)
+    for table in tables:
+        with pytest.raises(TypeError):
+            table[0x7FFF] = 0  # type: ignore[index]
+    assert isinstance(console._TOLD_ELSEWHERE, frozenset)

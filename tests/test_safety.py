@@ -449,3 +449,61 @@ def test_client_pings_and_times_out_after_timeout_multiplier_plus_2_ping_interva
     assert not table.connections and not table.productions
     assert [e.reason for e in table.pop_events() if e.kind == "connection timed out"] == [
         "safety timeout: no time coordination for 4 ping intervals"]
+
+
+# -- what a forged datagram cannot do; time coordination counted on every path -------------------------
+
+
+def test_a_bad_crc_time_coordination_from_another_port_pins_no_port() -> None:
+    table = make_table()
+    request = safety_open(server=False)
+    opened = admit(table, request)
+    o_t_id, cid = opened.connection.o_t_id, _pid(request)
+    table.datagrams_to_send(T0)
+    forged = encode_class0_packet(o_t_id, 50, b"\x08\x00\x00\xf7\x00\x00")  # bad CRC, sequence ahead, port 3333
+    assert not table.receive_datagram(forged, ORIGINATOR.host, T0 + MS, 3333)
+    assert table.counters["safety_crc_faults"] == 1 and opened.connection.o_t_port is None
+    assert opened.connection.last_sequence is None
+    good = encode_class0_packet(o_t_id, 1, encode_time_coordination(0, 0, cid, False))
+    assert table.receive_datagram(good, ORIGINATOR.host, T0 + 2 * MS, 2222)  # sequence 1 < 50: not stale
+    assert opened.connection.o_t_port == 2222 and opened.connection.last_sequence == 1
+    assert opened.connection.safety.consumer_active  # type: ignore[union-attr]
+    assert table.counters["o_t_dropped_wrong_port"] == 0 and table.counters["o_t_dropped_stale"] == 0
+    # once a valid packet came, its port is the only one taken
+    again = encode_class0_packet(o_t_id, 2, encode_time_coordination(0, 0, cid, False))
+    assert not table.receive_datagram(again, ORIGINATOR.host, T0 + 3 * MS, 3333)
+    assert table.counters["o_t_dropped_wrong_port"] == 1
+
+
+def test_a_discarded_bad_crc_message_does_not_push_the_sequence_ahead() -> None:
+    table, opened, pid, _ = _open_server(extended=True, max_faults=2)
+    rollover = struct.unpack_from("<H", opened.application_reply, 12)[0]
+    output = table.assemblies["output"]
+    now = T0 + 10 * MS
+    assert _send(table, opened, encode_data(b"\x05", mode_byte(True, 0), ticks(now), pid, True, rollover), 1, now)
+    bad = bytearray(encode_data(b"\x0f", mode_byte(True, 0), ticks(now + MS), pid, True, rollover))
+    bad[2] ^= 0x01
+    assert not _send(table, opened, bytes(bad), 1_000, now + MS)  # discarded (extended: under Max_Fault_Number)
+    assert table.connections and opened.connection.last_sequence == 1 and output.data == b"\x05"
+    now += 10 * MS
+    assert _send(table, opened, encode_data(b"\x0a", mode_byte(True, 0), ticks(now), pid, True, rollover), 2, now)
+    assert output.data == b"\x0a" and opened.connection.last_sequence == 2
+    assert table.counters["o_t_dropped_stale"] == 0 and table.counters["safety_crc_faults"] == 1
+
+
+def test_time_coordination_held_back_by_the_min_multiplier_is_counted_when_sent() -> None:
+    table, opened, pid, request = _open_server(time_coord_msg_min_multiplier=100)  # 100 x 128 us = 12.8 ms
+    first = T0 + 5 * MS
+    assert _send(table, opened, encode_data(b"\x00", mode_byte(False, 0), 0, pid, False), 1, first)
+    assert len(table.pop_replies()) == 1  # the first answers at once
+    assert table.counters["safety_time_coordination_sent"] == 1 and table.counters["t_o_packets"] == 1
+    assert _send(table, opened, encode_data(b"\x00", mode_byte(False, 1), 0, pid, False), 2, first + MS)
+    assert not table.pop_replies()  # the next ping count change: held back until 12.8 ms after the first
+    due = first + 100 * TICK_NS
+    assert table.datagrams_to_send(due - 1) == []
+    (packet, address), = table.datagrams_to_send(due)
+    io = decode_io_packet(packet)
+    assert io is not None and io.connection_id == request.t_o_connection_id and address == ("127.0.0.9", 2222)
+    cid = Seeds.of(VENDOR, SERIAL, opened.connection.instance)
+    assert decode_time_coordination(class0_data(io), cid, False) == (1, ticks(due))
+    assert table.counters["safety_time_coordination_sent"] == 2 and table.counters["t_o_packets"] == 2

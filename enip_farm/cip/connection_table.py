@@ -340,10 +340,9 @@ class ConnectionTable:
 
     def _receive_safety(self, connection: Connection, packet: IoPacket, now: int, port: int | None) -> bool:
         """A class-0 CIP Safety packet: safe output data on a server connection, a time
-        coordination message on a client connection (Vol. 5, 2-4.6 and 2-4.7)."""
-        connection.last_sequence = packet.sequence
-        if connection.o_t_port is None:
-            connection.o_t_port = port
+        coordination message on a client connection (Vol. 5, 2-4.6 and 2-4.7). The sequence and
+        the originator's port are taken from packets the Safety Validator accepted only: a forged
+        datagram cannot pin another port or push the sequence past the real packets'."""
         safety = connection.safety
         result = safety.receive(class0_data(packet), now)  # type: ignore[union-attr]
         if result.fault is not None:
@@ -354,6 +353,9 @@ class ConnectionTable:
                 self.close(connection, f"safety {result.fault} fault: {result.detail}", now, timed_out=True,
                            kind="connection faulted")
             return False
+        connection.last_sequence = packet.sequence
+        if connection.o_t_port is None:
+            connection.o_t_port = port
         connection.last_received = now
         connection.received += 1
         self.counters["safety_packets_consumed"] += 1
@@ -370,6 +372,7 @@ class ConnectionTable:
                 self._replies.append((encode_class0_packet(connection.t_o_id, connection.t_o_sequence, answer),
                                       connection.t_o_address))  # type: ignore[arg-type]
                 self.counters["safety_time_coordination_sent"] += 1
+                self.counters["t_o_packets"] += 1
         else:
             connection.run = True
         return True
@@ -384,6 +387,7 @@ class ConnectionTable:
         due = [p for p in self.productions.values() if p.due <= now]
         out = self._pending_time_coordination(now) if self._safety_connections and self._safety_pending else []
         if not due:
+            self.counters["t_o_packets"] += len(out)
             return out
         data = bytes(self.assemblies["input"].data)
         for production in due:
@@ -421,6 +425,7 @@ class ConnectionTable:
                     connection.t_o_sequence += 1
                     out.append((encode_class0_packet(connection.t_o_id, connection.t_o_sequence, answer),
                                 connection.t_o_address))  # type: ignore[arg-type]
+        self.counters["safety_time_coordination_sent"] += len(out)
         return out
 
     # -- class-3 consumption -----------------------------------------------------------------------

@@ -22,7 +22,8 @@ from __future__ import annotations
 import threading
 import time
 from collections import Counter
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Iterable, Mapping
+from types import MappingProxyType
 
 from enip_farm.cip.admission import ConnectionPolicy, KeyIdentity
 from enip_farm.cip.assembly import AssemblyInstance, AssemblyObject
@@ -58,12 +59,12 @@ from enip_farm.protocol.cpf import ItemType, encode_items
 from enip_farm.protocol.session import MessageContext, ReplyWithItems
 
 ENIP_PORT = 44818
-_RESET_KINDS = {0: "power cycle", 1: "out-of-box configuration"}
+_RESET_KINDS: Mapping[int, str] = MappingProxyType({0: "power cycle", 1: "out-of-box configuration"})
 
 #: Every counter of a device, present (at 0) from the start: TCP, sessions, replies, class 1 (the table's).
 COUNTERS = ("tcp_connections", "tcp_refused", "tcp_write_paused", "tcp_inactivity_closed", "sessions",
             "sessions_refused", "replies_dropped", "t_o_send_errors", "tcp_refused_resetting", "o_t_dropped_resetting",
-            *TABLE_COUNTERS)
+            "io_errors", *TABLE_COUNTERS)
 
 #: An observer of a device: called with every event (log entries, connection events, image changes).
 Observer = Callable[[Event], None]
@@ -410,7 +411,7 @@ class Device:
 
     # -- class-1 I/O (the cyclic I/O thread) --------------------------------------------------------
 
-    def receive_io(self, data: bytes, source: tuple[str, int], now: int, send: SendDatagram | None = None) -> bool:
+    def receive_io(self, data: bytes, source: tuple[str, int], now: int, send: SendDatagram) -> bool:
         """An O->T datagram from `source` (host, port), received at `now`: True if a connection took it.
         What must answer it at once (CIP Safety time coordination) goes out through `send`."""
         if self.faults.io_stopped:
@@ -425,8 +426,7 @@ class Device:
             taken = table.receive_datagram(data, source[0], now, source[1])
             if table.has_replies:
                 for packet, address in table.pop_replies():
-                    if send is not None:
-                        send(packet, address)
+                    send(packet, address)
             connections = table.pop_events() if table.has_events else ()
             changed = output is not None and output.data != old
             new = bytes(output.data) if changed else old

@@ -8,7 +8,9 @@ command-specific data.
 from __future__ import annotations
 
 import struct
+from collections.abc import Mapping
 from enum import IntEnum
+from types import MappingProxyType
 from typing import NamedTuple
 
 HEADER = struct.Struct("<HHII8sI")
@@ -39,15 +41,16 @@ class EncapsulationStatus(IntEnum):
     UNSUPPORTED_PROTOCOL = 0x0069
 
 
-_COMMAND_NAMES = {Command.NOP: "NOP", Command.LIST_SERVICES: "ListServices", Command.LIST_IDENTITY: "ListIdentity",
-                  Command.LIST_INTERFACES: "ListInterfaces", Command.REGISTER_SESSION: "RegisterSession",
-                  Command.UNREGISTER_SESSION: "UnRegisterSession", Command.SEND_RR_DATA: "SendRRData",
-                  Command.SEND_UNIT_DATA: "SendUnitData"}
+_COMMAND_NAMES: Mapping[int, str] = MappingProxyType({
+    Command.NOP: "NOP", Command.LIST_SERVICES: "ListServices", Command.LIST_IDENTITY: "ListIdentity",
+    Command.LIST_INTERFACES: "ListInterfaces", Command.REGISTER_SESSION: "RegisterSession",
+    Command.UNREGISTER_SESSION: "UnRegisterSession", Command.SEND_RR_DATA: "SendRRData",
+    Command.SEND_UNIT_DATA: "SendUnitData"})
 
 
 def command_name(command: int) -> str:
     """A command as the spec names it (SendRRData), or its code."""
-    return _COMMAND_NAMES.get(command, f"command 0x{command:04X}")  # type: ignore[call-overload]
+    return _COMMAND_NAMES.get(command, f"command 0x{command:04X}")
 
 
 def describe_encapsulation_status(status: int) -> str:

@@ -1,7 +1,9 @@
 """CIP general status codes (CIP Networks Library Vol. 1, appendix B-1) and connection-manager
 extended status codes (Vol. 1, table 3-5.33)."""
 
+from collections.abc import Mapping
 from enum import IntEnum
+from types import MappingProxyType
 
 
 class GeneralStatus(IntEnum):
@@ -49,11 +51,13 @@ class ExtendedStatus(IntEnum):
     INVALID_PRODUCING_PATH = 0x012B
     NULL_FORWARD_OPEN_NOT_SUPPORTED = 0x0132
     CONNECTION_TIMED_OUT = 0x0203
-    PARAMETER_ERROR = 0x0205  # parameter error in a SafetyOpen (Vol. 5)
+    PARAMETER_ERROR = 0x0205  # parameter error in unconnected request service (Vol. 1); the farm's
+    # choice for a SafetyOpen whose server initial timestamp / rollover is not "not used"
     INVALID_PORT = 0x0311
     INVALID_LINK_ADDRESS = 0x0312
     INVALID_SEGMENT = 0x0315
-    MISCELLANEOUS = 0x031C  # no other extended status applies
+    MISCELLANEOUS = 0x031C  # no other extended status applies; the farm's choice for a SafetyOpen's
+    # time correction EPI and max fault number
     # CIP Safety (Vol. 5, table 3-5.33 extended): refusals of a SafetyOpen
     INVALID_SAFETY_CONNECTION_SIZE = 0x0802
     INVALID_SAFETY_FORMAT = 0x0803
@@ -71,7 +75,7 @@ class ExtendedStatus(IntEnum):
 
 
 #: General status in words (Vol. 1, appendix B-1), for logs and messages.
-GENERAL_STATUS_TEXT: dict[int, str] = {
+GENERAL_STATUS_TEXT: Mapping[int, str] = MappingProxyType({
     0x00: "success",
     0x01: "connection failure",
     0x02: "resource unavailable",
@@ -112,10 +116,10 @@ GENERAL_STATUS_TEXT: dict[int, str] = {
     0x27: "unexpected attribute in list",
     0x28: "invalid member id",
     0x29: "member not settable",
-}
+})
 
 #: Connection Manager extended status in words (Vol. 1, table 3-5.33).
-EXTENDED_STATUS_TEXT: dict[int, str] = {
+EXTENDED_STATUS_TEXT: Mapping[int, str] = MappingProxyType({
     0x0100: "connection in use or duplicate Forward Open",
     0x0103: "transport class and trigger combination not supported",
     0x0106: "ownership conflict",
@@ -136,7 +140,7 @@ EXTENDED_STATUS_TEXT: dict[int, str] = {
     0x012B: "invalid producing application path",
     0x0132: "null Forward Open not supported",
     0x0203: "connection timed out",
-    0x0205: "parameter error in a SafetyOpen",
+    0x0205: "parameter error in unconnected request service",
     0x0311: "invalid port in the route path",
     0x0312: "invalid link address in the route path",
     0x0315: "invalid segment in the connection path",
@@ -154,7 +158,7 @@ EXTENDED_STATUS_TEXT: dict[int, str] = {
     0x080C: "SCID mismatch",
     0x080D: "TUNID not set",
     0x080E: "TUNID mismatch",
-}
+})
 
 
 def describe_status(general: int, extended: int | None = None) -> str:

@@ -28,8 +28,9 @@ class RateLimitedLog:
         self._held: dict[str, tuple[int, int, str, tuple]] = {}  # key -> (count, level, message, args) of the last
         self._lock = threading.Lock()
 
-    def log(self, level: int, key: str, now: float, message: str, *args: object) -> bool:
-        """Log the line unless its key has had `burst` lines in this window; True if it was shown."""
+    def log(self, level: int, key: str, now: float, message: str, *args: object, exc_info: bool = False) -> bool:
+        """Log the line unless its key has had `burst` lines in this window; True if it was shown.
+        `exc_info`: a line shown carries the exception being handled (one held back does not)."""
         with self._lock:
             window = self._windows.get(key)
             held = None
@@ -43,7 +44,7 @@ class RateLimitedLog:
             window[1] += 1
         if held is not None:
             message += f" ({held[0]} more like this since the last line)"
-        self.logger.log(level, message, *args)
+        self.logger.log(level, message, *args, exc_info=exc_info)
         return True
 
     def warning(self, key: str, now: float, message: str, *args: object) -> bool:

@@ -17,7 +17,7 @@ from typing import NamedTuple
 
 from enip_farm.cip.connection import Connection, ConnectionKind
 from enip_farm.cip.safety.crc import Seeds
-from enip_farm.cip.safety.messages import TCOO_SIZE, data_length
+from enip_farm.cip.safety.messages import TCOO_SIZE, data_length, wire_size
 from enip_farm.cip.safety.segment import (
     NOT_USED,
     TIME_CORRECTION_NOT_USED,
@@ -204,8 +204,7 @@ def _parameters(request: ForwardOpenRequest, segment: SafetySegment, sizes: tupl
         return SafetyRefusal(X.INVALID_SAFETY_CONNECTION_SIZE)
     expected = sizes[0] if server else sizes[1]
     if length != expected:
-        wire = expected + 6 if expected <= 2 else 2 * expected + 8
-        return SafetyRefusal(X.INVALID_O_T_SIZE if server else X.INVALID_T_O_SIZE, wire)
+        return SafetyRefusal(X.INVALID_O_T_SIZE if server else X.INVALID_T_O_SIZE, wire_size(expected))
     data_rpi, tcoo_rpi = (request.o_t_rpi, request.t_o_rpi) if server else (request.t_o_rpi, request.o_t_rpi)
     max_rpi = _MAX_RPI_EXTENDED_US if segment.extended else _MAX_RPI_BASE_US
     if not (_MIN_RPI_US <= data_rpi <= max_rpi and _MIN_RPI_US <= tcoo_rpi <= _MAX_RPI_TCOO_US):

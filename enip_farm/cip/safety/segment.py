@@ -22,13 +22,15 @@ up to the CPCRC field. (The layout cm-ethernetip's originator and target both us
 from __future__ import annotations
 
 import struct
+from collections.abc import Mapping
+from types import MappingProxyType
 from typing import NamedTuple
 
 from enip_farm.cip.safety.crc import crc_s4
 
 SAFETY_SEGMENT = 0x50
 FORMAT_BASE, FORMAT_ROUTER, FORMAT_EXTENDED = 0, 1, 2
-SIZE_WORDS = {FORMAT_BASE: 27, FORMAT_EXTENDED: 30}
+SIZE_WORDS: Mapping[int, int] = MappingProxyType({FORMAT_BASE: 27, FORMAT_EXTENDED: 30})
 _COMMON = struct.Struct("<I6sIH10s10sHHHBB")
 _BASE_TAIL = struct.Struct("<II")
 _EXTENDED_TAIL = struct.Struct("<HIIHH")
