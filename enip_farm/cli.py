@@ -7,6 +7,7 @@ import re
 import signal
 import sys
 from pathlib import Path
+from types import MappingProxyType
 from typing import Any
 from urllib.parse import urlsplit
 
@@ -373,8 +374,8 @@ def fault(first: str, second: str | None, third: str | None, delay_ms: float, ma
 
 
 #: The `fault` command's flag for each parameter of a Fault.
-_FAULT_FLAGS = {"max_delay_ms": "--max-delay-ms", "delay_ms": "--delay-ms", "duration_s": "--duration",
-                "service": "--service", "status": "--status"}
+_FAULT_FLAGS = MappingProxyType({"max_delay_ms": "--max-delay-ms", "delay_ms": "--delay-ms",
+                                 "duration_s": "--duration", "service": "--service", "status": "--status"})
 
 
 def _fault_problem(error: FaultError) -> str:

@@ -8,16 +8,16 @@ from __future__ import annotations
 import datetime
 import logging
 import struct
-import threading
 import subprocess
+import threading
 from pathlib import Path
 
 import pytest
 import yaml
 
-from enip_farm.device.catalogue import shipped_catalogue
 from enip_farm.config import parse_config
 from enip_farm.device.build import build_profiles
+from enip_farm.device.catalogue import shipped_catalogue
 from enip_farm.eds.reader import EdsError, _eds_pie_messages, eds_profile, parse_eds, read_eds
 from enip_farm.eds.writer import model_profile, write_eds
 from enip_farm.protocol.epath import LogicalSegment, LogicalType, decode_epath

@@ -214,7 +214,7 @@ def test_a_non_finite_value_over_http_is_a_422(enip_farm, value: str) -> None:
         {"name": "aoSpeed", "type": "AO", "device_map": "0-15", "min_log": 0, "max_log": 10, "min_bit_val": 0,
          "max_bit_val": 32767}])
     with httpx.Client(base_url=f"http://127.0.0.1:{farm.http.port}") as client:
-        reply = client.put("/devices/io1/io", content='{"signals": {"aoSpeed": %s}}' % value,
+        reply = client.put("/devices/io1/io", content='{"signals": {"aoSpeed": ' + value + "}}",
                            headers={"content-type": "application/json"})
         assert reply.status_code == 422, reply.text  # was a 500 (OverflowError / ValueError)
         assert "aoSpeed" in reply.text and "finite" in reply.text
