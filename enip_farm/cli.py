@@ -560,17 +560,20 @@ def golden(capture: Path, config_path: Path | None, device: str | None, address:
     file that is not a capture or holds no EtherNet/IP exchange)."""
     from contextlib import nullcontext
 
-    from enip_farm.capture.exchanges import load_exchanges
+    from enip_farm.capture.exchanges import exchanges_of
     from enip_farm.capture.golden import replay
+    from enip_farm.capture.packets import read_capture
 
     try:
-        groups = load_exchanges(capture)
+        read = read_capture(capture)
     except ValueError as error:  # CaptureError: not a capture, or cut short
         click.echo(str(error), err=True)
         sys.exit(2)
+    groups = exchanges_of(read.packets)
     captured = sorted({e.device for group in groups for e in group})
     if not captured:
-        click.echo(f"{capture}: no EtherNet/IP exchanges on port 44818", err=True)
+        damaged = f" ({read.damaged} damaged frames skipped)" if read.damaged else ""
+        click.echo(f"{capture}: no EtherNet/IP exchanges on port 44818{damaged}", err=True)
         sys.exit(2)
     farm = None if address else _farm(_load(config_path, build=False))
     names: dict[str, str] = {}
@@ -599,7 +602,8 @@ def golden(capture: Path, config_path: Path | None, device: str | None, address:
     for result in results:
         click.echo(result.line())
     failed = sum(not r.passed for r in results)
-    click.echo(f"{len(results)} exchanges: {len(results) - failed} passed, {failed} failed")
+    skipped = f", {read.damaged} damaged frame{'s' if read.damaged > 1 else ''} skipped" if read.damaged else ""
+    click.echo(f"{len(results)} exchanges: {len(results) - failed} passed, {failed} failed{skipped}")
     sys.exit(1 if failed else 0)
 
 

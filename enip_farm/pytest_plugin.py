@@ -8,8 +8,9 @@
 `enip_farm(...)` takes a config file path (a cell's YAML, or a controller's EIO.cfg, imported as
 `enip-farm eio import` does, its warnings raised as `EioImportWarning`s), a config dict, or one
 device's fields as keyword arguments. Devices go on fresh 127.x addresses (each test process takes
-its own block, so parallel tests never collide) unless `keep_addresses=True`. The farm serves from a background thread, so synchronous clients
-(pycomm3) and async tests alike can talk to it; at teardown every socket and the thread are gone.
+its own block, so parallel tests never collide) unless `keep_addresses=True`. The farm serves from
+a background thread, so synchronous clients (pycomm3) and async tests alike can talk to it; at
+teardown every socket and the thread are gone.
 """
 
 from __future__ import annotations
