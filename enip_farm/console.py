@@ -3,7 +3,7 @@ from the devices' events (`Device.observe`, device/events.py), as `DEVICE ADDRES
 
 - WARNING: connection timed out; connection refused (a Forward Open or Close, with the general and
   extended status in hex and words); encapsulation refused (with the encapsulation status); fault
-  injected; CIP Safety: safety crc fault, safety timing fault, connection faulted, safe state.
+  injected.
 - INFO: tcp connected, closed, inactive; session registered, ended; connection opened (originator,
   RPI and sizes), closed, short data; request refused (its CIP status); fault cleared.
 - DEBUG: every other request; image changed; wired.
@@ -19,8 +19,7 @@ from __future__ import annotations
 import asyncio
 import logging
 import time
-from collections.abc import Callable, Iterable, Mapping
-from types import MappingProxyType
+from collections.abc import Callable, Iterable
 
 from enip_farm.device.device import Device
 from enip_farm.device.events import Event
@@ -32,20 +31,16 @@ LOGGER = "enip_farm.console"
 #: Log line format of `serve` (configure_logging).
 LOG_FORMAT = "%(asctime)s %(levelname)s %(message)s"
 
-_LEVELS: Mapping[str, int] = MappingProxyType({
+_LEVELS = {
     "connection timed out": logging.WARNING, "connection refused": logging.WARNING,
     "encapsulation refused": logging.WARNING, "fault injected": logging.WARNING,
-    # CIP Safety (cip/connection_table.py): a faulted safety connection and its safe state
-    "connection faulted": logging.WARNING, "safety crc fault": logging.WARNING,
-    "safety timing fault": logging.WARNING, "safe state": logging.WARNING,
     "image changed": logging.DEBUG, "wired": logging.DEBUG,
-})
+}
 #: Refusals the console leaves to another line: a Forward Open/Close refused by the connection
 #: table (its "connection refused" event says more), a Multiple Service Packet whose embedded
 #: requests failed (each is told).
-_TOLD_ELSEWHERE: frozenset[tuple[int, int]] = frozenset({
-    (Service.FORWARD_OPEN, 0x01), (Service.LARGE_FORWARD_OPEN, 0x01), (Service.FORWARD_CLOSE, 0x01),
-    (Service.MULTIPLE_SERVICE_PACKET, 0x1E)})
+_TOLD_ELSEWHERE = {(Service.FORWARD_OPEN, 0x01), (Service.LARGE_FORWARD_OPEN, 0x01), (Service.FORWARD_CLOSE, 0x01),
+                   (Service.MULTIPLE_SERVICE_PACKET, 0x1E)}
 
 
 def configure_logging(level: str = "info", quiet: bool = False) -> None:
