@@ -7,6 +7,7 @@ import re
 import signal
 import sys
 from pathlib import Path
+from types import MappingProxyType
 from typing import Any
 from urllib.parse import urlsplit
 
@@ -373,8 +374,8 @@ def fault(first: str, second: str | None, third: str | None, delay_ms: float, ma
 
 
 #: The `fault` command's flag for each parameter of a Fault.
-_FAULT_FLAGS = {"max_delay_ms": "--max-delay-ms", "delay_ms": "--delay-ms", "duration_s": "--duration",
-                "service": "--service", "status": "--status"}
+_FAULT_FLAGS = MappingProxyType({"max_delay_ms": "--max-delay-ms", "delay_ms": "--delay-ms",
+                                 "duration_s": "--duration", "service": "--service", "status": "--status"})
 
 
 def _fault_problem(error: FaultError) -> str:
@@ -559,17 +560,20 @@ def golden(capture: Path, config_path: Path | None, device: str | None, address:
     file that is not a capture or holds no EtherNet/IP exchange)."""
     from contextlib import nullcontext
 
-    from enip_farm.capture.exchanges import load_exchanges
+    from enip_farm.capture.exchanges import exchanges_of
     from enip_farm.capture.golden import replay
+    from enip_farm.capture.packets import read_capture
 
     try:
-        groups = load_exchanges(capture)
+        read = read_capture(capture)
     except ValueError as error:  # CaptureError: not a capture, or cut short
         click.echo(str(error), err=True)
         sys.exit(2)
+    groups = exchanges_of(read.packets)
     captured = sorted({e.device for group in groups for e in group})
     if not captured:
-        click.echo(f"{capture}: no EtherNet/IP exchanges on port 44818", err=True)
+        damaged = f" ({read.damaged} damaged frames skipped)" if read.damaged else ""
+        click.echo(f"{capture}: no EtherNet/IP exchanges on port 44818{damaged}", err=True)
         sys.exit(2)
     farm = None if address else _farm(_load(config_path, build=False))
     names: dict[str, str] = {}
@@ -598,7 +602,8 @@ def golden(capture: Path, config_path: Path | None, device: str | None, address:
     for result in results:
         click.echo(result.line())
     failed = sum(not r.passed for r in results)
-    click.echo(f"{len(results)} exchanges: {len(results) - failed} passed, {failed} failed")
+    skipped = f", {read.damaged} damaged frame{'s' if read.damaged > 1 else ''} skipped" if read.damaged else ""
+    click.echo(f"{len(results)} exchanges: {len(results) - failed} passed, {failed} failed{skipped}")
     sys.exit(1 if failed else 0)
 
 

@@ -125,14 +125,14 @@ class SignalConfig(_Strict):
                             'image, least significant first: "3", "8-15", "0-7,16-23"')
     invert: bool = Field(False, description="DI/DO: the physical bit is the inverse of the value")
     enc_type: Literal["UNSIGNED", "TWO_COMP"] = Field("UNSIGNED", description="AI/AO encoding of the raw value")
-    min_log: float | None = None
-    max_log: float | None = None
-    min_phys: float | None = None
-    max_phys: float | None = None
-    min_phys_limit: float | None = None
-    max_phys_limit: float | None = None
-    min_bit_val: float | None = None
-    max_bit_val: float | None = None
+    min_log: float | None = Field(None, allow_inf_nan=False)
+    max_log: float | None = Field(None, allow_inf_nan=False)
+    min_phys: float | None = Field(None, allow_inf_nan=False)
+    max_phys: float | None = Field(None, allow_inf_nan=False)
+    min_phys_limit: float | None = Field(None, allow_inf_nan=False)
+    max_phys_limit: float | None = Field(None, allow_inf_nan=False)
+    min_bit_val: float | None = Field(None, allow_inf_nan=False)
+    max_bit_val: float | None = Field(None, allow_inf_nan=False)
     extra: dict[str, EioValue] = Field({}, description="other EIO_SIGNAL attributes (Label, Category, Access...), "
                                        "kept as they were for `enip-farm eio export`")
 

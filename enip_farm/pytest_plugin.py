@@ -6,16 +6,18 @@
         ...
 
 `enip_farm(...)` takes a config file path (a cell's YAML, or a controller's EIO.cfg, imported as
-`enip-farm eio import` does), a config dict, or one device's fields as keyword arguments. Devices go
-on fresh 127.x addresses (each test process takes its own block, so parallel tests never collide)
-unless `keep_addresses=True`. The farm serves from a background thread, so synchronous clients
-(pycomm3) and async tests alike can talk to it; at teardown every socket and the thread are gone.
+`enip-farm eio import` does, its warnings raised as `EioImportWarning`s), a config dict, or one
+device's fields as keyword arguments. Devices go on fresh 127.x addresses (each test process takes
+its own block, so parallel tests never collide) unless `keep_addresses=True`. The farm serves from
+a background thread, so synchronous clients (pycomm3) and async tests alike can talk to it; at
+teardown every socket and the thread are gone.
 """
 
 from __future__ import annotations
 
 import itertools
 import os
+import warnings
 from collections.abc import Callable, Iterator
 from contextlib import ExitStack
 from pathlib import Path
@@ -27,7 +29,7 @@ import yaml
 from enip_farm.config import parse_config
 from enip_farm.device.catalogue import shipped_catalogue
 from enip_farm.eio.cfg import parse_cfg
-from enip_farm.eio.importer import import_eio
+from enip_farm.eio.importer import EioImportWarning, import_eio
 from enip_farm.farm import BindError, Farm
 
 
@@ -58,7 +60,10 @@ def _config_dict(source: str | Path | dict[str, Any] | None, device: dict[str, A
     if isinstance(source, dict):
         return dict(source)
     if str(source).lower().endswith(".cfg"):  # the controller's EIO.cfg, as `enip-farm eio import` reads it
-        return import_eio(parse_cfg(Path(source).read_text(), str(source)), shipped_catalogue()).document
+        result = import_eio(parse_cfg(Path(source).read_text(), str(source)), shipped_catalogue())
+        for warning in result.warnings:  # what `eio import` prints: pytest shows them in its summary
+            warnings.warn(warning, EioImportWarning, stacklevel=4)
+        return result.document
     return yaml.safe_load(Path(source).read_text())
 
 

@@ -151,3 +151,28 @@ def test_learn_never_names_a_model_like_a_built_in_one(tmp_path: Path) -> None:
     real, built_in = build_profiles(config, shipped_catalogue())
     assert real.model == "DSQC1030_learned" and real.serial_number == 0x1234
     assert built_in.model == "DSQC1030" and built_in.input_size == 2
+
+
+def _chain(count: int, closed: bool) -> dict:
+    """`count` devices, each one's DO1 wired to the next one's DI1 and a rule DI1 -> DO1 inside each:
+    one path through 2 * count nodes, closed into a loop when `closed`."""
+    devices = [{"name": f"d{n}", "address": f"127.1.{n // 250}.{n % 250 + 1}", "model": "DSQC1030"}
+               for n in range(count)]
+    last = count if closed else count - 1
+    wires = [{"from": f"d{n}.DO1", "to": f"d{(n + 1) % count}.DI1"} for n in range(last)]
+    rules = [{"when": f"d{n}.DI1", "set": f"d{n}.DO1"} for n in range(count)]
+    return {"devices": devices, "wires": wires, "rules": rules}
+
+
+@pytest.mark.parametrize("closed", [False, True])
+def test_a_chain_of_thousands_of_devices_does_not_exhaust_the_stack(closed: bool) -> None:
+    config = parse_config(_chain(3000, closed))  # the recursive search raised RecursionError past ~500
+    if not closed:
+        assert len(build_profiles(config, shipped_catalogue())) == 3000
+        return
+    with pytest.raises(ConfigError) as error:
+        build_profiles(config, shipped_catalogue())
+    [line] = str(error.value).splitlines()
+    assert line.startswith("<config>: wiring cycle: d0.inputs -> d0.outputs -> d1.inputs -> d1.outputs -> ")
+    assert line.endswith(" -> d2999.inputs -> d2999.outputs -> d0.inputs")
+    assert line.count(" -> ") == 6000

@@ -15,6 +15,8 @@ import yaml
 from pycomm3 import CIPDriver, Services
 
 from enip_farm.capture.exchanges import load_exchanges
+from enip_farm.capture.learn import learn
+from enip_farm.capture.packets import read_capture
 from enip_farm.capture.recorder import Recorder
 from enip_farm.config import parse_config
 from enip_farm.farm import Farm
@@ -59,6 +61,43 @@ def test_golden_seed_against_a_default_dsqc1030(free_address: AddressPool, tmp_p
     result = _golden(str(SEED), "--config", str(config), "--device", "io1")
     assert result.returncode == 0, result.stdout + result.stderr
     assert result.stdout.count("PASS") == 4 and "4 exchanges: 4 passed, 0 failed" in result.stdout
+
+
+def _with_damaged_frames(path: Path) -> Path:
+    """The seed capture with three damaged frames between its own: one cut inside its Ethernet
+    header, one whose IPv4 header is cut, one whose TCP header is cut."""
+    with open(SEED, "rb") as handle:
+        frames = list(dpkt.pcap.Reader(handle))
+    ethernet = frames[0][1][:14]
+    ip = dpkt.ip.IP(src=b"\x7f\0\0\x01", dst=b"\x7f\0\0\x02", p=dpkt.ip.IP_PROTO_TCP, data=b"\x01\x02\x03")
+    ip.len = len(ip)
+    damaged = [ethernet[:5], ethernet + bytes(ip)[:10], ethernet + bytes(ip)]
+    with open(path, "wb") as handle:
+        writer = dpkt.pcap.Writer(handle)
+        for index, (timestamp, buf) in enumerate(frames):
+            writer.writepkt(buf, timestamp)
+            if index < len(damaged):
+                writer.writepkt(damaged[index], timestamp)
+    return path
+
+
+def test_damaged_frames_are_skipped_and_counted(tmp_path: Path) -> None:
+    capture = read_capture(_with_damaged_frames(tmp_path / "damaged.pcap"))
+    assert capture.damaged == 3  # was skipped uncounted
+    assert capture.packets == read_capture(SEED).packets and read_capture(SEED).damaged == 0
+    [profile] = learn(tmp_path / "damaged.pcap")
+    assert profile.notes[-1] == ("3 damaged frames of the capture skipped (dpkt could not decode them): what they "
+                                 "held is not learned")
+    assert not any("damaged" in note for note in learn(SEED)[0].notes)
+
+
+@pytest.mark.system
+def test_golden_summary_counts_damaged_frames(free_address: AddressPool, tmp_path: Path) -> None:
+    config = _config(tmp_path, [{"name": "io1", "address": free_address(), "model": "DSQC1030"}])
+    capture = _with_damaged_frames(tmp_path / "damaged.pcap")
+    result = _golden(str(capture), "--config", str(config), "--device", "io1")
+    assert result.returncode == 0, result.stdout + result.stderr
+    assert result.stdout.splitlines()[-1] == "4 exchanges: 4 passed, 0 failed, 3 damaged frames skipped"
 
 
 @pytest.mark.system

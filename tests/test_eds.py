@@ -6,15 +6,19 @@ lines) and of an exported one, and the farm serves it as the EDS says."""
 from __future__ import annotations
 
 import datetime
+import logging
 import struct
 import subprocess
+import threading
 from pathlib import Path
 
 import pytest
 import yaml
 
+from enip_farm.config import parse_config
+from enip_farm.device.build import build_profiles
 from enip_farm.device.catalogue import shipped_catalogue
-from enip_farm.eds.reader import EdsError, eds_profile, parse_eds, read_eds
+from enip_farm.eds.reader import EdsError, _eds_pie_messages, eds_profile, parse_eds, read_eds
 from enip_farm.eds.writer import model_profile, write_eds
 from enip_farm.protocol.epath import LogicalSegment, LogicalType, decode_epath
 from tests.helpers import CLI, ROOT, RawClient, forward_open_message
@@ -205,6 +209,48 @@ def test_export_import_round_trip(enip_farm, tmp_path: Path) -> None:
                      (4, 100, 3), (4, 101, 3)):
             assert a.get(*path) == b.get(*path), path
         assert _check_against_device(eds, b) == 3
+
+
+def test_export_import_keeps_the_placeholders_unverified(tmp_path: Path) -> None:
+    addons = ("DSQC1031", "DSQC1032")
+    built_in = model_profile("DSQC1030", addons, shipped_catalogue())
+    name, document, _ = eds_profile(read_eds(_export("DSQC1030", addons), "dsqc1030.eds"), "dsqc1030.eds")
+    # was ["io layout"] alone: every placeholder the EDS marks is still one
+    assert document["models"][name]["unverified"] == [
+        "io layout", *(item.removeprefix("DSQC1030.") for item in built_in.unverified)]
+    assert {"identity.product_code", "identity.device_type", "DSQC1032.analog scaling"} \
+        <= set(document["models"][name]["unverified"])
+    profile_file = _write_profile(tmp_path / "imported.yaml", document)
+    [imported] = build_profiles(parse_config({"devices": [{"name": "x", "address": "127.0.0.1",
+                                                           "model": str(profile_file)}]}), shipped_catalogue())
+    assert f"{name}.identity.product_code" in imported.unverified
+
+
+def test_an_eds_without_unverified_comments_has_only_its_io_layout_unverified() -> None:
+    _, document, _ = eds_profile(read_eds(VENDOR_EDS.read_text(), "vendor.eds"), "vendor.eds", "Vendor")
+    assert document["models"]["Vendor"]["unverified"] == ["io layout"]
+
+
+def test_reading_an_eds_puts_the_eds_pie_logger_level_back() -> None:
+    logger = logging.getLogger("eds_pie")
+    before = logger.level
+    try:
+        for level in (logging.ERROR, logging.NOTSET):
+            logger.setLevel(level)
+            read_eds(VENDOR_EDS.read_text(), "vendor.eds")
+            assert logger.level == level  # was left at INFO for the rest of the process
+            assert logger.handlers == []
+    finally:
+        logger.setLevel(before)
+
+
+def test_each_read_collects_its_own_thread_messages_only() -> None:
+    other = threading.Thread(target=lambda: logging.getLogger("eds_pie.eds").warning("another read's warning"))
+    with _eds_pie_messages() as messages:
+        other.start()
+        other.join()
+        logging.getLogger("eds_pie.eds").warning("this read's warning")
+    assert messages.messages == ["this read's warning"]  # was both: one collector heard every thread
 
 
 @pytest.mark.system

@@ -22,7 +22,7 @@ from enip_farm.device.build import build_profiles
 from enip_farm.device.catalogue import shipped_catalogue
 from enip_farm.eio.cfg import MAX_LINE, CfgError, format_entry, parse_cfg, write_cfg
 from enip_farm.eio.exporter import ExportError, export_eio
-from enip_farm.eio.importer import GENERIC_MODEL, EioError, import_eio
+from enip_farm.eio.importer import GENERIC_MODEL, EioError, EioImportWarning, import_eio
 from enip_farm.protocol.epath import ElectronicKey
 from tests.helpers import CLI, ROOT, RawClient
 from tests.test_implicit import forward_close, forward_open
@@ -160,7 +160,8 @@ def test_import_makes_each_ethernetip_device_with_the_identity_and_sizes_the_con
     gripper, conveyor, vision = devices.values()
     assert [d["address"] for d in devices.values()] == ["127.0.20.1", "127.0.20.2", "127.0.20.3"]
     assert gripper["model"] == conveyor["model"] == "DSQC1030"
-    assert gripper["identity"] == {"vendor_id": 75, "device_type": 7, "product_code": 1030, "product_name": "DSQC1030"}
+    # -ProductCode 1030 -DeviceType 7 -ProductName "DSQC1030" are DSQC1030's placeholders: no overrides
+    assert gripper["identity"] == {"vendor_id": 75}
     assert gripper["assemblies"] == {"output": 100, "input": 101, "configuration": 1, "output_size": 10,
                                      "input_size": 10}
     assert gripper["extra"] == {"VendorName": "ABB Robotics", "Label": "Gripper I/O, DSQC1030 + DSQC1032"}
@@ -192,7 +193,12 @@ def test_import_makes_each_ethernetip_device_with_the_identity_and_sizes_the_con
     # what the entry gave is no longer a placeholder; what it did not give still is
     assert vision_profile.unverified == (f"{GENERIC_MODEL}.identity.revision", f"{GENERIC_MODEL}.assemblies.input_only",
                                          f"{GENERIC_MODEL}.assemblies.listen_only", f"{GENERIC_MODEL}.routing")
-    assert "DSQC1030.identity.product_code" not in profiles["Gripper"].unverified
+    gripper_profile = profiles["Gripper"]
+    assert (gripper_profile.vendor_id, gripper_profile.device_type, gripper_profile.product_code,
+            gripper_profile.product_name) == (75, 7, 1030, "DSQC1030")  # served as the entry says
+    # a value equal to the catalogue's placeholder is no evidence: it stays unverified
+    assert {"DSQC1030.identity.product_code", "DSQC1030.identity.device_type",
+            "DSQC1030.identity.product_name"} <= set(gripper_profile.unverified)
 
 
 def test_import_reports_what_it_did_not_import_or_does_not_know() -> None:
@@ -200,8 +206,12 @@ def test_import_reports_what_it_did_not_import_or_does_not_know() -> None:
     assert result.warnings == [
         "EIO.cfg:3: INDUSTRIAL_NETWORK (1 entry): not used by the farm, which serves devices and their signals: "
         "not imported, kept as comments",
+        "EIO.cfg:10: ETHERNETIP_DEVICE 'Gripper': matched DSQC1030 on an unverified product code: 1030 is the "
+        "catalogue's placeholder for DSQC1030, not a published value",
         "EIO.cfg:16: ETHERNETIP_DEVICE 'Conveyor': attribute -OutputConnectionType is unknown to the farm: kept in "
         "extra (eio export writes it back)",
+        "EIO.cfg:16: ETHERNETIP_DEVICE 'Conveyor': matched DSQC1030 on an unverified product code: 1030 is the "
+        "catalogue's placeholder for DSQC1030, not a published value",
         "EIO.cfg:21: ETHERNETIP_DEVICE 'Vision': vendor 283 product code 4711 is not a model of the catalogue: "
         f"served by {GENERIC_MODEL} with the entry's identity and sizes",
         "EIO.cfg:27: LOCAL_DEVICE (1 entry): devices that are not EtherNet/IP devices the controller scans: not "
@@ -277,9 +287,13 @@ def test_devices_the_farm_cannot_serve_are_reported_and_the_rest_imported() -> N
     assert [d["name"] for d in result.document["devices"]] == ["a"]
     assert [s["name"] for s in result.document["devices"][0]["signals"]] == ["diOk"]
     assert result.warnings == [
+        "EIO.cfg:5: ETHERNETIP_DEVICE 'a': matched DSQC1030 on an unverified product code: 1030 is the catalogue's "
+        "placeholder for DSQC1030, not a published value",
         "EIO.cfg:6: ETHERNETIP_DEVICE 'b': no IPv4 -Address (None): not imported, kept as a comment (--base-address "
         "gives every device a farm address)",
         "EIO.cfg:7: ETHERNETIP_DEVICE 'A': a second device of this name: not imported, kept as a comment",
+        "EIO.cfg:8: ETHERNETIP_DEVICE 'c': matched DSQC1030 on an unverified product code: 1030 is the catalogue's "
+        "placeholder for DSQC1030, not a published value",
         "EIO.cfg:8: ETHERNETIP_DEVICE 'c': the same -Address 10.0.0.5 as device 'a': not imported, kept as a comment "
         "(--base-address gives every device its own)",
         "EIO.cfg:9: ETHERNETIP_DEVICE 'd': -VendorId 'ABB' is not a number in 0..65535: not used (the model's value "
@@ -306,7 +320,9 @@ def test_a_device_entry_of_another_section_with_an_address_and_vendor_is_read_as
                                       section="EIO_DEVICE"))
     assert [d["name"] for d in result.document["devices"]] == ["io"]
     assert result.warnings == ["EIO.cfg:5: EIO_DEVICE 'io': read as an EtherNet/IP device (it has an IPv4 -Address "
-                               "and a -VendorId)"]
+                               "and a -VendorId)",
+                               "EIO.cfg:5: EIO_DEVICE 'io': matched DSQC1030 on an unverified product code: 1030 is "
+                               "the catalogue's placeholder for DSQC1030, not a published value"]
 
 
 @pytest.mark.parametrize(("text", "message"), [
@@ -353,13 +369,38 @@ def test_export_then_import_gives_back_the_same_devices_and_signals() -> None:
     text = export_eio(parse_config(CELL), shipped_catalogue())
     result = import_eio(parse(text), shipped_catalogue())
     assert _served(result.document) == _served(CELL)
+    placeholder = ("matched {0} on an unverified product code: {1} is the catalogue's placeholder for {0}, not a "
+                   "published value")
     assert result.warnings == [  # the farm's own output holds nothing else it does not know
+        f"EIO.cfg:5: ETHERNETIP_DEVICE 'io1': {placeholder.format('DSQC1030', 1030)}",
+        f"EIO.cfg:10: ETHERNETIP_DEVICE 'io2': {placeholder.format('DSQC1030', 1030)}",
+        f"EIO.cfg:15: ETHERNETIP_DEVICE 'analog': {placeholder.format('DSQC1030', 1030)}",
         "EIO.cfg:20: ETHERNETIP_DEVICE 'scanner': vendor 1 product code 77 is not a model of the catalogue: served "
-        f"by {GENERIC_MODEL} with the entry's identity and sizes"]
+        f"by {GENERIC_MODEL} with the entry's identity and sizes",
+        f"EIO.cfg:25: ETHERNETIP_DEVICE 'safety': {placeholder.format('DSQC1042', 1042)}"]
     assert all(len(line) <= MAX_LINE for line in text.splitlines())
     assert text.startswith("EIO:CFG_1.0::\n#\nETHERNETIP_DEVICE:\n\n")
     assert '      -Name "safety" -Address "127.0.30.11" -VendorId 75 -ProductCode 1042\\\n' \
            "      -DeviceType 7\n" in text  # no assemblies: identity only; no placeholder product name
+
+
+def _unverified(document: dict) -> dict[str, tuple[str, ...]]:
+    return {p.name: p.unverified for p in build_profiles(parse_config(document), shipped_catalogue())}
+
+
+def test_export_then_import_keeps_the_placeholders_unverified() -> None:
+    before = _unverified(CELL)
+    result = import_eio(parse(export_eio(parse_config(CELL), shipped_catalogue())), shipped_catalogue())
+    after = _unverified(result.document)
+    assert {"DSQC1030.identity.device_type", "DSQC1030.identity.product_code"} <= set(after["io1"])
+    for name in ("io1", "io2", "safety"):
+        assert after[name] == before[name]
+    # EIO.cfg names no add-on: the DSQC1032's own items go with it; the base's stay
+    assert after["analog"] == tuple(item for item in before["analog"] if not item.startswith("DSQC1032."))
+    # configuration instance 1 is GenericAdapter's placeholder too: given or not, the file cannot tell
+    assert set(after["scanner"]) == {*before["scanner"], f"{GENERIC_MODEL}.assemblies.configuration"}
+    io1 = devices_by_name(result.document)["io1"]
+    assert io1["identity"] == {"vendor_id": 75}  # no placeholder as an override
 
 
 def test_import_then_export_then_import_is_stable() -> None:
@@ -445,7 +486,12 @@ def test_an_imported_cell_answers_as_the_controller_expects(enip_farm) -> None:
 
 
 def test_named_signals_of_an_imported_cell_over_cip(enip_farm) -> None:
-    farm = enip_farm(DATA)  # the fixture imports a controller's EIO.cfg as `eio import` does
+    with pytest.warns(EioImportWarning) as caught:
+        farm = enip_farm(DATA)  # the fixture imports a controller's EIO.cfg as `eio import` does
+    # every warning `eio import` gives, as a Python warning pointing at this test (was: none at all)
+    assert [str(w.message) for w in caught] == import_eio(parse_cfg(DATA.read_text(), str(DATA)),
+                                                          shipped_catalogue()).warnings
+    assert {w.filename for w in caught} == {__file__}
     gripper, vision = farm["Gripper"], farm["Vision"]
     gripper.set(diGripperClosed=1, giGripperState=5, aiGripperPos=100.0)
     # bit 0 set; bit 1 clear (diGripperOpen is inverted: it reads 1); bits 4-7 = 5; bits 16-31 = 32767
@@ -477,7 +523,7 @@ def test_cli_import_validate_export_import(tmp_path: Path) -> None:
     assert result.returncode == 0, result.stderr
     lines = result.stderr.splitlines()
     assert lines[:-1] == imported().warnings  # one line each
-    assert lines[-1] == "cell.yaml: 3 devices, 16 named signals, 11 warnings"
+    assert lines[-1] == "cell.yaml: 3 devices, 16 named signals, 13 warnings"
     assert result.stdout == ""
     assert yaml.safe_load((tmp_path / "cell.yaml").read_text()) == imported().document
     validated = _cli("validate", "cell.yaml", cwd=tmp_path)

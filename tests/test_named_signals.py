@@ -44,6 +44,23 @@ def test_bad_device_map(text: str) -> None:
         parse_device_map(text)
 
 
+@pytest.mark.parametrize(("text", "message"), [
+    ("0-4000000000", "beyond the largest image"), ("4000000000-0", "beyond the largest image"),
+    ("3968", "beyond the largest image"), ("0-32", "spans 33 bits"), ("100-3967", "spans 3868 bits"),
+])
+def test_a_huge_device_map_is_refused_before_it_is_expanded(text: str, message: str) -> None:
+    with pytest.raises(SignalError, match=message):
+        parse_device_map(text)  # before the fix: range(0, 4000000001) into a list, memory exhausted
+    assert parse_device_map("3936-3967") == tuple(range(3936, 3968))  # the last 32 bits of a 496-byte image
+
+
+def test_a_huge_device_map_in_a_configuration_is_a_config_error() -> None:
+    config = parse_config({"devices": [{"name": "io1", "address": "127.0.0.1", "model": "DSQC1030", "signals": [
+        {"name": "giHuge", "type": "GI", "device_map": "0-4000000000"}]}]})
+    with pytest.raises(ConfigError, match="device map .0-4000000000.: bit 4000000000 is beyond"):
+        build_profiles(config, shipped_catalogue())
+
+
 def test_group_is_unsigned_over_its_bits_least_significant_first() -> None:
     go = signal(name="goProgramNo", type="GO", device_map="4-11")
     image = bytearray(2)
@@ -89,6 +106,27 @@ def test_two_complement_and_scaled_analog() -> None:
     assert ao.read(image) == pytest.approx(5.0, abs=10 / 32767)
     with pytest.raises(SignalError, match="out of range"):
         ao.write(image, 11.0)
+
+
+@pytest.mark.parametrize("value", [float("inf"), float("-inf"), float("nan")])
+def test_non_finite_values_are_refused(value: float) -> None:
+    ao = signal(name="aoSpeed", type="AO", device_map="0-15", min_log=0, max_log=10, min_bit_val=0,
+                max_bit_val=32767)
+    image = bytearray(2)
+    with pytest.raises(SignalError, match="finite"):  # was OverflowError (inf) / ValueError (nan)
+        ao.write(image, value)
+    assert image == b"\0\0"
+    huge = signal(name="aoHuge", type="AO", device_map="0-15", min_log=0, max_log=1e-300, min_bit_val=0,
+                  max_bit_val=1e300)
+    with pytest.raises(SignalError, match="out of range"):  # finite, but its scaling overflows
+        huge.write(image, 1e300)
+
+
+@pytest.mark.parametrize("value", [float("inf"), float("nan")])
+def test_non_finite_scaling_limits_are_refused_by_the_config(value: float) -> None:
+    with pytest.raises(ValueError, match="finite"):
+        SignalConfig.model_validate({"name": "aoSpeed", "type": "AO", "device_map": "0-15", "min_log": 0,
+                                     "max_log": value, "min_bit_val": 0, "max_bit_val": 32767})
 
 
 def test_a_digital_signal_maps_one_bit() -> None:
@@ -167,6 +205,20 @@ def test_names_in_the_http_api(enip_farm) -> None:
         assert farm["io1"].get("DI4") == 1
         bad = client.put("/devices/io1/io", json={"signals": {"giPartType": 99}})
         assert bad.status_code == 422 and "giPartType" in bad.text
+
+
+@pytest.mark.integration
+@pytest.mark.parametrize("value", ["Infinity", "-Infinity", "NaN"])
+def test_a_non_finite_value_over_http_is_a_422(enip_farm, value: str) -> None:
+    farm = enip_farm(name="io1", model="DSQC1030", http=True, signals=[
+        {"name": "aoSpeed", "type": "AO", "device_map": "0-15", "min_log": 0, "max_log": 10, "min_bit_val": 0,
+         "max_bit_val": 32767}])
+    with httpx.Client(base_url=f"http://127.0.0.1:{farm.http.port}") as client:
+        reply = client.put("/devices/io1/io", content='{"signals": {"aoSpeed": ' + value + "}}",
+                           headers={"content-type": "application/json"})
+        assert reply.status_code == 422, reply.text  # was a 500 (OverflowError / ValueError)
+        assert "aoSpeed" in reply.text and "finite" in reply.text
+        assert client.put("/devices/io1/io", json={"signals": {"aoSpeed": 5.0}}).status_code == 200
 
 
 def test_wires_and_rules_between_named_signals(free_address: AddressPool, enip_farm) -> None:

@@ -7,7 +7,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from pathlib import Path
 
-from enip_farm.capture.packets import Packet, read_packets, tcp_streams
+from enip_farm.capture.packets import Packet, read_capture, tcp_streams
 from enip_farm.protocol.encapsulation import HEADER, Frame, StreamFramer, decode_frame
 
 ENIP_PORT = 44818
@@ -47,7 +47,7 @@ def _pair(stream: int, transport: str, device: str, requests: list[Frame], repli
 def load_exchanges(path: str | Path) -> list[list[Exchange]]:
     """The exchanges of a capture, grouped: one list per TCP stream in order, then the UDP ones.
     Raises CaptureError (capture/packets.py) for a file that is not a readable capture."""
-    return exchanges_of(read_packets(path))
+    return exchanges_of(read_capture(path).packets)
 
 
 def exchanges_of(packets: list[Packet]) -> list[list[Exchange]]:

@@ -33,13 +33,13 @@ appended; with several devices each name also carries the device's address.
 from __future__ import annotations
 
 import struct
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from types import MappingProxyType
 from typing import Any
 
 from enip_farm.capture.exchanges import Exchange, exchanges_of
-from enip_farm.capture.packets import Packet, read_packets
+from enip_farm.capture.packets import Packet, read_capture
 from enip_farm.config import DeviceConfig
 from enip_farm.device.catalogue import Catalogue, shipped_catalogue
 from enip_farm.device.device import Device
@@ -281,7 +281,8 @@ def learn(capture: str | Path, name: str | None = None, catalogue: Catalogue | N
     if name is not None and name in catalogue.models:
         raise LearnError(f"{name!r} is a model of the catalogue: a learned profile never replaces one, "
                          "choose another name")
-    packets = read_packets(capture)
+    read = read_capture(capture)
+    packets = read.packets
     groups = exchanges_of(packets)
     identities = _identity_replies(packets)
     devices = _devices(groups, identities)
@@ -305,6 +306,10 @@ def learn(capture: str | Path, name: str | None = None, catalogue: Catalogue | N
         if address in identities and not evidence.identity:
             _identity_from_item(identities[address], evidence.identity)
         profile = _profile(Path(capture).name, address, evidence, name, len(devices) > 1, taken, catalogue)
+        if read.damaged:
+            profile = replace(profile, notes=(*profile.notes, f"{read.damaged} damaged frame"
+                                          f"{'s' if read.damaged > 1 else ''} of the capture skipped (dpkt could "
+                                          "not decode them): what they held is not learned"))
         taken.add(profile.name)
         profiles.append(profile)
     return profiles

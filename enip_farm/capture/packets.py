@@ -1,6 +1,7 @@
 """pcap and pcapng in and out (with dpkt): packets as (addresses, ports, TCP flags, payload),
 Ethernet/IPv4/TCP/UDP frames built with correct checksums, and TCP streams reassembled per
-direction. A file dpkt cannot read as a capture is one `CaptureError` with a one-line message."""
+direction. A file dpkt cannot read as a capture is one `CaptureError` with a one-line message; a
+damaged frame inside a readable capture is skipped and counted (`Capture.damaged`)."""
 
 from __future__ import annotations
 
@@ -27,15 +28,25 @@ class Packet:
     payload: bytes
 
 
+@dataclass(frozen=True)
+class Capture:
+    packets: list[Packet]  # IPv4 TCP and UDP packets, in capture order
+    damaged: int  # frames skipped because dpkt could not decode them (cut or malformed headers)
+
+
 def _ip_of(link_type: int, buf: bytes) -> dpkt.ip.IP | None:
-    if link_type == dpkt.pcap.DLT_EN10MB:
-        frame = dpkt.ethernet.Ethernet(buf)
-        return frame.data if isinstance(frame.data, dpkt.ip.IP) else None
+    """The IPv4 packet of a frame, None for other traffic; UnpackError/ValueError for a damaged one
+    (dpkt leaves an IPv4 payload it cannot decode as bytes: that is damage too)."""
+    if link_type in (dpkt.pcap.DLT_EN10MB, dpkt.pcap.DLT_LINUX_SLL):
+        frame = dpkt.ethernet.Ethernet(buf) if link_type == dpkt.pcap.DLT_EN10MB else dpkt.sll.SLL(buf)
+        if isinstance(frame.data, dpkt.ip.IP):
+            return frame.data
+        ethertype = frame.type if link_type == dpkt.pcap.DLT_EN10MB else frame.ethtype
+        if ethertype == dpkt.ethernet.ETH_TYPE_IP:
+            raise ValueError("an IPv4 header dpkt cannot decode")
+        return None
     if link_type in (dpkt.pcap.DLT_RAW, 101, 228):  # raw IP, LINKTYPE_RAW, IPv4
         return dpkt.ip.IP(buf)
-    if link_type == dpkt.pcap.DLT_LINUX_SLL:
-        frame = dpkt.sll.SLL(buf)
-        return frame.data if isinstance(frame.data, dpkt.ip.IP) else None
     if link_type in (dpkt.pcap.DLT_NULL, dpkt.pcap.DLT_LOOP):
         frame = dpkt.loopback.Loopback(buf)
         return frame.data if isinstance(frame.data, dpkt.ip.IP) else None
@@ -46,10 +57,12 @@ class CaptureError(ValueError):
     """A file that is not a readable pcap or pcapng capture; the message is one line for the user."""
 
 
-def read_packets(path: str | Path) -> list[Packet]:
-    """IPv4 TCP and UDP packets of a pcap or pcapng file, in capture order. Raises CaptureError
-    for a file that cannot be opened, is not a capture, or is cut inside a packet record."""
+def read_capture(path: str | Path) -> Capture:
+    """IPv4 TCP and UDP packets of a pcap or pcapng file, in capture order, and the number of
+    damaged frames skipped. Raises CaptureError for a file that cannot be opened, is not a
+    capture, or is cut inside a packet record."""
     packets: list[Packet] = []
+    damaged = 0
     records = -1  # until the file's header is read
     try:
         with open(path, "rb") as handle:
@@ -60,7 +73,11 @@ def read_packets(path: str | Path) -> list[Packet]:
             records = 0
             for timestamp, buf in reader:
                 records += 1
-                packet = _packet(link_type, timestamp, buf)
+                try:
+                    packet = _packet(link_type, timestamp, buf)
+                except (dpkt.UnpackError, ValueError, struct.error):  # one damaged frame: skipped, counted
+                    damaged += 1
+                    continue
                 if packet is not None:
                     packets.append(packet)
     except OSError as error:
@@ -70,16 +87,13 @@ def read_packets(path: str | Path) -> list[Packet]:
             raise CaptureError(f"{path}: capture cut short after {records} packets ({error})") from None
         reason = "an empty file" if Path(path).stat().st_size == 0 else error or type(error).__name__
         raise CaptureError(f"{path}: not a pcap or pcapng capture ({reason})") from None
-    return packets
+    return Capture(packets, damaged)
 
 
 def _packet(link_type: int, timestamp: float, buf: bytes) -> Packet | None:
-    """The TCP or UDP packet of one record, or None (not IPv4 TCP/UDP, or a frame dpkt cannot
-    decode: one damaged frame does not make the capture unreadable)."""
-    try:
-        ip = _ip_of(link_type, buf)
-    except (dpkt.UnpackError, ValueError):
-        return None
+    """The TCP or UDP packet of one record, or None (not IPv4 TCP/UDP). Raises dpkt.UnpackError
+    or ValueError for a frame dpkt cannot decode."""
+    ip = _ip_of(link_type, buf)
     if ip is None:
         return None
     src, dst = socket.inet_ntoa(ip.src), socket.inet_ntoa(ip.dst)
@@ -89,6 +103,8 @@ def _packet(link_type: int, timestamp: float, buf: bytes) -> Packet | None:
     if isinstance(ip.data, dpkt.udp.UDP):
         udp = ip.data
         return Packet(timestamp, src, udp.sport, dst, udp.dport, "udp", 0, 0, bytes(udp.data))
+    if ip.p in (dpkt.ip.IP_PROTO_TCP, dpkt.ip.IP_PROTO_UDP) and not ip.mf and not ip.offset:  # not a fragment
+        raise ValueError("a TCP or UDP header dpkt cannot decode")
     return None
 
 

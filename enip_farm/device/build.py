@@ -193,29 +193,38 @@ def _cycles(edges: dict[tuple[str, str], set[tuple[str, str]]]) -> list[list[tup
     on_stack: set[tuple[str, str]] = set()
     components: list[list[tuple[str, str]]] = []
 
-    def connect(node: tuple[str, str]) -> None:  # Tarjan's algorithm; cells are small, recursion is fine
-        index[node] = low[node] = len(index)
-        stack.append(node)
-        on_stack.add(node)
-        for following in sorted(edges.get(node, ())):
-            if following not in index:
-                connect(following)
-                low[node] = min(low[node], low[following])
-            elif following in on_stack:
-                low[node] = min(low[node], index[following])
-        if low[node] == index[node]:
-            component = []
-            while True:
-                member = stack.pop()
-                on_stack.discard(member)
-                component.append(member)
-                if member == node:
-                    break
-            components.append(component)
-
-    for node in order:
-        if node not in index:
-            connect(node)
+    for root in order:  # Tarjan's algorithm with an explicit stack: a chain of thousands of devices is fine
+        if root in index:
+            continue
+        index[root] = low[root] = len(index)
+        stack.append(root)
+        on_stack.add(root)
+        work = [(root, iter(sorted(edges.get(root, ()))))]
+        while work:
+            node, followers = work[-1]
+            following = next(followers, None)
+            if following is not None:
+                if following not in index:
+                    index[following] = low[following] = len(index)
+                    stack.append(following)
+                    on_stack.add(following)
+                    work.append((following, iter(sorted(edges.get(following, ())))))
+                elif following in on_stack:
+                    low[node] = min(low[node], index[following])
+                continue
+            work.pop()
+            if work:
+                parent = work[-1][0]
+                low[parent] = min(low[parent], low[node])
+            if low[node] == index[node]:
+                component = []
+                while True:
+                    member = stack.pop()
+                    on_stack.discard(member)
+                    component.append(member)
+                    if member == node:
+                        break
+                components.append(component)
     cycles = []
     for component in components:
         members = set(component)

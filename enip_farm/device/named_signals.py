@@ -7,13 +7,19 @@ scaled linearly between them as the controller shows it."""
 
 from __future__ import annotations
 
+import math
 import re
 from typing import NamedTuple
 
 from enip_farm.config import SignalConfig
+from enip_farm.device.catalogue import MAX_ASSEMBLY_SIZE
 
 TYPES = ("DI", "DO", "GI", "GO", "AI", "AO")
 _RANGE = re.compile(r"^\s*(\d+)\s*(?:-\s*(\d+)\s*)?$")
+#: A signal's value has at most this many bits (GI/GO, AI/AO).
+MAX_BITS = 32
+#: Bits of the largest image an assembly holds: no device map names a bit beyond it.
+IMAGE_BITS = 8 * MAX_ASSEMBLY_SIZE
 
 
 class SignalError(ValueError):
@@ -29,6 +35,12 @@ def parse_device_map(text: str) -> tuple[int, ...]:
             raise SignalError(f"device map {text!r}: {part.strip()!r} is not a bit or a range like 8-15")
         first = int(match[1])
         last = int(match[2]) if match[2] is not None else first
+        if max(first, last) >= IMAGE_BITS:
+            raise SignalError(f"device map {text!r}: bit {max(first, last)} is beyond the largest image "
+                              f"({MAX_ASSEMBLY_SIZE} bytes, bits 0-{IMAGE_BITS - 1})")
+        if abs(last - first) >= MAX_BITS:
+            raise SignalError(f"device map {text!r}: {part.strip()!r} spans {abs(last - first) + 1} bits; a signal "
+                              f"has at most {MAX_BITS}")
         step = 1 if last >= first else -1
         bits.extend(range(first, last + step, step))
     if len(set(bits)) != len(bits):
@@ -96,7 +108,12 @@ class NamedSignal(NamedTuple):
             raise SignalError(f"{self.name}: values are numbers, got {value!r}")
         if self.scale is None and not isinstance(value, int):
             raise SignalError(f"{self.name}: values are integers, got {value!r}")
-        raw = self.scale.raw(value) if self.scale else int(value)
+        if isinstance(value, float) and not math.isfinite(value):
+            raise SignalError(f"{self.name}: values are finite numbers, got {value!r}")
+        try:
+            raw = self.scale.raw(value) if self.scale else int(value)
+        except OverflowError:  # a finite value whose scaling is beyond any float
+            raise SignalError(f"{self.name}: {value!r} is out of range ({self._range_text()})") from None
         low, high = (0, 1) if self.digital else self.raw_range
         if self.scale:  # the controller limits the logical value to its range
             ends = sorted((self.scale.raw(self.scale.min_log), self.scale.raw(self.scale.max_log)))
@@ -131,8 +148,8 @@ def named_signal(config: SignalConfig) -> NamedSignal:
     bits = parse_device_map(config.device_map)
     if config.type in ("DI", "DO") and len(bits) != 1:
         raise SignalError(f"signal {config.name}: a {config.type} maps one bit, not {config.device_map!r}")
-    if len(bits) > 32:
-        raise SignalError(f"signal {config.name}: {len(bits)} bits; at most 32")
+    if len(bits) > MAX_BITS:
+        raise SignalError(f"signal {config.name}: {len(bits)} bits; at most {MAX_BITS}")
     limits = (config.min_log, config.max_log, config.min_bit_val, config.max_bit_val)
     scale = None
     if config.type in ("AI", "AO") and all(limit is not None for limit in limits):

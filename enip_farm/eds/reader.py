@@ -11,12 +11,15 @@ reference takes that parameter's default. What the farm cannot serve as the EDS 
 connection's assemblies, a T->O run/idle header, a modeless O->T, an RPI range other than the
 device's policy) is reported as a note, never fatal. The I/O layout is not in an EDS in a form the
 farm reads: the profile has no numbered signals (`io layout` is unverified); name them with
-`signals:`.
+`signals:`. The `$ UNVERIFIED: MODEL.item` comments `enip-farm eds export` writes carry over into the
+profile's unverified items, so a placeholder does not turn into a fact by a round trip.
 """
 
 from __future__ import annotations
 
 import logging
+import re
+import threading
 from collections.abc import Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass
@@ -35,6 +38,8 @@ from enip_farm.protocol.epath import (
 
 _KINDS = ((26, "exclusive owner"), (25, "input only"), (24, "listen only"), (27, "redundant owner"))
 _MODELESS, _RUN_IDLE = 0, 4
+#: The header comment `enip-farm eds export` writes for each placeholder: `$ UNVERIFIED: MODEL.item`.
+_UNVERIFIED = re.compile(r"^\s*\$\s*UNVERIFIED:\s*(\S.*?)\s*$", re.MULTILINE)
 
 
 class EdsError(ValueError):
@@ -75,15 +80,21 @@ class EdsDevice:
     catalog: str
     connections: tuple[EdsConnection, ...]
     notes: tuple[str, ...]  # the checker's warnings and what could not be read
+    unverified: tuple[str, ...] = ()  # the model's items the file's `$ UNVERIFIED:` comments name
 
 
 class _Collector(logging.Handler):
+    """The messages one parse logs: records of the thread that parses (another thread's parse
+    logs to the same logger meanwhile)."""
+
     def __init__(self) -> None:
         super().__init__(logging.WARNING)
+        self.thread = threading.get_ident()
         self.messages: list[str] = []
 
     def emit(self, record: logging.LogRecord) -> None:
-        self.messages.append(record.getMessage())
+        if record.thread == self.thread:
+            self.messages.append(record.getMessage())
 
 
 @contextmanager
@@ -99,13 +110,15 @@ def _eds_pie_messages() -> Iterator[_Collector]:
     finally:
         root.removeHandler(guard)
     logger = logging.getLogger("eds_pie")
-    logger.setLevel(logging.INFO)  # not the lexer's line per token
+    level = logger.level
+    logger.setLevel(logging.INFO)  # not the lexer's line per token; put back afterwards
     collector = _Collector()
     logger.addHandler(collector)
     try:
         yield collector
     finally:
         logger.removeHandler(collector)
+        logger.setLevel(level)
 
 
 def _int(value: Any) -> int | None:
@@ -224,9 +237,19 @@ def read_eds(text: str, source: str) -> EdsDevice:
     connections = tuple(c for c in (reader.connection(k) for k in keywords) if c is not None)
     # eds-pie 1.2 logs "Unknown Entry" unformatted; its "Unknown Field" messages name the entry
     notes = [f"eds-pie: {m}" for m in messages if "{entry.keyword}" not in m] + notes
+    catalog = str(device["Catalog"] or "")
     return EdsDevice(_int(device["VendCode"]), str(device["VendName"] or ""), _int(device["ProdType"]),
                      _int(device["ProdCode"]), (_int(device["MajRev"]), _int(device["MinRev"])),
-                     str(device["ProdName"] or ""), str(device["Catalog"] or ""), connections, tuple(notes))
+                     str(device["ProdName"] or ""), catalog, connections, tuple(notes),
+                     _unverified_items(text, catalog))
+
+
+def _unverified_items(text: str, catalog: str) -> tuple[str, ...]:
+    """The placeholders an exported EDS lists (`$ UNVERIFIED: DSQC1030.identity.product_code`): the
+    base model's (the first of `Catalog`) without its name, an add-on's with it."""
+    base = catalog.split(" + ")[0].strip()
+    items = [item.removeprefix(f"{base}.") if base else item for item in _UNVERIFIED.findall(text)]
+    return tuple(dict.fromkeys(items))
 
 
 def _describe(connection: EdsConnection) -> str:
@@ -292,6 +315,6 @@ def eds_profile(device: EdsDevice, source: str, name: str | None = None,
         "assemblies": assemblies,
         "sizes": sizes,
         "io": {},
-        "unverified": ["io layout"],
+        "unverified": list(dict.fromkeys(["io layout", *device.unverified])),
     }
     return model_name, {"models": {model_name: model}}, notes

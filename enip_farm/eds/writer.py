@@ -23,6 +23,7 @@ import datetime
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
+from types import MappingProxyType
 
 from enip_farm.config import parse_config
 from enip_farm.device.build import build_profiles
@@ -36,9 +37,10 @@ EXCLUSIVE_OWNER, INPUT_ONLY, LISTEN_ONLY = 0x04010002, 0x02010002, 0x01010002
 #: only: multicast); O->T point to point, fixed or variable with the run/idle header (exclusive
 #: owner) or a fixed heartbeat (input only, listen only). The farm's admission, cip/admission.py.
 EXCLUSIVE_OWNER_PARAMETERS, INPUT_ONLY_PARAMETERS, LISTEN_ONLY_PARAMETERS = 0x77640407, 0x77640305, 0x77240305
-VENDOR_NAMES = {75: "ABB Robotics"}
-DEVICE_TYPES = {0x07: "General Purpose Discrete I/O", 0x0C: "Communications Adapter", 0x2B: "Generic Device"}
-_DATA_TYPES = {8: (0xD1, "BYTE"), 16: (0xD2, "WORD"), 32: (0xD3, "DWORD")}
+VENDOR_NAMES = MappingProxyType({75: "ABB Robotics"})
+DEVICE_TYPES = MappingProxyType({0x07: "General Purpose Discrete I/O", 0x0C: "Communications Adapter",
+                                 0x2B: "Generic Device"})
+_DATA_TYPES = MappingProxyType({8: (0xD1, "BYTE"), 16: (0xD2, "WORD"), 32: (0xD3, "DWORD")})
 _INT, _UDINT = 0xC3, 0xC8
 _INDENT, _FIELD = " " * 8, " " * 16
 

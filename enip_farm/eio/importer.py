@@ -5,7 +5,10 @@ the file's `EIO_SIGNAL` entries become each device's named signals.
 
 A device's model is the catalogue's base whose vendor id and product code match the entry (and
 whose own channels fit the entry's sizes), else the generic adapter (`GenericAdapter`) with the
-entry's identity and sizes. EIO.cfg does not name add-on modules: sizes beyond a base's own are
+entry's identity and sizes. Most of the catalogue's product codes are placeholders (ABB does not
+publish them): a match on one is reported as a warning. An entry value equal to the model's
+placeholder (as `eio export` writes it) is not written as an override, so the device still lists
+it as unverified. EIO.cfg does not name add-on modules: sizes beyond a base's own are
 served as they are, and the YAML's comment names add-ons that would give them.
 
 Nothing unknown is fatal: attributes the farm does not use go to the device's or signal's
@@ -20,6 +23,7 @@ import itertools
 import re
 from dataclasses import dataclass, field
 from ipaddress import AddressValueError, IPv4Address
+from types import MappingProxyType
 from typing import Any
 
 import yaml
@@ -27,7 +31,7 @@ from pydantic import ValidationError
 
 from enip_farm.config import ConfigError, SignalConfig, parse_config
 from enip_farm.device.build import build_profiles
-from enip_farm.device.catalogue import Catalogue, IoCounts
+from enip_farm.device.catalogue import MAX_ASSEMBLY_SIZE, Catalogue, IoCounts, Model
 from enip_farm.device.named_signals import SignalError, named_signal
 from enip_farm.device.profile import DeviceProfile
 from enip_farm.device.signals import parse_signal
@@ -46,11 +50,12 @@ SIGNAL_SECTION = "EIO_SIGNAL"
 KNOWN_SECTIONS = frozenset({"INDUSTRIAL_NETWORK", "EIO_CROSS", "EIO_ACCESS", "SYSSIG_IN"})
 
 #: ETHERNETIP_DEVICE attributes the device is made of: attribute -> (section of the config, field).
-DEVICE_FIELDS = {"VendorId": ("identity", "vendor_id"), "ProductCode": ("identity", "product_code"),
-                 "DeviceType": ("identity", "device_type"), "ProductName": ("identity", "product_name"),
-                 "OutputAssembly": ("assemblies", "output"), "InputAssembly": ("assemblies", "input"),
-                 "ConfigurationAssembly": ("assemblies", "configuration"),
-                 "OutputSize": ("assemblies", "output_size"), "InputSize": ("assemblies", "input_size")}
+DEVICE_FIELDS = MappingProxyType({
+    "VendorId": ("identity", "vendor_id"), "ProductCode": ("identity", "product_code"),
+    "DeviceType": ("identity", "device_type"), "ProductName": ("identity", "product_name"),
+    "OutputAssembly": ("assemblies", "output"), "InputAssembly": ("assemblies", "input"),
+    "ConfigurationAssembly": ("assemblies", "configuration"),
+    "OutputSize": ("assemblies", "output_size"), "InputSize": ("assemblies", "input_size")})
 #: Seen in public files, kept in `extra` without a warning (anything else is kept with one).
 DEVICE_KNOWN = frozenset({"VendorName", "Label", "ConnectionPriority", "TrustLevel", "Simulated", "Network"})
 #: What `eio export` writes when a device's extra does not say (so import leaves it out of extra).
@@ -58,14 +63,19 @@ DEFAULT_CONNECTION_PRIORITY = "SCHEDULE"
 
 #: EIO_SIGNAL attributes -> SignalConfig fields (-Name, -SignalType, -Device, -DeviceMap, -Invert
 #: are read apart).
-ANALOG_FIELDS = {"MaxLog": "max_log", "MaxPhys": "max_phys", "MaxPhysLimit": "max_phys_limit",
-                 "MaxBitVal": "max_bit_val", "MinLog": "min_log", "MinPhys": "min_phys",
-                 "MinPhysLimit": "min_phys_limit", "MinBitVal": "min_bit_val"}
+ANALOG_FIELDS = MappingProxyType({"MaxLog": "max_log", "MaxPhys": "max_phys", "MaxPhysLimit": "max_phys_limit",
+                                  "MaxBitVal": "max_bit_val", "MinLog": "min_log", "MinPhys": "min_phys",
+                                  "MinPhysLimit": "min_phys_limit", "MinBitVal": "min_bit_val"})
 #: Seen in public files, kept in `extra` without a warning (anything else is kept with one).
 SIGNAL_KNOWN = frozenset({"Label", "Category", "Access", "Default", "SafeLevel", "FiltPas", "FiltAct"})
 _DUMPER = getattr(yaml, "CSafeDumper", yaml.SafeDumper)  # libyaml's emitter when PyYAML has it: 10x faster
 _SIGNAL_NAME = re.compile(r"^[A-Za-z][A-Za-z0-9_]{0,63}$")
 _DEVICE_NAME = re.compile(r"^[A-Za-z0-9_.-]{1,64}$")
+
+
+class EioImportWarning(UserWarning):
+    """A warning of `import_eio` (the file and line, and what the farm did about it), raised as a
+    Python warning where the import is not a command's (the pytest fixture)."""
 
 
 class EioError(ValueError):
@@ -210,6 +220,7 @@ class _Importer:
             extra[attribute] = value
         model, notes = self._model(entry, identity, assemblies)
         config["model"] = model
+        notes += _drop_placeholders(self.catalogue.models[model], identity, assemblies)
         if identity:
             config["identity"] = _ordered(identity, ("vendor_id", "device_type", "product_code", "product_name"))
         if assemblies:
@@ -238,7 +249,7 @@ class _Importer:
                 self.warn(entry, f"-ProductName {text!r} is longer than the 32 characters of the identity "
                           f"object: served as {text[:32]!r}")
             return text[:32]
-        limits = {"OutputSize": 496, "InputSize": 496}.get(attribute, 0xFFFF)
+        limits = MAX_ASSEMBLY_SIZE if attribute in ("OutputSize", "InputSize") else 0xFFFF
         low = 0 if attribute in ("VendorId", "ProductCode", "DeviceType", "OutputSize", "InputSize") else 1
         if isinstance(value, bool) or not isinstance(value, int) or not low <= value <= limits:
             self.warn(entry, f"-{attribute} {value!r} is not a number in {low}..{limits}: not used (the "
@@ -267,6 +278,11 @@ class _Importer:
                           f"served by {GENERIC_MODEL} with the entry's identity and sizes")
                 break
             notes = [f"catalogue model {name} (vendor {vendor}, product code {code})"]
+            if "identity.product_code" in model.unverified:
+                self.warn(entry, f"matched {name} on an unverified product code: {code} is the catalogue's "
+                          f"placeholder for {name}, not a published value")
+                notes = [f"catalogue model {name}: vendor {vendor} and product code {code}, the catalogue's "
+                         "placeholder (unverified)"]
             notes += _addon_notes(self.catalogue, name, own, given)
             return name, notes
         else:
@@ -429,6 +445,35 @@ class _Importer:
                                allow_unicode=True)
             out += ["  " + line for line in dumped.splitlines()]
         return "\n".join(out) + "\n"
+
+
+#: An entry's attribute -> the catalogue model's value it is compared with (placeholders).
+_PLACEHOLDERS = MappingProxyType({
+    "identity": ("vendor_id", "device_type", "product_code", "product_name"),
+    "assemblies": ("output", "input", "configuration", "output_size", "input_size")})
+
+
+def _drop_placeholders(model: Model, identity: dict[str, Any], assemblies: dict[str, Any]) -> list[str]:
+    """Remove the values equal to a placeholder of `model` (as `eio export` writes them) from the
+    overrides, so the device keeps them among its unverified values; a comment line naming them."""
+    dropped = []
+    for part, values in (("identity", identity), ("assemblies", assemblies)):
+        for key in _PLACEHOLDERS[part]:
+            if f"{part}.{key}" not in model.unverified or key not in values:
+                continue
+            own = getattr(model.identity, key) if part == "identity" else _model_assembly(model, key)
+            if own is not None and values[key] == own:
+                del values[key]
+                dropped.append(next(a for a, field in DEVICE_FIELDS.items() if field == (part, key)))
+    if not dropped:
+        return []
+    return [f"-{' -'.join(dropped)} as the catalogue's placeholders for this model: not overrides, still unverified"]
+
+
+def _model_assembly(model: Model, key: str) -> int | None:
+    if key.endswith("_size"):
+        return getattr(model.sizes, key.removesuffix("_size")) if model.sizes is not None else None
+    return getattr(model.assemblies, key) if model.assemblies is not None else None
 
 
 def _line_of(warning: str) -> int:
