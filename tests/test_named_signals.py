@@ -221,8 +221,9 @@ def test_a_non_finite_value_over_http_is_a_422(enip_farm, value: str) -> None:
         assert client.put("/devices/io1/io", json={"signals": {"aoSpeed": 5.0}}).status_code == 200
 
 
-def test_wires_and_rules_between_named_signals(free_address: AddressPool, enip_farm) -> None:
-    cell = {"devices": [
+def plc_and_robot(free_address: AddressPool) -> dict:
+    """A PLC's recipe group and start bit wired and ruled to a robot's named inputs."""
+    return {"devices": [
         {"name": "plc", "address": free_address(), "model": "DSQC1030",
          "signals": [{"name": "goRecipe", "type": "GO", "device_map": "0-7"},
                      {"name": "doStart", "type": "DO", "device_map": "15"}]},
@@ -231,7 +232,10 @@ def test_wires_and_rules_between_named_signals(free_address: AddressPool, enip_f
                      {"name": "diStarted", "type": "DI", "device_map": "0"}]}],
         "wires": [{"from": "plc.goRecipe", "to": "robot.giRecipe"}],
         "rules": [{"when": "plc.doStart", "set": "robot.diStarted"}]}
-    farm = enip_farm(cell)
+
+
+def test_wires_and_rules_between_named_signals(free_address: AddressPool, enip_farm) -> None:
+    farm = enip_farm(plc_and_robot(free_address))
     farm["plc"].set(goRecipe=77, doStart=1)
     assert farm["robot"].get("giRecipe") == 77
     assert farm["robot"].get("diStarted") == 1
@@ -284,16 +288,7 @@ def test_io_get_prints_the_signals_named(enip_farm) -> None:
 
 
 def test_wired_events_name_both_ends_and_the_cause(free_address: AddressPool, enip_farm) -> None:
-    cell = {"devices": [
-        {"name": "plc", "address": free_address(), "model": "DSQC1030",
-         "signals": [{"name": "goRecipe", "type": "GO", "device_map": "0-7"},
-                     {"name": "doStart", "type": "DO", "device_map": "15"}]},
-        {"name": "robot", "address": free_address(), "model": "DSQC1030",
-         "signals": [{"name": "giRecipe", "type": "GI", "device_map": "8-15"},
-                     {"name": "diStarted", "type": "DI", "device_map": "0"}]}],
-        "wires": [{"from": "plc.goRecipe", "to": "robot.giRecipe"}],
-        "rules": [{"when": "plc.doStart", "set": "robot.diStarted"}]}
-    farm = enip_farm(cell)
+    farm = enip_farm(plc_and_robot(free_address))
     farm["plc"].set(goRecipe=77, doStart=1)
     assert [event.detail for event in farm["robot"].events("wired")] == [
         "robot.giRecipe = 77 (wire from plc.goRecipe)", "robot.diStarted = 1 (rule: plc.doStart rises)"]
