@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import os
 import selectors
+import shutil
 import signal
 import socket
 import subprocess
@@ -15,6 +16,8 @@ from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
 from typing import IO
+
+import pytest
 
 from enip_farm.protocol.cip import MessageRouterReply, decode_reply, encode_request
 from enip_farm.protocol.commands import decode_send_data, encode_send_data
@@ -177,3 +180,18 @@ def forward_open_message(path: bytes, o_t_size: int, t_o_size: int, rpi: int, se
         NetworkParameters(False, ConnectionType.POINT_TO_POINT, 2, variable, o_t_size), rpi,
         NetworkParameters(False, t_o_type, 2, False, t_o_size), transport, path)
     return encode_request(0x54, encode_request_path(6, 1), encode_forward_open(request))
+
+
+def own_network_namespace() -> tuple[str, ...]:
+    """A prefix that runs a command in a fresh network namespace with loopback up (root and
+    unshare(1) needed), so the default cell's fixed addresses, the wildcard discovery port and port
+    8044 never meet a farm already serving on this host; the test is skipped, saying why, where it
+    cannot."""
+    if not all(shutil.which(tool) for tool in ("unshare", "nsenter", "ip")):
+        pytest.skip("unshare, nsenter (util-linux) and ip (iproute2) are needed to serve the default cell in a netns")
+    tried = subprocess.run(["unshare", "-n", "ip", "link", "set", "lo", "up"], capture_output=True, text=True,
+                           timeout=STARTUP_S)
+    if tried.returncode != 0:
+        pytest.skip(f"a network namespace is not permitted here (root needed; uid {os.geteuid()}): "
+                    f"{tried.stderr.strip()}")
+    return ("unshare", "-n", "sh", "-c", 'ip link set lo up && exec "$@"', "sh")

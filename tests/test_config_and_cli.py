@@ -3,8 +3,6 @@
 
 from __future__ import annotations
 
-import os
-import shutil
 import signal
 import subprocess
 import textwrap
@@ -17,7 +15,7 @@ from enip_farm.device.build import build_profiles
 from enip_farm.device.catalogue import shipped_catalogue
 from enip_farm.farm import BindError, Farm
 from enip_farm.pytest_plugin import AddressPool
-from tests.helpers import CLI, STARTUP_S, RawClient, serving
+from tests.helpers import CLI, STARTUP_S, RawClient, own_network_namespace, serving
 
 
 def _write(tmp_path: Path, text: str) -> Path:
@@ -105,25 +103,11 @@ def test_serve_prints_table_and_stops_on_sigterm(free_address: AddressPool, tmp_
         RawClient(a, timeout=1)
 
 
-def _own_network_namespace() -> tuple[str, ...]:
-    """A prefix that runs a command in a fresh network namespace with loopback up (root and
-    unshare(1) needed), so the default cell's fixed addresses and the wildcard discovery port never
-    meet a farm already serving on this host; the test is skipped, saying why, where it cannot."""
-    if not all(shutil.which(tool) for tool in ("unshare", "nsenter", "ip")):
-        pytest.skip("unshare, nsenter (util-linux) and ip (iproute2) are needed to serve the default cell in a netns")
-    tried = subprocess.run(["unshare", "-n", "ip", "link", "set", "lo", "up"], capture_output=True, text=True,
-                           timeout=STARTUP_S)
-    if tried.returncode != 0:
-        pytest.skip(f"a network namespace is not permitted here (root needed; uid {os.geteuid()}): "
-                    f"{tried.stderr.strip()}")
-    return ("unshare", "-n", "sh", "-c", 'ip link set lo up && exec "$@"', "sh")
-
-
 @pytest.mark.system
 def test_serve_default_cell_sigint() -> None:
     """`enip-farm serve` with no --config serves the shipped default cell on 127.0.10.x, in a network
     namespace of its own: the quick-start farm may well be running beside the suite."""
-    namespace = _own_network_namespace()
+    namespace = own_network_namespace()
     with serving(["serve"], table_rows=8, prefix=namespace) as (process, table):
         names = [line.split()[0] for line in table[1:]]
         assert names == ["io1", "io2", "io3", "io4", "io5", "io6", "harness", "safety1"]

@@ -29,7 +29,7 @@ import pytest
 from enip_farm.config import ConfigError, parse_config
 from enip_farm.device.build import build_profiles
 from enip_farm.device.catalogue import shipped_catalogue
-from tests.helpers import CLI, ROOT, STARTUP_S, read_lines
+from tests.helpers import CLI, ROOT, STARTUP_S, own_network_namespace, read_lines
 
 README = ROOT / "README.md"
 _MARKER = re.compile(r"<!-- (example-test|example: (\w+)(?: \((.*)\))?) -->")
@@ -124,21 +124,6 @@ def test_readme_example_test_passes(tmp_path: Path, block: Block) -> None:
 
 
 # -- the default cell in a network namespace ---------------------------------------------------------
-
-
-def own_network_namespace() -> tuple[str, ...]:
-    """A prefix that runs a command in a fresh network namespace with loopback up (root and
-    unshare(1) needed), so the default cell's fixed addresses, the wildcard discovery port and port
-    8044 never meet a farm already serving on this host; the test is skipped, saying why, where it
-    cannot."""
-    if not all(shutil.which(tool) for tool in ("unshare", "nsenter", "ip")):
-        pytest.skip("unshare, nsenter (util-linux) and ip (iproute2) are needed to serve the default cell in a netns")
-    tried = subprocess.run(["unshare", "-n", "ip", "link", "set", "lo", "up"], capture_output=True, text=True,
-                           timeout=STARTUP_S)
-    if tried.returncode != 0:
-        pytest.skip(f"a network namespace is not permitted here (root needed; uid {os.geteuid()}): "
-                    f"{tried.stderr.strip()}")
-    return ("unshare", "-n", "sh", "-c", 'ip link set lo up && exec "$@"', "sh")
 
 
 @dataclass
