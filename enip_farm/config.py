@@ -80,6 +80,10 @@ class ImplicitConfig(_Strict):
     rpi_max_us: int = Field(10_000_000, le=0xFFFFFFFF, description="largest accepted RPI, microseconds")
     max_class1_connections: int = Field(8, ge=0, le=256)
     max_class3_connections: int = Field(6, ge=0, le=256)
+    class3_rpi_min_us: int = Field(1_000, ge=1, description="smallest accepted RPI of a class-3 (explicit) "
+                                   "connection, microseconds; its timeout is RPI x 2^(2 + multiplier)")
+    class3_rpi_max_us: int = Field(60_000_000, le=0xFFFFFFFF, description="largest accepted class-3 RPI, "
+                                   "microseconds (pycomm3 asks for 2.1 s, cpppo for 2 s)")
     idle_state: Literal["off", "hold"] = Field("off", description="outputs on Idle and on Forward Close")
     fault_state: Literal["off", "hold"] = Field("off", description="outputs when a connection times out")
     explicit_output_writes_while_owned: bool = Field(
@@ -93,6 +97,8 @@ class ImplicitConfig(_Strict):
     def _range(self) -> ImplicitConfig:
         if self.rpi_min_us > self.rpi_max_us:
             raise ValueError("rpi_min_us is larger than rpi_max_us")
+        if self.class3_rpi_min_us > self.class3_rpi_max_us:
+            raise ValueError("class3_rpi_min_us is larger than class3_rpi_max_us")
         return self
 
 

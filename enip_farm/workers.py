@@ -18,6 +18,7 @@ import queue
 import signal
 import sys
 from collections.abc import Callable
+from pathlib import Path
 from typing import Any
 
 import click
@@ -25,7 +26,7 @@ import click
 from enip_farm.config import FarmConfig, parse_config
 from enip_farm.console import Console, configure_logging
 from enip_farm.control.guard import needs_token
-from enip_farm.farm import BindError, Farm, freeze_heap, new_event_loop
+from enip_farm.farm import BindError, Farm, freeze_heap, new_event_loop, until_stopped_or_failed
 from enip_farm.fleet import split
 from enip_farm.fleet_api import RouterServer, create_router, router_port, serving_router
 from enip_farm.table import TABLE_HEADER, device_table
@@ -34,9 +35,11 @@ _START_TIMEOUT = 120.0
 
 
 def _worker(index: int, config_data: dict[str, Any], http: bool, token: str | None,
-            reports: multiprocessing.Queue, log_level: str = "info", quiet: bool = False) -> None:
+            reports: multiprocessing.Queue, log_level: str = "info", quiet: bool = False,
+            heartbeat: str | None = None) -> None:
     configure_logging(log_level, quiet)
-    farm = Farm(parse_config(config_data, f"worker {index}"), http=("127.0.0.1", 0) if http else None, token=token)
+    farm = Farm(parse_config(config_data, f"worker {index}"), http=("127.0.0.1", 0) if http else None, token=token,
+                heartbeat=f"{heartbeat}.{index}" if heartbeat else None)
     loop = new_event_loop()
     asyncio.set_event_loop(loop)
 
@@ -55,7 +58,7 @@ def _worker(index: int, config_data: dict[str, Any], http: bool, token: str | No
         reports.put((index, "ready", (device_table(farm.devices.values(), header=False),
                                       farm.http.port if farm.http is not None else 0)))
         try:
-            await stop.wait()
+            await until_stopped_or_failed(stop, farm)
         finally:
             console.close()
             await farm.stop()
@@ -64,10 +67,12 @@ def _worker(index: int, config_data: dict[str, Any], http: bool, token: str | No
         loop.run_until_complete(run())
     finally:
         loop.close()
+    if farm.failure is not None:
+        sys.exit(1)  # the parent sees a worker end and stops the others (exit 1)
 
 
 def serve_workers(config: FarmConfig, count: int, http: tuple[str, int] | None, token: str | None,
-                  log_level: str = "info", quiet: bool = False) -> int:
+                  log_level: str = "info", quiet: bool = False, heartbeat: str | Path | None = None) -> int:
     """Run the workers (and the fleet's HTTP API if `http`) until a signal; the exit status for the CLI."""
     if http and needs_token(http[0]) and not token:
         click.echo(f"the HTTP API on {http[0]} needs a token (--token or ENIP_FARM_TOKEN); "
@@ -80,7 +85,8 @@ def serve_workers(config: FarmConfig, count: int, http: tuple[str, int] | None, 
     for index, part in enumerate(parts):
         process = context.Process(target=_worker, name=f"enip-farm-worker-{index}", daemon=False,
                                   args=(index, part.model_dump(mode="json", by_alias=True), http is not None,
-                                        token, reports, log_level, quiet))
+                                        token, reports, log_level, quiet,
+                                        str(heartbeat) if heartbeat else None))
         process.start()
         processes.append(process)
     owners = {device.name: index for index, part in enumerate(parts) for device in part.devices}

@@ -1,8 +1,10 @@
-"""Prometheus exposition of the devices' counters and latency histograms."""
+"""Prometheus exposition of the devices' counters and latency histograms, and of the farm's health
+(whether its cyclic I/O runs, the errors its loops met and went on from)."""
 
 from __future__ import annotations
 
-from collections.abc import Iterable, Iterator
+from collections.abc import Callable, Iterable, Iterator
+from typing import Any
 
 from prometheus_client.core import CounterMetricFamily, GaugeMetricFamily, HistogramMetricFamily
 from prometheus_client.registry import Collector
@@ -11,8 +13,9 @@ from prometheus_client.registry import Collector
 class FarmCollector(Collector):
     """Reads the devices' counters at scrape time; nothing is counted twice."""
 
-    def __init__(self, devices: Iterable) -> None:
+    def __init__(self, devices: Iterable, health: Callable[[], dict[str, Any]] | None = None) -> None:
         self.devices = list(devices)
+        self.health = health
 
     def collect(self) -> Iterator:
         requests = CounterMetricFamily("enip_farm_requests", "Explicit requests by CIP service and general status",
@@ -36,4 +39,16 @@ class FarmCollector(Collector):
             packets.add_metric([name, "o_t"], device.counters["o_t_packets"])
             packets.add_metric([name, "t_o"], device.counters["t_o_packets"])
             latency.add_metric([name], device.latency.buckets(), device.latency.sum)
-        yield from (requests, connections, open_io, packets, latency)
+        io_errors = CounterMetricFamily("enip_farm_io_errors", "Exceptions of a device's cyclic I/O (it goes on)",
+                                        labels=["device"])
+        for device in self.devices:
+            io_errors.add_metric([device.name], device.counters["io_errors"])
+        yield from (requests, connections, open_io, packets, latency, io_errors)
+        if self.health is not None:
+            health = self.health()
+            yield GaugeMetricFamily("enip_farm_cyclic_io_running", "1 while the cyclic I/O thread runs",
+                                    value=int(health["cyclic_io"]["running"]))
+            yield CounterMetricFamily("enip_farm_cyclic_io_loop_errors", "Unexpected exceptions of the cyclic I/O "
+                                      "thread's loop (it goes on)", value=health["cyclic_io"]["errors"])
+            yield CounterMetricFamily("enip_farm_event_loop_errors", "Exceptions that escaped a callback or task "
+                                      "of the event loop", value=health["loop_errors"])

@@ -94,6 +94,7 @@ def _policy(profile: DeviceProfile) -> ConnectionPolicy:
         first_watchdog_ns=round(implicit.first_watchdog_s * 1e9),
         input_only_point=profile.input_only_point, listen_only_point=profile.listen_only_point,
         multicast_group=profile.multicast_group, safety=_safety_policy(profile),
+        class3_rpi_min_us=implicit.class3_rpi_min_us, class3_rpi_max_us=implicit.class3_rpi_max_us,
     )
 
 

@@ -18,6 +18,10 @@ delays the other, and it is the only place that sleeps:
 - one device's bug does not stop the others: an exception while it takes a datagram or services
   its connections is counted (`io_errors`) and logged with its traceback (rate-limited per device,
   `RateLimitedLog`), and its timer is tried again `_RETRY_NS` later.
+- nothing stops the thread itself: an unexpected exception of the loop is counted (`loop_errors`),
+  logged once per 10 s with its traceback, and the loop goes on; every wait it hands epoll or sleep
+  is bounded (server/waits.py); `running` says whether the loop turned within `_STALL_NS`, which the
+  farm's health (the API's /health, the container's health check) reports.
 """
 
 from __future__ import annotations
@@ -38,6 +42,7 @@ from enip_farm.device.device import Device
 from enip_farm.device.events import Event
 from enip_farm.server.limits import RateLimitedLog
 from enip_farm.server.udp import udp_socket
+from enip_farm.server.waits import os_wait_ns
 
 log = logging.getLogger(__name__)
 IO_PORT = 2222
@@ -59,6 +64,7 @@ class CyclicIoThread(threading.Thread):
 
     _IDLE_WAIT = 0.5  # with no timer: O->T is read at once (epoll), a new timer wakes the thread
     _EPOLL_MARGIN_NS = 1_000_000  # epoll rounds its timeout up to whole milliseconds
+    _STALL_NS = 5_000_000_000  # a loop that has not turned for this long is not running
 
     def __init__(self) -> None:
         super().__init__(name="enip-farm-cyclic-io", daemon=True)
@@ -73,6 +79,8 @@ class CyclicIoThread(threading.Thread):
         self._epoll.register(self._wake_read, select.EPOLLIN)
         self._stopping = False
         self.errors = RateLimitedLog(log)  # one line per device and 10 s with the traceback, the rest counted
+        self.loop_errors = 0  # unexpected exceptions of the loop itself (it goes on)
+        self.turned_at = time.monotonic_ns()  # when the loop last went round
 
     def register(self, endpoint: DeviceIo) -> None:
         self._readers[endpoint.sock.fileno()] = endpoint
@@ -104,7 +112,23 @@ class CyclicIoThread(threading.Thread):
         endpoint.scheduled = timer
         heapq.heappush(self._heap, (timer, next(self._order), endpoint))
 
+    def running(self, now: int) -> bool:
+        """Whether the loop is alive and went round within `_STALL_NS` of `now` (ns)."""
+        return self.is_alive() and not self._stopping and now - self.turned_at < self._STALL_NS
+
     def run(self) -> None:
+        while not self._stopping:
+            try:
+                self._loop()
+            except Exception:  # supervised: count, log once per 10 s with the traceback, go on
+                self.loop_errors += 1
+                now = time.monotonic_ns()
+                self.errors.log(logging.ERROR, "cyclic io loop", now / 1e9,
+                                "cyclic I/O thread: unexpected error (%d so far); the thread goes on",
+                                self.loop_errors, exc_info=True)
+                time.sleep(0.001)  # a fault that repeats at once cannot spin the core
+
+    def _loop(self) -> None:
         heap, requests, readers = self._heap, self._requests, self._readers
         monotonic_ns, sleep, poll = time.monotonic_ns, time.sleep, self._epoll.poll
         wake_read = self._wake_read
@@ -112,7 +136,7 @@ class CyclicIoThread(threading.Thread):
             while requests:
                 endpoint = requests.popleft()
                 self._schedule(endpoint, endpoint.timer())
-            now = monotonic_ns()
+            now = self.turned_at = monotonic_ns()
             while heap and heap[0][0] <= now:
                 when, _, endpoint = heapq.heappop(heap)
                 if when != endpoint.scheduled:
@@ -121,14 +145,14 @@ class CyclicIoThread(threading.Thread):
                 self._schedule(endpoint, endpoint.service(now))
                 now = monotonic_ns()
             delay = (heap[0][0] - monotonic_ns()) if heap else None
-            if delay is None:
-                events = poll(self._IDLE_WAIT)
+            if delay is None or delay > self._EPOLL_MARGIN_NS + self._IDLE_WAIT * 1e9:
+                events = poll(self._IDLE_WAIT)  # nothing due soon: look again after the idle wait at most
             elif delay > self._EPOLL_MARGIN_NS:
-                events = poll((delay - self._EPOLL_MARGIN_NS) / 1e9)
+                events = poll(os_wait_ns(delay - self._EPOLL_MARGIN_NS))
             else:
                 events = poll(0)
                 if not events and delay > 0:
-                    sleep(delay / 1e9)
+                    sleep(os_wait_ns(delay))
             for fd, _ in events:
                 if fd == wake_read:
                     try:
@@ -245,6 +269,14 @@ class ImplicitIo:
 
     def start(self) -> None:
         self.thread.start()
+
+    def running(self, now: int) -> bool:
+        """Whether class-1 I/O runs: the cyclic I/O thread is alive and its loop turns."""
+        return self.thread.running(now)
+
+    @property
+    def loop_errors(self) -> int:
+        return self.thread.loop_errors
 
     def close(self) -> None:
         self.thread.stop()
