@@ -28,6 +28,10 @@ import struct
 import threading
 import time
 from dataclasses import dataclass, field
+from pathlib import Path
+
+import httpx
+import yaml
 
 from enip_farm.protocol.cip import decode_reply, encode_request
 from enip_farm.protocol.commands import SocketAddress, decode_send_data, encode_send_data, encode_sockaddr
@@ -45,6 +49,7 @@ from enip_farm.protocol.connection import (
 from enip_farm.protocol.cpf import ItemType
 from enip_farm.protocol.epath import encode_request_path
 from tests.fuzzing import HEADER, TRIADS, FrameGenerator, Malformed, SessionMirror
+from tests.helpers import serving
 
 ENIP_PORT, IO_PORT = 44818, 2222
 ASSEMBLY_PATH = bytes.fromhex("20 04 24 01 2C 64 2C 65")  # DSQC1030: config 1, O->T 100, T->O 101
@@ -73,7 +78,15 @@ class TcpFuzzer:
         self._buffer = b""
 
     def _connect(self) -> None:
-        self._sock = socket.create_connection((self.host, ENIP_PORT), timeout=REPLY_WAIT_S)
+        deadline = time.monotonic() + REPLY_WAIT_S
+        while True:  # a device restarted by an Identity Reset does not listen during its reset window
+            try:
+                self._sock = socket.create_connection((self.host, ENIP_PORT), timeout=REPLY_WAIT_S)
+                break
+            except ConnectionRefusedError:
+                if time.monotonic() > deadline:
+                    raise self._fail("the device did not listen again after its reset window") from None
+                time.sleep(0.01)
         self._mirror = SessionMirror()
         self._generator = FrameGenerator(self.rng, self.key)
         self._buffer = b""
@@ -87,30 +100,34 @@ class TcpFuzzer:
     def _fail(self, what: str) -> FuzzFailure:
         return FuzzFailure(f"seed {self.seed}, stream {self.streams}, frame {self.frames}: {what}")
 
-    def step(self) -> None:
-        """Send one frame and check what comes back for it."""
+    def step(self, batch: int = 1) -> None:
+        """Send `batch` frames back to back (made from the mirror's state before them) and check
+        what comes back for them."""
         if self._sock is None:
             self._connect()
-        frame = self._generator.frame(self._mirror, TRIADS)
-        self.frames += 1
+        frames = b"".join(self._generator.frame(self._mirror, TRIADS) for _ in range(batch))
+        self.frames += batch
         try:
-            self._sock.sendall(frame)  # type: ignore[union-attr]
-        except OSError as error:
-            raise self._fail(f"send refused: {error!r}") from None
+            self._sock.sendall(frames)  # type: ignore[union-attr]
+        except OSError as error:  # the farm may close the stream after a frame that ends it
+            if not isinstance(error, (BrokenPipeError, ConnectionResetError)):
+                raise self._fail(f"send refused: {error!r}") from None
         replies: list[bytes] = []
         deadline = time.monotonic() + REPLY_WAIT_S
         while True:
             trial = copy.deepcopy(self._mirror)
             try:
-                trial.feed(frame, list(replies))
+                trial.feed(frames, list(replies))
                 break
             except Malformed as problem:
                 if not str(problem).startswith("no reply") or time.monotonic() > deadline:
-                    raise self._fail(f"{problem}; frame {frame.hex()}") from None
+                    raise self._fail(f"{problem}; frames {frames.hex()}") from None
             reply = self._read_frame(deadline)
             if reply is None:
-                raise self._fail(f"the farm closed the stream where a reply was due; frame {frame.hex()}")
+                raise self._fail(f"the farm closed the stream where a reply was due; frames {frames.hex()}")
             replies.append(reply)
+            while (whole := self._buffered_frame()) is not None:  # the others already read: one trial for all
+                replies.append(whole)
         self._mirror = trial
         self.replies += len(replies)
         if trial.closed:  # an UnregisterSession, an oversize header or an Identity Reset: the farm closes
@@ -118,16 +135,23 @@ class TcpFuzzer:
                 raise self._fail("a reply after the stream ended")
             self.close()
 
+    def _buffered_frame(self) -> bytes | None:
+        """A whole frame already read, taken from the buffer."""
+        if len(self._buffer) >= 24:
+            length = struct.unpack_from("<H", self._buffer, 2)[0]
+            if len(self._buffer) >= 24 + length:
+                frame, self._buffer = self._buffer[: 24 + length], self._buffer[24 + length :]
+                return frame
+        return None
+
     def _read_frame(self, deadline: float) -> bytes | None:
         """One whole encapsulation frame from the stream; None when the farm closed it."""
         sock = self._sock
         assert sock is not None
         while True:
-            if len(self._buffer) >= 24:
-                length = struct.unpack_from("<H", self._buffer, 2)[0]
-                if len(self._buffer) >= 24 + length:
-                    frame, self._buffer = self._buffer[: 24 + length], self._buffer[24 + length :]
-                    return frame
+            frame = self._buffered_frame()
+            if frame is not None:
+                return frame
             remaining = deadline - time.monotonic()
             if remaining <= 0:
                 raise self._fail("no reply within the wait")
@@ -143,25 +167,31 @@ class TcpFuzzer:
             self._buffer += chunk
 
 
-def probe_latency(host: str, sock: socket.socket | None = None) -> tuple[socket.socket, float]:
-    """One Get_Attribute_Single (Identity product name) on a clean registered connection: seconds."""
-    if sock is None:
-        sock = socket.create_connection((host, ENIP_PORT), timeout=REPLY_WAIT_S)
-        sock.sendall(_REGISTER)
-        reply = _recv_frame(sock)
-        sock.handle = struct.unpack_from("<I", reply, 4)[0]  # type: ignore[attr-defined]
-    request = encode_request(0x0E, encode_request_path(1, 1, 7))
-    body = encode_send_data([(ItemType.NULL_ADDRESS, b""), (ItemType.UNCONNECTED_DATA, request)])
-    frame = HEADER.pack(0x6F, len(body), sock.handle, 0, b"probe\0\0\0", 0) + body  # type: ignore[attr-defined]
-    started = time.perf_counter()
-    sock.sendall(frame)
-    reply = _recv_frame(sock)
-    elapsed = time.perf_counter() - started
-    items = decode_send_data(reply[24:]).items
-    answer = decode_reply(items[1].data)
-    if struct.unpack_from("<I", reply, 8)[0] != 0 or answer.general_status != 0 or answer.data != b"\x08DSQC1030":
-        raise FuzzFailure(f"the prober's reply is wrong: {reply.hex()}")
-    return sock, elapsed
+class Prober:
+    """An explicit client on a clean registered connection: Get_Attribute_Single of the Identity's
+    product name, its latency and its bytes checked."""
+
+    def __init__(self, host: str) -> None:
+        self.sock = socket.create_connection((host, ENIP_PORT), timeout=REPLY_WAIT_S)
+        self.sock.sendall(_REGISTER)
+        self.handle = struct.unpack_from("<I", _recv_frame(self.sock), 4)[0]
+
+    def probe(self) -> float:
+        """Seconds from the request to its whole reply."""
+        request = encode_request(0x0E, encode_request_path(1, 1, 7))
+        body = encode_send_data([(ItemType.NULL_ADDRESS, b""), (ItemType.UNCONNECTED_DATA, request)])
+        frame = HEADER.pack(0x6F, len(body), self.handle, 0, b"probe\0\0\0", 0) + body
+        started = time.perf_counter()
+        self.sock.sendall(frame)
+        reply = _recv_frame(self.sock)
+        elapsed = time.perf_counter() - started
+        answer = decode_reply(decode_send_data(reply[24:]).items[1].data)
+        if struct.unpack_from("<I", reply, 8)[0] != 0 or answer.general_status != 0 or answer.data != b"\x08DSQC1030":
+            raise FuzzFailure(f"the prober's reply is wrong: {reply.hex()}")
+        return elapsed
+
+    def close(self) -> None:
+        self.sock.close()
 
 
 def _recv_frame(sock: socket.socket) -> bytes:
@@ -309,7 +339,7 @@ def _explicit(host: str, request: bytes, extra_items: list | None = None):
 def period_errors_ms(stream: Stream, rpi_us: int, skip_ns: int = 0) -> list[float]:
     """|interval - RPI| of consecutive T->O arrivals, ms (arrivals before `skip_ns` left out)."""
     arrivals = [t for t in stream.arrivals if t >= skip_ns]
-    return [abs((b - a) / 1e6 - rpi_us / 1000) for a, b in zip(arrivals, arrivals[1:])]
+    return [abs((b - a) / 1e6 - rpi_us / 1000) for a, b in zip(arrivals, arrivals[1:], strict=False)]
 
 
 def percentile(values: list[float], fraction: float) -> float:
@@ -322,3 +352,109 @@ def percentile(values: list[float], fraction: float) -> float:
 def summary(values: list[float]) -> str:
     return (f"p50 {statistics.median(values):.2f} ms, p99 {percentile(values, 0.99):.2f} ms, "
             f"max {max(values):.2f} ms" if values else "none")
+
+
+# -- one run: a farm in a subprocess, the fuzzers, the class-1 originator, the prober -------------------
+
+KEY = (75, 7, 1030, 1, 1)  # the DSQC1030's identity as the catalogue gives it (placeholders, unverified)
+
+
+@dataclass
+class Report:
+    """What one run did and saw."""
+
+    seed: int
+    seconds: float = 0.0
+    frames: int = 0
+    streams: int = 0
+    replies: int = 0
+    datagrams: int = 0
+    datagrams_to_cyclic: int = 0  # to UDP 2222 of the devices whose connections run
+    latencies_ms: list[float] = field(default_factory=list)
+    originator: Class1Originator | None = None
+    close_statuses: list[int] = field(default_factory=list)
+    health: dict = field(default_factory=dict)
+    cyclic_counters: dict[str, dict[str, int]] = field(default_factory=dict)
+    farm_alive: bool = False
+    farm_log: str = ""
+
+    def lines(self) -> list[str]:
+        out = [f"seed {self.seed}: {self.frames} frames in {self.streams} TCP streams, {self.replies} replies "
+               f"checked, {self.datagrams} datagrams, in {self.seconds:.1f} s ({self.frames / self.seconds:.0f} "
+               f"frames/s)", f"explicit prober: {len(self.latencies_ms)} probes, {summary(self.latencies_ms)}"]
+        originator = self.originator
+        if originator is not None:
+            expected = (originator.stopped_ns - originator.started_ns) / (originator.rpi_us * 1000)
+            for stream in originator.streams:
+                out.append(f"class-1 {stream.host}: {len(stream.arrivals)} T->O of {expected:.0f} expected, period "
+                           f"error {summary(period_errors_ms(stream, originator.rpi_us))}")
+        out.append(f"Forward Close statuses {self.close_statuses}; health {self.health}")
+        return out
+
+
+def _free_port() -> int:
+    with socket.socket() as sock:
+        sock.bind(("127.0.0.1", 0))
+        return sock.getsockname()[1]
+
+
+def fuzz_farm(workdir: Path, addresses: list[str], seconds: float, seed: int, max_frames: int = 10_000_000,
+              batches: tuple[int, ...] = (1, 1, 2, 8), rpi_us: int = 20_000, multiplier: int = 5) -> Report:
+    """Serve five DSQC1030s (`addresses`: two fuzzed, three with class-1 connections) with
+    `enip-farm serve`, fuzz them for `seconds` (or `max_frames`), and report."""
+    rng = random.Random(seed)
+    fuzzed = {f"f{i}": address for i, address in enumerate(addresses[:2], start=1)}
+    cyclic = {f"c{i}": address for i, address in enumerate(addresses[2:5], start=1)}
+    devices = [{"name": name, "model": "DSQC1030", "address": address, "reset_time_s": 0.05}
+               for name, address in fuzzed.items()]
+    devices += [{"name": name, "model": "DSQC1030", "address": address} for name, address in cyclic.items()]
+    (workdir / "cell.yaml").write_text(yaml.safe_dump({"devices": devices, "discovery": False}))
+    port = _free_port()
+    log = workdir / "farm.log"
+    report = Report(seed)
+    with log.open("w") as stderr, serving(["serve", "--config", str(workdir / "cell.yaml"), "--http",
+                                           f"127.0.0.1:{port}"], len(devices), stderr=stderr) as (farm, _):
+        api = f"http://127.0.0.1:{port}"
+        originator = report.originator = Class1Originator(list(cyclic.values()), rpi_us, multiplier)
+        originator.start()
+        fuzzers = [TcpFuzzer(address, KEY, rng.getrandbits(32)) for address in fuzzed.values()]
+        noise = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        noise.bind(("127.0.0.2", 0))  # another host than the originator's: its datagrams are never taken
+        prober = Prober(cyclic["c1"])
+        connection_ids = [s.o_t_id for s in originator.streams]
+        started = time.monotonic()
+        deadline = started + seconds
+        step = 0
+        try:
+            while time.monotonic() < deadline and report.frames < max_frames:
+                fuzzer = fuzzers[step % len(fuzzers)]
+                before = fuzzer.frames
+                fuzzer.step(rng.choice(batches))
+                report.frames += fuzzer.frames - before
+                step += 1
+                if step % 20 == 0:
+                    for _ in range(5):
+                        name, address = rng.choice([*fuzzed.items(), *cyclic.items()])
+                        udp_port = rng.choice((IO_PORT, IO_PORT, ENIP_PORT))
+                        datagram = (mutated_datagram(rng, connection_ids) if udp_port == IO_PORT
+                                    else rng.randbytes(rng.randint(0, 40)))
+                        noise.sendto(datagram, (address, udp_port))
+                        report.datagrams += 1
+                        report.datagrams_to_cyclic += name in cyclic and udp_port == IO_PORT
+                if step % 25 == 0:
+                    report.latencies_ms.append(prober.probe() * 1000)
+        finally:
+            report.seconds = time.monotonic() - started
+            for fuzzer in fuzzers:
+                fuzzer.close()
+            noise.close()
+            prober.close()
+            report.close_statuses = originator.stop()
+            report.streams = sum(f.streams for f in fuzzers)
+            report.replies = sum(f.replies for f in fuzzers)
+        report.health = httpx.get(api + "/health", timeout=10).json()
+        for name in cyclic:
+            report.cyclic_counters[name] = httpx.get(f"{api}/devices/{name}", timeout=10).json()["counters"]
+        report.farm_alive = farm.poll() is None
+    report.farm_log = log.read_text()
+    return report
