@@ -39,13 +39,14 @@ from enip_farm.cip.safety.admission import SafetyOpen
 from enip_farm.cip.safety.validator import SafetyConsumer, SafetyProducer
 from enip_farm.protocol.commands import SocketAddress, encode_sockaddr
 from enip_farm.protocol.connection import (
+    IO_HEADER_SIZE,
     ConnectionTriad,
     ForwardOpenRequest,
     IoPacket,
     class0_data,
-    decode_io_packet,
     encode_class0_packet,
     encode_io_packet,
+    unpack_io_header,
 )
 from enip_farm.protocol.cpf import ItemType
 from enip_farm.protocol.session import ReplyItems
@@ -150,7 +151,10 @@ class ConnectionTable:
 
     def supervision_due(self, now: int) -> bool:
         """Whether `handle_timer(now)` would close a connection."""
-        return any(connection.deadline <= now for connection in self.connections.values())
+        for connection in self.connections.values():
+            if connection.deadline <= now:
+                return True
+        return False
 
     # -- Forward Open, Forward Close -------------------------------------------------------------
 
@@ -285,22 +289,24 @@ class ConnectionTable:
         and, once a first valid packet came, only from that packet's port (a forger on another port
         of the same host cannot advance the sequence). Every other datagram is counted by why it
         was not taken."""
-        packet = decode_io_packet(data)
-        if packet is None:
+        fields = unpack_io_header(data)
+        if fields is None:
             return self._drop("malformed")
-        connection = self.connections.get(packet.connection_id)
-        if connection is None or not connection.is_io:
+        connection_id, sequence, sequence_count = fields
+        connection = self.connections.get(connection_id)
+        if connection is None or connection.kind is ConnectionKind.EXPLICIT:
             return self._drop("unknown_connection")
         if host != connection.originator_host:
             return self._drop("wrong_originator")
         if port is not None and connection.o_t_port is not None and port != connection.o_t_port:
             return self._drop("wrong_port")
         last = connection.last_sequence
-        if last is not None and not 0 < (packet.sequence - last) & 0xFFFFFFFF < _HALF:
+        if last is not None and not 0 < (sequence - last) & 0xFFFFFFFF < _HALF:
             return self._drop("stale")  # a duplicate or older than what was consumed (Vol. 2, 3-2.1)
         if connection.safety is not None:
-            return self._receive_safety(connection, packet, now, port)
-        payload = packet.data
+            return self._receive_safety(connection, IoPacket(connection_id, sequence, sequence_count,
+                                                             data[IO_HEADER_SIZE:]), now, port)
+        payload = data[IO_HEADER_SIZE:]
         if connection.o_t_run_idle_header:
             if len(payload) < RUN_IDLE_HEADER_SIZE:
                 return self._drop("wrong_size")
@@ -314,7 +320,7 @@ class ConnectionTable:
         else:
             run = not payload or bool(payload[0] & 1)
             image = None
-        connection.last_sequence = packet.sequence
+        connection.last_sequence = sequence
         if connection.o_t_port is None:
             connection.o_t_port = port
         connection.last_received = now
@@ -384,30 +390,47 @@ class ConnectionTable:
     def datagrams_to_send(self, now: int) -> list[tuple[bytes, tuple[str, int]]]:
         """The T->O packets due by `now`, one per stream; a stream that fell a whole period behind
         skips the missed periods rather than bursting."""
-        due = [p for p in self.productions.values() if p.due <= now]
+        return self.produce(now)[0]
+
+    def produce(self, now: int) -> tuple[list[tuple[bytes, tuple[str, int]]], int | None]:
+        """`datagrams_to_send(now)` and then `get_timer()`, in one pass over the streams (the cyclic
+        I/O thread's call, once per stream and period)."""
         out = self._pending_time_coordination(now) if self._safety_connections and self._safety_pending else []
-        if not due:
+        data = None
+        earliest = None
+        for production in self.productions.values():
+            due = production.start + production.count * production.period_ns
+            if due <= now:
+                if data is None:
+                    data = bytes(self.assemblies["input"].data)
+                production.sequence += 1
+                if production.safety is None:
+                    out.append((encode_io_packet(production.connection_id, production.sequence, production.sequence,
+                                                 data), production.address))
+                else:
+                    message = production.safety.produce(data, now)
+                    out.append((encode_class0_packet(production.connection_id, production.sequence, message),
+                                production.address))
+                    self.counters["safety_packets_produced"] += 1
+                production.count += 1
+                behind = now - due - production.period_ns
+                if behind >= 0:  # the next one is already due: skip to the first deadline after now
+                    skipped = behind // production.period_ns + 1
+                    production.count += skipped
+                    production.late += skipped
+                due = production.start + production.count * production.period_ns
+            if earliest is None or due < earliest:
+                earliest = due
+        if out:
             self.counters["t_o_packets"] += len(out)
-            return out
-        data = bytes(self.assemblies["input"].data)
-        for production in due:
-            production.sequence += 1
-            if production.safety is None:
-                out.append((encode_io_packet(production.connection_id, production.sequence, production.sequence,
-                                             data), production.address))
-            else:
-                message = production.safety.produce(data, now)
-                out.append((encode_class0_packet(production.connection_id, production.sequence, message),
-                            production.address))
-                self.counters["safety_packets_produced"] += 1
-            production.count += 1
-            behind = now - production.due
-            if behind >= 0:  # the next one is already due: skip to the first deadline after now
-                skipped = behind // production.period_ns + 1
-                production.count += skipped
-                production.late += skipped
-        self.counters["t_o_packets"] += len(out)
-        return out
+        for connection in self.connections.values():
+            deadline = connection.deadline
+            if earliest is None or deadline < earliest:
+                earliest = deadline
+            safety = connection.safety
+            if type(safety) is SafetyConsumer and safety.tcoo_due is not None and safety.tcoo_due < earliest:
+                earliest = safety.tcoo_due
+        return out, earliest
 
     @property
     def _safety_pending(self) -> bool:

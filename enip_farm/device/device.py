@@ -445,14 +445,13 @@ class Device:
             if expiring:  # a timeout may change the outputs: look before and after
                 before = self._snapshot()
                 table.handle_timer(now)
-            due = table.datagrams_to_send(now)
+            due, timer = table.produce(now)
             if due and not self.faults.io_stopped:
                 for packet, address in due:
                     send(packet, address)
             if expiring:
                 connections = table.pop_events()
                 after = self._snapshot()
-            timer = table.get_timer()
         if expiring and connections:
             self._publish(before, after, (), connections)
         return timer
