@@ -160,6 +160,7 @@ async def _serve(farm: Farm, config_path: Path | None) -> None:
         for line in _banner(len(farm.devices), farm.config, config_path,
                             farm.http.url if farm.http is not None else None):
             click.echo(line, err=True)
+        click.echo(f"cyclic I/O budget: {farm.budget.describe()}", err=True)
         await until_stopped_or_failed(stop, farm)
     finally:
         console.close()

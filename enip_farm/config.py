@@ -245,8 +245,25 @@ class RuleConfig(_Strict):
     delay_ms: float = Field(0.0, ge=0)
 
 
+class CyclicIoConfig(_Strict):
+    """What the farm's cyclic I/O thread (one per worker) may carry."""
+
+    budget_datagrams_per_s: int | Literal["auto"] = Field(
+        "auto", description="class-1 datagrams per second (O->T taken plus T->O sent) one worker admits "
+        "connections for; past it a Forward Open gets 0x01/0x0113. auto: measured at start (the CPU cost of "
+        "a consumed and produced packet on this machine, for 70 % of a core)")
+
+    @field_validator("budget_datagrams_per_s")
+    @classmethod
+    def _positive(cls, value: int | str) -> int | str:
+        if isinstance(value, int) and value <= 0:
+            raise ValueError("must be positive, or auto")
+        return value
+
+
 class FarmConfig(_Strict):
     devices: list[DeviceConfig] = Field(min_length=1)
+    cyclic_io: CyclicIoConfig = CyclicIoConfig()
     discovery: bool = Field(True, description="answer broadcast ListIdentity on 0.0.0.0:44818")
     max_tcp_connections: int = Field(60000, ge=1, description="TCP connections of all devices at once (also "
                                      "bounded by the open-file limit)")

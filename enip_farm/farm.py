@@ -28,6 +28,7 @@ from pathlib import Path
 from typing import Any, TypeVar
 
 from enip_farm.capture.recorder import Recorder
+from enip_farm.cip.budget import CyclicBudget
 from enip_farm.config import FarmConfig, as_config
 from enip_farm.control.handle import DeviceHandle
 from enip_farm.control.http import HttpApi, bind_problem
@@ -37,6 +38,7 @@ from enip_farm.device.catalogue import Catalogue, shipped_catalogue
 from enip_farm.device.device import ENIP_PORT, Device
 from enip_farm.device.events import Event
 from enip_farm.device.faults import Fault, FaultKind
+from enip_farm.server.calibrate import DEFAULT_DATAGRAMS_PER_S, measure_budget
 from enip_farm.server.implicit import IO_PORT, ImplicitIo
 from enip_farm.server.limits import RateLimitedLog, TcpLimits
 from enip_farm.server.tcp import EncapsulationProtocol
@@ -117,7 +119,10 @@ class Farm:
         self._http_address = http
         self._http_token = token
         self.http: HttpApi | None = None
-        self.devices: dict[str, Device] = {p.name: Device(p) for p in profiles}
+        self._profiles = profiles
+        #: What this farm's cyclic I/O thread admits connections for (set at start: measured or configured).
+        self.budget = CyclicBudget(DEFAULT_DATAGRAMS_PER_S, "not started")
+        self.devices: dict[str, Device] = {p.name: Device(p, self.budget) for p in profiles}
         self.handles: dict[str, DeviceHandle] = {name: DeviceHandle(self, d) for name, d in self.devices.items()}
         for device in self.devices.values():
             device.recorder = self.recorder
@@ -191,6 +196,12 @@ class Farm:
                 )
                 self._datagram_transports.append(transport)
                 endpoints.append(endpoint)
+            budget = self.config.cyclic_io.budget_datagrams_per_s
+            if budget == "auto":
+                measured = measure_budget(self._profiles)
+                self.budget.set(measured.datagrams_per_s, measured.source)
+            else:
+                self.budget.set(budget, "configured")
             self._implicit = ImplicitIo()
             for device in self.devices.values():
                 try:
@@ -263,6 +274,15 @@ class Farm:
                 "cyclic_io": {"running": running, "errors": implicit.loop_errors if implicit is not None else 0,
                               "device_errors": sum(d.counters["io_errors"] for d in self.devices.values())},
                 "loop_errors": self.loop_errors}
+
+    def cyclic_io_load(self) -> dict[str, Any]:
+        """The budget (datagrams/s), what the open connections take of it, Forward Opens refused for
+        want of it, and how late the I/O thread runs (worst of the last second, overloads)."""
+        implicit = self._implicit
+        return {"budget_datagrams_per_s": self.budget.datagrams_per_s, "budget_source": self.budget.source,
+                "reserved_datagrams_per_s": self.budget.reserved, "refused": self.budget.refused,
+                "lag_s": implicit.lag.worst_ns / 1e9 if implicit is not None else 0.0,
+                "overloads": implicit.lag.overloads if implicit is not None else 0}
 
     def _loop_exception(self, loop: asyncio.AbstractEventLoop, context: dict[str, Any]) -> None:
         """The event loop's exception handler: count, log with the traceback (rate-limited), go on."""

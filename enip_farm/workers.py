@@ -56,7 +56,7 @@ def _worker(index: int, config_data: dict[str, Any], http: bool, token: str | No
         console.start(loop)
         freeze_heap()
         reports.put((index, "ready", (device_table(farm.devices.values(), header=False),
-                                      farm.http.port if farm.http is not None else 0)))
+                                      farm.http.port if farm.http is not None else 0, farm.budget.describe())))
         try:
             await until_stopped_or_failed(stop, farm)
         finally:
@@ -103,6 +103,7 @@ def serve_workers(config: FarmConfig, count: int, http: tuple[str, int] | None, 
     try:
         tables: dict[int, str] = {}
         ports: dict[int, int] = {}
+        budgets: dict[int, str] = {}
         while len(tables) < len(processes) and not stopping:
             try:
                 index, kind, payload = reports.get(timeout=_START_TIMEOUT)
@@ -114,7 +115,7 @@ def serve_workers(config: FarmConfig, count: int, http: tuple[str, int] | None, 
                 click.echo(f"worker {index}: {payload}", err=True)
                 status = 1
                 break
-            tables[index], ports[index] = payload
+            tables[index], ports[index], budgets[index] = payload
         if status == 0 and not stopping:
             apis = [f"http://127.0.0.1:{ports[i]}" for i in range(len(processes))]
             with contextlib.ExitStack() as stack:
@@ -126,17 +127,19 @@ def serve_workers(config: FarmConfig, count: int, http: tuple[str, int] | None, 
                         click.echo(error.strerror or str(error), err=True)
                         status = 1
                 if status == 0:
-                    status = _run(config, processes, tables, http, router, lambda: stopping)
+                    status = _run(config, processes, tables, http, router, lambda: stopping, budgets)
     finally:
         status = _stop(processes, previous, status)
     return status
 
 
 def _run(config: FarmConfig, processes: list, tables: dict[int, str], http: tuple[str, int] | None,
-         router: RouterServer | None, stopping: Callable[[], bool]) -> int:
+         router: RouterServer | None, stopping: Callable[[], bool], budgets: dict[int, str]) -> int:
     """Every worker listens: print the table and wait for a signal or a worker's end."""
     click.echo("\n".join([TABLE_HEADER, *(tables[i] for i in sorted(tables))]))
     click.echo(f"{len(config.devices)} devices in {len(processes)} workers. Ctrl-C to stop.", err=True)
+    for index in sorted(budgets):
+        click.echo(f"worker {index} cyclic I/O budget: {budgets[index]}", err=True)
     if http and router is not None:
         click.echo(f"HTTP API on http://{http[0]}:{router_port(router)} (the devices of all {len(processes)} "
                    "workers)", err=True)

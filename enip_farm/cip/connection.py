@@ -11,6 +11,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from enum import Enum
 
+from enip_farm.cip.budget import Reservation
 from enip_farm.cip.safety.segment import Unid
 from enip_farm.cip.safety.validator import SafetyConsumer, SafetyProducer
 from enip_farm.protocol.connection import ConnectionTriad
@@ -57,6 +58,7 @@ class Connection:
     instance: int = 0  # CIP Safety: the Safety Validator instance id
     ounid: Unid | None = None  # CIP Safety: the originator's UNID
     t_o_sequence: int = 0  # CIP Safety server: the sequence of its time coordination messages
+    reservation: Reservation | None = None  # what it holds of the I/O thread's budget (cip/budget.py)
     #: Connection timeout: O->T RPI x 2^(2 + multiplier) (Vol. 1, 3-4.4.9), ns; both are fixed at the Forward Open.
     timeout_ns: int = field(init=False)
 

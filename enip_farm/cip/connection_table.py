@@ -1,8 +1,9 @@
 """The connection table of one device, sans-IO (CIP Networks Library Vol. 1, 3-4 and 3-5.5;
 Vol. 2, 3-2 and 3-3), in the style of aioquic's `QuicConnection`:
 
-- Forward Open (admitted or refused by cip/admission.py), Forward Close, and the close cascade
-  of listen-only connections;
+- Forward Open (admitted or refused by cip/admission.py, then within the I/O thread's budget,
+  cip/budget.py: past it 0x01/0x0113), Forward Close, and the close cascade of listen-only
+  connections;
 - consumption of O->T packets (`receive_datagram`): originator, sequence window, run/idle, size;
 - production of T->O packets on absolute deadlines (`datagrams_to_send`);
 - supervision (`get_timer`, `handle_timer`): the first watchdog, then exactly the last valid
@@ -34,6 +35,7 @@ from enip_farm.cip.admission import (
     Refusal,
 )
 from enip_farm.cip.assembly import AssemblyInstance
+from enip_farm.cip.budget import CyclicBudget
 from enip_farm.cip.connection import Connection, ConnectionKind, Production
 from enip_farm.cip.safety.admission import SafetyOpen
 from enip_farm.cip.safety.validator import SafetyConsumer, SafetyProducer
@@ -92,8 +94,9 @@ class ConnectionTable:
 
     def __init__(self, assemblies: Mapping[str, AssemblyInstance], policy: ConnectionPolicy,
                  identity: Callable[[], KeyIdentity], counters: Counter[str] | None = None,
-                 rng: random.Random | None = None) -> None:
+                 rng: random.Random | None = None, budget: CyclicBudget | None = None) -> None:
         self.assemblies = assemblies
+        self.budget = budget
         self.policy = policy
         self.admission = Admission(assemblies, policy, identity, rng)
         self.counters: Counter[str] = counters if counters is not None else Counter()
@@ -165,7 +168,12 @@ class ConnectionTable:
                                                                                           connection), now))
             return connection
         if type(connection) is SafetyOpen:
-            return self._safety_opened(connection, now)
+            refusal = self._reserve(connection.connection, request, originator, now)
+            return refusal if refusal is not None else self._safety_opened(connection, now)
+        if connection.is_io:
+            refusal = self._reserve(connection, request, originator, now)
+            if refusal is not None:
+                return refusal
         self.connections[connection.o_t_id] = connection
         self._by_triad[connection.triad] = connection
         items: ReplyItems = ()
@@ -183,6 +191,24 @@ class ConnectionTable:
                 items = ((ItemType.SOCKADDR_T_O, encode_sockaddr(SocketAddress(*connection.t_o_address))),)  # type: ignore[misc]
         self._events.append(ConnectionEvent("connection opened", connection, "", now))
         return Opened(connection, items)
+
+    def _reserve(self, connection: Connection, request: ForwardOpenRequest, originator: Originator,
+                 now: int) -> Refusal | None:
+        """Take the connection's datagrams per second from the I/O thread's budget, or refuse it
+        (0x01/0x0113, Vol. 1 table 3-5.33) with the figures."""
+        budget = self.budget
+        if budget is None:
+            return None
+        shares = (connection.t_o_id, connection.t_o_address) in self.productions
+        rate = budget.rate(connection.o_t_rpi, None if shares else connection.t_o_rpi)
+        connection.reservation = budget.reserve(rate)
+        if connection.reservation is not None:
+            return None
+        refusal = Refusal(X.OUT_OF_CONNECTIONS)
+        self._events.append(ConnectionEvent("connection refused", None, _refused_open(request, originator, refusal) + (
+            f": the farm's cyclic I/O budget is {budget.datagrams_per_s:.0f} datagrams/s per worker, "
+            f"{budget.reserved:.0f} taken, this connection needs {rate:.0f}"), now))
+        return refusal
 
     def _safety_opened(self, opened: SafetyOpen, now: int) -> Opened:
         connection = opened.connection
@@ -231,6 +257,9 @@ class ConnectionTable:
         if connection.closed:
             return
         connection.closed = True
+        if connection.reservation is not None and self.budget is not None:
+            self.budget.release(connection.reservation)
+            connection.reservation = None
         if connection.safety is not None:
             self._safety_connections -= 1
         self.connections.pop(connection.o_t_id, None)

@@ -45,6 +45,8 @@ class FarmControl(Protocol):
 
     def health(self) -> dict[str, Any]: ...
 
+    def cyclic_io_load(self) -> dict[str, Any]: ...
+
 
 class DeviceHandle:
     def __init__(self, farm: FarmControl, device: Device) -> None:

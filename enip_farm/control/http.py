@@ -133,7 +133,7 @@ def create_app(farm: FarmControl, hub: EventHub | None = None) -> FastAPI:
     app = FastAPIOffline(title="enip-farm", description="Drive and observe a farm of virtual EtherNet/IP devices. "
                          "The dashboard is at /.")
     registry = CollectorRegistry()
-    registry.register(FarmCollector(farm.devices.values(), farm.health))
+    registry.register(FarmCollector(farm.devices.values(), farm.health, farm.cyclic_io_load))
     hub = hub if hub is not None else EventHub(farm.devices.values())
 
     def known(name: str) -> str:

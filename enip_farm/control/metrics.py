@@ -13,9 +13,11 @@ from prometheus_client.registry import Collector
 class FarmCollector(Collector):
     """Reads the devices' counters at scrape time; nothing is counted twice."""
 
-    def __init__(self, devices: Iterable, health: Callable[[], dict[str, Any]] | None = None) -> None:
+    def __init__(self, devices: Iterable, health: Callable[[], dict[str, Any]] | None = None,
+                 load: Callable[[], dict[str, Any]] | None = None) -> None:
         self.devices = list(devices)
         self.health = health
+        self.load = load
 
     def collect(self) -> Iterator:
         requests = CounterMetricFamily("enip_farm_requests", "Explicit requests by CIP service and general status",
@@ -52,3 +54,15 @@ class FarmCollector(Collector):
                                       "thread's loop (it goes on)", value=health["cyclic_io"]["errors"])
             yield CounterMetricFamily("enip_farm_event_loop_errors", "Exceptions that escaped a callback or task "
                                       "of the event loop", value=health["loop_errors"])
+        if self.load is not None:
+            load = self.load()
+            yield GaugeMetricFamily("enip_farm_cyclic_io_budget_datagrams_per_second", "Class-1 datagrams per "
+                                    "second this worker admits connections for", value=load["budget_datagrams_per_s"])
+            yield GaugeMetricFamily("enip_farm_cyclic_io_reserved_datagrams_per_second", "What the open "
+                                    "connections take of the budget", value=load["reserved_datagrams_per_s"])
+            yield CounterMetricFamily("enip_farm_cyclic_io_budget_refusals", "Forward Opens refused (0x0113) "
+                                      "for want of budget", value=load["refused"])
+            yield GaugeMetricFamily("enip_farm_cyclic_io_lag_seconds", "How late the cyclic I/O thread ran "
+                                    "behind its schedule, worst of the last second", value=load["lag_s"])
+            yield CounterMetricFamily("enip_farm_cyclic_io_overloads", "Wake-ups of the cyclic I/O thread more "
+                                      "than 5 ms late: the farm overloaded", value=load["overloads"])
