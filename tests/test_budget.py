@@ -129,3 +129,20 @@ def test_a_farm_past_its_budget_refuses_0x0113_and_keeps_the_others(enip_farm) -
         assert ca.request(forward_close(triad)).general_status == 0
         assert farm.budget.reserved == 200
         assert cc.request(forward_open(rpi=10_000, multiplier=7)[0]).general_status == 0
+
+
+def test_kernel_drops_are_read_per_address_from_the_udp_table(tmp_path) -> None:
+    from enip_farm.control.metrics import udp_drops
+
+    table = tmp_path / "udp"
+    table.write_text(
+        "   sl  local_address rem_address   st tx_queue rx_queue tr tm->when retrnsmt   uid  timeout inode ref "
+        "pointer drops\n"
+        "  1: 010A007F:08AE 00000000:0000 07 00000000:00000000 00:00000000 00000000     0        0 1 2 "
+        "0000000000000000 17\n"
+        "  2: 020A007F:08AE 00000000:0000 07 00000000:00000000 00:00000000 00000000     0        0 2 2 "
+        "0000000000000000 0\n"
+        "  3: 010A007F:AF12 00000000:0000 07 00000000:00000000 00:00000000 00000000     0        0 3 2 "
+        "0000000000000000 5\n")
+    assert udp_drops(2222, table) == {"127.0.10.1": 17, "127.0.10.2": 0}
+    assert udp_drops(2222, tmp_path / "missing") == {}

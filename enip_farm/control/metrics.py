@@ -3,11 +3,35 @@
 
 from __future__ import annotations
 
+import socket
+import struct
 from collections.abc import Callable, Iterable, Iterator
+from pathlib import Path
 from typing import Any
 
 from prometheus_client.core import CounterMetricFamily, GaugeMetricFamily, HistogramMetricFamily
 from prometheus_client.registry import Collector
+
+#: Where Linux lists its UDP sockets with the datagrams each dropped (its receive buffer was full).
+PROC_NET_UDP = Path("/proc/net/udp")
+IO_PORT = 2222
+
+
+def udp_drops(port: int, table: Path = PROC_NET_UDP) -> dict[str, int]:
+    """Datagrams the kernel dropped per local IPv4 address bound to `port` (the last column of
+    /proc/net/udp); empty where there is no such table."""
+    drops: dict[str, int] = {}
+    try:
+        lines = table.read_text().splitlines()[1:]
+    except OSError:
+        return drops
+    suffix = f":{port:04X}"
+    for line in lines:
+        fields = line.split()
+        if len(fields) >= 13 and fields[1].endswith(suffix):
+            host = socket.inet_ntoa(struct.pack("<I", int(fields[1][:8], 16)))
+            drops[host] = drops.get(host, 0) + int(fields[-1])
+    return drops
 
 
 class FarmCollector(Collector):
@@ -43,9 +67,14 @@ class FarmCollector(Collector):
             latency.add_metric([name], device.latency.buckets(), device.latency.sum)
         io_errors = CounterMetricFamily("enip_farm_io_errors", "Exceptions of a device's cyclic I/O (it goes on)",
                                         labels=["device"])
+        kernel_drops = CounterMetricFamily("enip_farm_class1_kernel_drops", "O->T datagrams the kernel dropped "
+                                           "before the farm read them (UDP 2222 receive buffer full)",
+                                           labels=["device"])
+        drops = udp_drops(IO_PORT)
         for device in self.devices:
             io_errors.add_metric([device.name], device.counters["io_errors"])
-        yield from (requests, connections, open_io, packets, latency, io_errors)
+            kernel_drops.add_metric([device.name], drops.get(device.profile.address, 0))
+        yield from (requests, connections, open_io, packets, latency, io_errors, kernel_drops)
         if self.health is not None:
             health = self.health()
             yield GaugeMetricFamily("enip_farm_cyclic_io_running", "1 while the cyclic I/O thread runs",
