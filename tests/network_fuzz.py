@@ -295,6 +295,8 @@ class Class1Originator:
     def _run(self) -> None:
         period = self.rpi_us * 1000
         due = time.monotonic_ns()
+        poller = select.poll()
+        poller.register(self.udp, select.POLLIN)
         while not self._stop.is_set():
             now = time.monotonic_ns()
             if now >= due:
@@ -306,7 +308,7 @@ class Class1Originator:
                                               b"\x01\x00\x00\x00" + struct.pack("<H", stream.sequence & 0xFFFF))
                     self.udp.sendto(packet, (stream.host, IO_PORT))
                 due += period * max(1, (now - due) // period + 1)
-            select.select([self.udp], [], [], max(0.0, (due - time.monotonic_ns()) / 1e9))
+            poller.poll(max(0.0, (due - time.monotonic_ns()) / 1e6))
             self._drain()
 
     def _drain(self) -> None:

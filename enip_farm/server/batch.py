@@ -21,8 +21,10 @@ except ImportError:  # no compiler where the package was built: the pure-Python 
 
 #: Whether the native batch calls are there.
 NATIVE = _mmsg is not None
-#: Datagrams read from one socket per call.
-RECEIVE_LIMIT = 32
+#: Datagrams read from one socket per call. One: a wake-up reads one datagram from every socket that
+#: has some and then services what is due; a socket with more is reported again at the next turn
+#: (epoll is level-triggered), so a backlog on some sockets cannot hold back every device's T->O.
+RECEIVE_LIMIT = 1
 #: A message to send: payload, destination (4-byte IPv4 address + 2-byte port, network order), source address.
 Message = tuple[bytes, bytes, bytes]
 
