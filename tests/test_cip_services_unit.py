@@ -309,7 +309,7 @@ def test_tcpip_get_attributes_all_layout() -> None:
     data = ask(make_device(), encode_request(0x01, encode_request_path(0xF5, 1))).data
     expected = bytes.fromhex(
         "01000000"                                  # 1 status: valid configuration
-        "04000000"                                  # 2 capability: DHCP client
+        "00000000"                                  # 2 capability: no BOOTP/DHCP client, not settable
         "00000000"                                  # 3 control: static
         "0200 20f6 2401"                            # 4 physical link: 2 words, Ethernet Link instance 1
         "0100007f 00ffffff 00000000 00000000 00000000 0000"  # 5 127.0.0.1/24, no gateway, name servers, domain
@@ -400,7 +400,8 @@ def test_interface_counters_wrap_as_udints() -> None:
 
 
 @pytest.mark.parametrize(("path", "status"), [((0xF6, 1, 1), 0x2E), ((0xF6, 1, 10), 0x2E), ((0xF6, 1, 12), 0x14),
-                                              ((0xF6, 1, None), 0x14), ((0xF6, 0, 4), 0x14), ((1, 1, 1), 0x08)])
+                                              ((0xF6, 1, None), 0x14), ((0xF6, 0, 4), 0x2E), ((0xF6, 0, 8), 0x14),
+                                                  ((1, 1, 1), 0x08)])
 def test_get_and_clear_elsewhere(path: tuple, status: int) -> None:
     assert ask(make_device(), encode_request(0x4C, encode_request_path(*path))).general_status == status
 

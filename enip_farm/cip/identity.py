@@ -43,6 +43,7 @@ RESET_OUT_OF_BOX = 1
 class IdentityObject(CipClass):
     class_id = 0x01
     revision = 1
+    optional_attributes = (8,)
 
     def __init__(self, *, vendor_id: int, device_type: int, product_code: Callable[[], int], revision: tuple[int, int],
                  serial_number: int, product_name: str, status: Callable[[], int],

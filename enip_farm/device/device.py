@@ -130,7 +130,12 @@ class Device:
         #: 44818) count into `traffic`, the cyclic I/O thread's (UDP 2222) into `io_traffic`.
         self.traffic: InterfaceCounters = self.link.new_counters()
         self.io_traffic: InterfaceCounters = self.link.new_counters()
-        self.router = MessageRouter(multiple_service_packet=profile.routing.multiple_service_packet)
+        implicit, safety_profile = profile.implicit, profile.safety
+        self.router = MessageRouter(
+            multiple_service_packet=profile.routing.multiple_service_packet,
+            max_connections=implicit.max_class1_connections + implicit.max_class3_connections + (
+                safety_profile.max_connections if safety_profile else 0),
+            active_connections=lambda: len(self.table.connections))
         self.router.forced_status = self.faults.forced_status
         self.router.replay = {(service, path, data): reply for service, path, data, reply in profile.replay}
         for obj in (
