@@ -71,7 +71,7 @@ def test_tcpip_claims_no_dhcp_and_configuration_control_stays_static() -> None:
 _CLASSES = (0x01, 0x02, 0x04, 0x06, 0xF5, 0xF6, 0x39, 0x3A)
 
 
-def _requests(model: str) -> list[bytes]:
+def _requests(model: str, address: str) -> list[bytes]:
     requests = []
     for class_id in _CLASSES:
         for instance in (0, 1):
@@ -82,6 +82,16 @@ def _requests(model: str) -> list[bytes]:
     requests += [encode_request(0x10, encode_request_path(0xF5, 1, 3), bytes(4)),
                  encode_request(0x10, encode_request_path(0xF5, 1, 8), b"\x05"),
                  encode_request(0x4C, encode_request_path(0xF6, 1, 4))]
+    if model == "DSQC1042":  # the Safety Supervisor's services, accepted and refused
+        node = struct.pack("<I", int.from_bytes(bytes(map(int, address.split("."))), "big"))
+        tunid = bytes.fromhex("0000000000b7") + node
+        supervisor = encode_request_path(0x39, 1)
+        requests += [encode_request(0x57, supervisor, tunid), encode_request(0x56, supervisor, tunid),
+                     encode_request(0x57, supervisor, tunid), encode_request(0x56, supervisor, b"\xff" * 10),
+                     encode_request(0x54, supervisor, b"\x00" + bytes(16) + b"\xff" * 10),
+                     encode_request(0x54, supervisor, b"\x02" + bytes(16) + tunid + b"\x04"),
+                     encode_request(0x54, supervisor, b"\x01" + bytes(16) + tunid),
+                     encode_request(0x01, supervisor), encode_request(0x0E, encode_request_path(0x39, 1, 28))]
     return requests
 
 
@@ -93,7 +103,7 @@ def test_tshark_finds_no_error_in_any_reply_of_the_farm_objects(free_address, tm
     recording = tmp_path / "objects.pcap"
     farm = Farm(parse_config({"devices": [{"name": "d", "address": address, "model": model}], "discovery": False}),
                 record=recording)
-    requests = _requests(model)
+    requests = _requests(model, address)
     with farm.running_in_thread(), RawClient(address) as client:
         client.register()
         statuses = [client.request(request).general_status for request in requests]

@@ -33,10 +33,11 @@ from enip_farm.cip.connection_table import TABLE_COUNTERS, ConnectionEvent, Conn
 from enip_farm.cip.ethernet_link import EthernetLinkObject, InterfaceCounters
 from enip_farm.cip.identity import RESET_OUT_OF_BOX, STATE_OPERATIONAL, STATE_SELF_TESTING, IdentityObject
 from enip_farm.cip.message_router import Handled, MessageRouter
-from enip_farm.cip.object import ReplyItems
+from enip_farm.cip.object import Attribute, ReplyItems
 from enip_farm.cip.safety.admission import SafetyPolicy
-from enip_farm.cip.safety.objects import SafetySupervisor, SafetyValidatorObject
+from enip_farm.cip.safety.objects import SafetyValidatorObject
 from enip_farm.cip.safety.segment import Unid
+from enip_farm.cip.safety.supervisor import SafetySupervisor
 from enip_farm.cip.tcpip_interface import TcpIpInterfaceObject
 from enip_farm.device.events import Event, EventLog, ImageChange
 from enip_farm.device.faults import DeviceFaults
@@ -160,7 +161,14 @@ class Device:
         if safety is not None:
             def open_connections() -> list[Connection]:
                 return list(self.table.connections.values())
-            self.router.register(SafetySupervisor(safety, open_connections))
+            def close_safety_connections(reason: str, now: int) -> None:
+                for connection in [c for c in self.table.connections.values() if c.safety is not None]:
+                    self.table.close(connection, reason, now)
+
+            self.router.register(SafetySupervisor(safety, open_connections, close_safety_connections,
+                                                  lambda: self.reset_window.active))
+            state = safety.state
+            self._tcpip.instances[1].attributes[7] = Attribute(lambda: state.tunid.snn)  # follows Apply_TUNID
             self.router.register(SafetyValidatorObject(open_connections, lambda: self.counters["safety_faulted"]))
         service = ServiceItem(PROTOCOL_VERSION, CAPABILITY_TCP | CAPABILITY_UDP_CLASS_0_1, "Communications")
         self._list_services = encode_items([(ItemType.LIST_SERVICES, encode_service_item(service))])
@@ -387,6 +395,8 @@ class Device:
         if kind == RESET_OUT_OF_BOX:
             self._tcpip.restore_defaults()
             self.link.restore_defaults()
+        if table.policy.safety is not None:
+            table.policy.safety.state.identity_reset(kind)
         self.link.clear_counters()
         self._next_session_handle = 1
         self.reset_window.start(now)

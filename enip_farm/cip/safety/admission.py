@@ -12,7 +12,7 @@ Two single-cast connection types (transport type/trigger, class 0, application t
 from __future__ import annotations
 
 from collections.abc import Callable, Collection
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import NamedTuple
 
 from enip_farm.cip.connection import Connection, ConnectionKind
@@ -27,6 +27,7 @@ from enip_farm.cip.safety.segment import (
     compute_cpcrc,
     decode_segment,
 )
+from enip_farm.cip.safety.state import SafetyState
 from enip_farm.cip.safety.validator import SafetyConsumer, SafetyProducer
 from enip_farm.protocol.connection import ConnectionType, ForwardOpenRequest, NetworkParameters, encode_forward_open
 from enip_farm.protocol.epath import ElectronicKey, LogicalSegment, LogicalType, SafetyNetworkSegment
@@ -59,10 +60,17 @@ class SafetyPolicy:
     configuration_point: int
     null_point: int  # the connection point a server does not produce / a client does not consume
     max_connections: int = 8
+    #: the TUNID, SCID and configuration owner as they stand (the Safety Supervisor changes them);
+    #: `tunid` and `scid` above are the configured, initial values
+    state: SafetyState = field(default=None, compare=False)  # type: ignore[assignment]
+
+    def __post_init__(self) -> None:
+        if self.state is None:
+            object.__setattr__(self, "state", SafetyState(self.tunid, self.scid))
 
     @property
     def tunid_set(self) -> bool:
-        return self.tunid.snn != b"\xff" * 6 and self.tunid.node_address != 0xFFFFFFFF
+        return self.state.tunid_set
 
 
 class SafetyRefusal(NamedTuple):
@@ -103,7 +111,8 @@ def admit_safety(request: ForwardOpenRequest, segments: list, route_size: int, p
         return SafetyRefusal(X.INVALID_CPCRC)
     if not policy.tunid_set:
         return SafetyRefusal(X.TUNID_NOT_SET)
-    if segment.tunid != policy.tunid:
+    state = policy.state
+    if segment.tunid != state.tunid:
         return SafetyRefusal(X.TUNID_MISMATCH)
     if any(c.triad == request.triad for c in connections):
         return SafetyRefusal(X.CONNECTION_IN_USE)
@@ -129,7 +138,7 @@ def admit_safety(request: ForwardOpenRequest, segments: list, route_size: int, p
             return SafetyRefusal(X.INVALID_CONSUMING_PATH)
         if producing != policy.input_point:
             return SafetyRefusal(X.INVALID_PRODUCING_PATH)
-    if any(segment.scid) and segment.scid != policy.scid:
+    if any(segment.scid) and segment.scid != state.scid:
         return SafetyRefusal(X.SCID_MISMATCH)
     safety = [c for c in connections if c.safety is not None]
     if server and any(c.kind is ConnectionKind.SAFETY_OUTPUT for c in safety):
