@@ -10,6 +10,7 @@ import struct
 
 import pytest
 
+from enip_farm.cip.safety.crc import crc_s4
 from enip_farm.cip.safety.segment import Unid
 from enip_farm.config import DeviceConfig
 from enip_farm.device.catalogue import shipped_catalogue
@@ -167,3 +168,53 @@ def test_identity_resets_keep_the_tunid_types_1_and_2_clear_the_safety_configura
         assert ask(device, 0x05, bytes((kind,)), class_id=1).general_status == 0
         assert attribute(device, 11) == b"\x01"  # self-testing in the reset window
         assert attribute(device, 27) == TUNID.encode() and attribute(device, 26) == scid_after
+
+
+CONFIGURATION = bytes.fromhex("0102030405060708")
+OTHER_OWNER = Unid(bytes.fromhex("0000000000cc"), 2)
+
+
+def signed(data: bytes, scts: bytes = bytes.fromhex("0a0b0c0d0e0f")) -> bytes:
+    """The SCID of configuration `data`: SCCRC = CRC-S4 over it, then the SCTS."""
+    return struct.pack("<I", crc_s4(data)) + scts
+
+
+def test_type_1_safety_open_configures_the_target_and_makes_its_originator_the_owner() -> None:
+    device = make_device()
+    scid = signed(CONFIGURATION)
+    assert open_safety(device, scid=scid, configuration_data=CONFIGURATION) == 0
+    assert attribute(device, 25) == OUNID.encode() and attribute(device, 26) == scid
+    assert open_safety(device, server=False, scid=scid) == 0  # a Type 2 with the SCID held
+    assert open_safety(device, server=False, scid=signed(b"\x09" * 8)) == 0x080C  # another SCID
+
+
+@pytest.mark.parametrize(("kwargs", "extended"), [
+    ({"scid": bytes(10)}, 0x080C),  # a Type 1 must carry an SCID
+    ({"scid": signed(CONFIGURATION[:-2] + b"\xff\xff")}, 0x080C),  # SCCRC not that of the data
+    ({"scid": signed(CONFIGURATION), "points": (2, 100, 0)}, 0x0129),  # not the configuration assembly
+])
+def test_type_1_safety_open_refusals_configure_nothing(kwargs: dict, extended: int) -> None:
+    device = make_device()
+    assert open_safety(device, configuration_data=CONFIGURATION, **kwargs) == extended
+    assert attribute(device, 25) == bytes(10) and attribute(device, 26) == bytes(10) and device.connections == {}
+
+
+def test_another_originator_cannot_reconfigure_until_safety_reset_type_2_clears_the_owner() -> None:
+    device = make_device()
+    assert open_safety(device, scid=signed(CONFIGURATION), configuration_data=CONFIGURATION) == 0
+    other = b"\x07" * 8
+    assert open_safety(device, server=False, scid=signed(other), configuration_data=other,
+                       ounid=OTHER_OWNER) == 0x0105  # configuration owned by another originator
+    assert open_safety(device, server=False, scid=signed(other), configuration_data=other) == 0x080F  # in use
+    assert attribute(device, 25) == OUNID.encode() and attribute(device, 26) == signed(CONFIGURATION)
+    assert ask(device, 0x54, reset_request(2, preserve=0x04)).general_status == 0  # keep the TUNID only
+    assert attribute(device, 25) == bytes(10) and attribute(device, 26) == bytes(10)
+    assert open_safety(device, server=False, scid=signed(other), configuration_data=other, ounid=OTHER_OWNER) == 0
+    assert attribute(device, 25) == OTHER_OWNER.encode()
+
+
+def test_safety_reset_type_2_can_preserve_the_owner() -> None:
+    device = make_device()
+    assert open_safety(device, scid=signed(CONFIGURATION), configuration_data=CONFIGURATION) == 0
+    assert ask(device, 0x54, reset_request(2, preserve=0x14)).general_status == 0
+    assert attribute(device, 25) == OUNID.encode() and attribute(device, 26) == bytes(10)

@@ -38,7 +38,7 @@ class SafetyState:
     return to (a TUNID unset, no SCID, no owner)."""
 
     __slots__ = ("tunid", "proposed_tunid", "scid", "cfunid", "locked", "password", "configured_tunid",
-                 "configured_scid")
+                 "configured_scid", "configuration_data")
 
     def __init__(self, tunid: Unid, scid: bytes) -> None:
         if len(scid) != SCID_SIZE:
@@ -50,6 +50,11 @@ class SafetyState:
         self.cfunid: Unid | None = None
         self.locked = False
         self.password = DEFAULT_PASSWORD
+        self.configuration_data = b""  # what the configuration owner's Type 1 SafetyOpen carried
+
+    def configure(self, owner: Unid, scid: bytes, data: bytes) -> None:
+        """A Type 1 SafetyOpen was admitted: `owner` owns the configuration `data` signed `scid`."""
+        self.cfunid, self.scid, self.configuration_data = owner, scid, data
 
     @property
     def tunid_set(self) -> bool:
@@ -69,6 +74,7 @@ class SafetyState:
         if not keep & PRESERVE_CFUNID:
             self.cfunid = None
         self.scid = NO_SCID
+        self.configuration_data = b""
         self.locked = False
 
     def identity_reset(self, kind: int) -> None:
@@ -77,13 +83,14 @@ class SafetyState:
         if kind in (1, 2):
             self.scid = NO_SCID
             self.cfunid = None
+            self.configuration_data = b""
             self.locked = False
 
     def snapshot(self) -> dict[str, str | bool | None]:
         """What a farm restart with state kept restores (hex strings, JSON-friendly)."""
         return {"tunid": self.tunid.encode().hex(), "scid": self.scid.hex(),
                 "cfunid": self.cfunid.encode().hex() if self.cfunid else None, "locked": self.locked,
-                "password": self.password.hex()}
+                "password": self.password.hex(), "configuration_data": self.configuration_data.hex()}
 
     def restore(self, saved: dict) -> None:
         self.tunid = Unid.decode(bytes.fromhex(saved["tunid"]))
@@ -91,3 +98,4 @@ class SafetyState:
         self.cfunid = Unid.decode(bytes.fromhex(saved["cfunid"])) if saved.get("cfunid") else None
         self.locked = bool(saved.get("locked", False))
         self.password = bytes.fromhex(saved.get("password", DEFAULT_PASSWORD.hex()))
+        self.configuration_data = bytes.fromhex(saved.get("configuration_data", ""))
