@@ -373,6 +373,19 @@ def fault(first: str, second: str | None, third: str | None, delay_ms: float, ma
     click.echo(f"{first}: active faults: " + ", ".join(f["kind"] for f in active))  # type: ignore[union-attr]
 
 
+@main.command()
+@click.argument("device")
+@click.option("--type", "kind", type=click.IntRange(0, 2), default=0, show_default=True,
+              help="0 power cycle, 1 out-of-box configuration, 2 out-of-box but the communication parameters")
+@_api_option
+@_token_option
+def reset(device: str, kind: int, api: str, token: str | None) -> None:
+    """Power-cycle or reset a device of a running farm, as its Identity Reset does: its TCP
+    connections drop, its connections close, it answers nothing for its reset time."""
+    done = _request("POST", api, f"/devices/{device}/reset", token, json={"type": kind})
+    click.echo(f"{device}: reset type {kind}, answering again in {done['reset_time_s']:g} s")  # type: ignore[index]
+
+
 #: The `fault` command's flag for each parameter of a Fault.
 _FAULT_FLAGS = MappingProxyType({"max_delay_ms": "--max-delay-ms", "delay_ms": "--delay-ms",
                                  "duration_s": "--duration", "service": "--service", "status": "--status"})

@@ -163,7 +163,7 @@ def test_safety_reset_type_2_keeps_what_the_bit_map_preserves(preserve: int, tun
 
 
 def test_identity_resets_keep_the_tunid_types_1_and_2_clear_the_safety_configuration() -> None:
-    for kind, scid_after in ((0, SCID), (1, bytes(10))):
+    for kind, scid_after in ((0, SCID), (1, bytes(10)), (2, bytes(10))):
         device = make_device(SCID)
         assert ask(device, 0x05, bytes((kind,)), class_id=1).general_status == 0
         assert attribute(device, 11) == b"\x01"  # self-testing in the reset window

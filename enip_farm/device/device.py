@@ -60,7 +60,8 @@ from enip_farm.protocol.cpf import ItemType, encode_items
 from enip_farm.protocol.session import MessageContext, ReplyWithItems
 
 ENIP_PORT = 44818
-_RESET_KINDS: Mapping[int, str] = MappingProxyType({0: "power cycle", 1: "out-of-box configuration"})
+_RESET_KINDS: Mapping[int, str] = MappingProxyType({0: "power cycle", 1: "out-of-box configuration",
+                                                    2: "out-of-box configuration but the communication parameters"})
 
 #: Every counter of a device, present (at 0) from the start: TCP, sessions, replies, class 1 (the table's).
 COUNTERS = ("tcp_connections", "tcp_refused", "tcp_write_paused", "tcp_inactivity_closed", "sessions",
@@ -400,6 +401,24 @@ class Device:
         self.link.clear_counters()
         self._next_session_handle = 1
         self.reset_window.start(now)
+
+    def reset(self, kind: int, now: int) -> bool:
+        """A reset from outside CIP (the API, the CLI, the dashboard: a test engineer's power switch
+        or reset button): as an Identity Reset of type `kind` (0 power cycle, 1 out-of-box, 2 out-of-box
+        but the communication parameters), without a request to answer. False if the device is in
+        its reset window already (nothing happens); ValueError for an unknown type."""
+        if kind not in _RESET_KINDS:
+            raise ValueError(f"reset type {kind}: one of {', '.join(map(str, _RESET_KINDS))}")
+        with self.lock:
+            if self.reset_window.active:
+                return False
+            before = self._snapshot()
+            self._reset(kind, now)
+            connections = self.table.pop_events()
+            after = self._snapshot()
+        self._publish(before, after, (), connections)
+        self._record_reset(kind)
+        return True
 
     def _record_reset(self, kind: int) -> None:
         self.record("reset", f"type {kind} ({_RESET_KINDS[kind]}): not answering for "
