@@ -117,19 +117,22 @@ def _banner(devices: int, config: FarmConfig, config_path: Path | None, http_url
                    "or ENIP_FARM_SHARD)")
 @click.option("--record", type=click.Path(dir_okay=False, path_type=Path), default=None,
               help="write every TCP and UDP exchange to this pcap file")
+@click.option("--state", "state", type=click.Path(dir_okay=False, path_type=Path), default=None,
+              help="keep the devices' non-volatile state (a safety target's TUNID, configuration, owner) in this "
+                   "JSON file across restarts: read at start, written at stop")
 def serve(config_path: Path | None, log_level: str, quiet: bool, http: str | None, token: str | None, workers: int,
-          shard_spec: str | None, record: Path | None) -> None:
+          shard_spec: str | None, record: Path | None, state: Path | None) -> None:
     """Serve every device of a cell until Ctrl-C or SIGTERM, logging what happens to them."""
     address = _http_address(http)
     configure_logging(log_level, quiet)
     config = _select(_load(config_path, build=bool(shard_spec) or workers > 1), shard_spec)
     if workers > 1:
-        if record:
-            raise click.UsageError("--record writes one file: use it with --workers 1")
+        if record or state:
+            raise click.UsageError("--record and --state write one file: use them with --workers 1")
         from enip_farm.workers import serve_workers
 
         sys.exit(serve_workers(config, workers, address, token, log_level, quiet))
-    farm = _farm(config, http=address, token=token, record=record)
+    farm = _farm(config, http=address, token=token, record=record, state=state)
     loop = new_event_loop()
     asyncio.set_event_loop(loop)
     try:

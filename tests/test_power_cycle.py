@@ -1,7 +1,8 @@
 """Resetting or power-cycling a device by hand, as a test engineer does on the bench (issue 22,
 item 3): the HTTP API (`POST /devices/{name}/reset`), the CLI (`enip-farm reset`) and the Python
 API (`farm[name].reset()`): the TCP connections drop, the CIP connections close, the device
-answers nothing for its reset time and then answers again; a second reset meanwhile gets 409."""
+answers nothing for its reset time and then answers again; a second reset meanwhile gets 409.
+And what survives a farm restart with its state file (item 1)."""
 
 from __future__ import annotations
 
@@ -14,8 +15,12 @@ import httpx
 import pytest
 from pycomm3 import CIPDriver, CommError, Services
 
+from enip_farm.config import ConfigError
+from enip_farm.farm import Farm
+from enip_farm.protocol.cip import encode_request
+from enip_farm.protocol.epath import encode_request_path
 from tests.cm_ethernetip import node_address
-from tests.helpers import CLI, ENIP_PORT, wait_for
+from tests.helpers import CLI, ENIP_PORT, RawClient, wait_for
 from tests.test_cip_services import answers
 
 pytestmark = pytest.mark.system
@@ -79,3 +84,26 @@ def test_reset_type_2_from_the_cli_and_the_python_api_clears_the_safety_configur
     assert farm["s1"].events("reset")[-1].detail.startswith("type 0 (power cycle)")
     failed = subprocess.run([*CLI, "reset", "s1", "--type", "5"], capture_output=True, text=True, env=env, timeout=60)
     assert failed.returncode == 2
+
+
+def _supervisor(address: str, service: int, data: bytes = b"", attribute: int | None = None) -> tuple[int, bytes]:
+    path = encode_request_path(0x39, 1, attribute) if attribute else encode_request_path(0x39, 1)
+    with RawClient(address) as client:
+        client.register()
+        reply = client.request(encode_request(service, path, data))
+    return reply.general_status, reply.data
+
+
+def test_a_tunid_and_a_configuration_survive_a_farm_restart_with_its_state_file(free_address, tmp_path) -> None:
+    address, state = free_address(), tmp_path / "state.json"
+    config = {"devices": [{"name": "s1", "address": address, "model": "DSQC1042"}], "discovery": False}
+    tunid = bytes.fromhex("0000000000b7") + node_address(address).to_bytes(4, "little")
+    with Farm(config, state=state).running_in_thread():
+        assert _supervisor(address, 0x56, tunid)[0] == 0 and _supervisor(address, 0x57, tunid)[0] == 0
+    with Farm(config, state=state).running_in_thread():  # restarted with its state
+        assert _supervisor(address, 0x0E, attribute=27) == (0, tunid)
+    with Farm(config).running_in_thread():  # a farm without the file starts from its configuration
+        assert _supervisor(address, 0x0E, attribute=27)[1] == bytes.fromhex("000000000001") + tunid[6:]
+    state.write_text("[]")
+    with pytest.raises(ConfigError, match="state file: .*not an enip-farm state file"):
+        Farm(config, state=state)
