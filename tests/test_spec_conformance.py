@@ -1,7 +1,7 @@
 """The last differences from the spec (issue 22, item 5): class-level Get Attributes All answers
 class attributes 1-7 in order, 4 and 5 as counted lists (Vol. 1, 4-4.1); Message Router instance
 attribute 2 is the maximum number of connections supported and 3 the number active (Vol. 1,
-5-3.2.2); the TCP/IP Interface no longer claims a DHCP client it does not run (Vol. 2, 5-4.3.2.2);
+5-3); the TCP/IP Interface no longer claims a DHCP client it does not run (Vol. 2, 5-4);
 and Wireshark's dissectors find no error and no warning in any reply of the objects the farm
 serves (a recording of the farm, decoded by tshark)."""
 

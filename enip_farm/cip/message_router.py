@@ -2,7 +2,7 @@
 request, dispatches it by class id, and answers Multiple Service Packet (0x0A) unless the device's
 profile says it does not (a non-routing adapter such as OpENer answers 0x08).
 
-Instance 1 attributes (Vol. 1, 5-3.2.2): 1 object list (UINT count, class ids), 2 number available
+Instance 1 attributes (Vol. 1, 5-3): 1 object list (UINT count, class ids), 2 number available
 (UINT: the maximum number of connections supported), 3 number active (UINT: connections open now)."""
 
 from __future__ import annotations

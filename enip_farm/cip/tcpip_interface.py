@@ -42,7 +42,7 @@ from enip_farm.protocol.status import GeneralStatus
 
 #: Attribute 1: interface configuration status 1 = "valid configuration obtained".
 _STATUS_VALID = 1
-#: Attribute 2: configuration capability (Vol. 2, 5-4.3.2.2): no bit set. Bits 0 BOOTP client and 2
+#: Attribute 2: configuration capability (Vol. 2, 5-4): no bit set. Bits 0 BOOTP client and 2
 #: DHCP client stay clear because no BOOTP or DHCP runs, bit 4 configuration settable because the
 #: address is the device's configured one (attribute 3 is then read-only, as the spec ties it to bit 4).
 _CAPABILITY = 0x00

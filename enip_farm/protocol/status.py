@@ -36,7 +36,7 @@ class ExtendedStatus(IntEnum):
 
     CONNECTION_IN_USE = 0x0100
     TRANSPORT_TRIGGER_NOT_SUPPORTED = 0x0103
-    CONFIGURATION_OWNED = 0x0105  # configuration already owned by another originator (Vol. 1, 3-5.6)
+    CONFIGURATION_OWNED = 0x0105  # configuration already owned by another originator
     OWNERSHIP_CONFLICT = 0x0106
     CONNECTION_NOT_FOUND = 0x0107
     INVALID_CONNECTION_TYPE = 0x0108

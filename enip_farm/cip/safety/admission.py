@@ -4,7 +4,7 @@ statuses are those of table 3-5.33 of Vol. 1 extended by Vol. 5, as the HMS CIP 
 stack applies them): CPCRC, TUNID, duplicate, electronic key, connection parameters (transport,
 network parameters, sizes, RPIs, safety parameters), application paths, SCID, ownership, limits.
 
-Type 1 and Type 2 SafetyOpen (Vol. 5, 3-5.2): a Type 1 carries the safety configuration in a data
+Type 1 and Type 2 SafetyOpen (Vol. 5, chapter 3): a Type 1 carries the safety configuration in a data
 segment before the safety segment and configures the target: its SCID must be non-zero with an
 SCCRC equal to CRC-S4 over the configuration data (else 0x080C), the target must not be owned by
 another originator (CFUNID other than the OUNID: 0x0105), and a configuration other than the one

@@ -1,10 +1,10 @@
-"""What a CIP Safety target keeps in its non-volatile memory (CIP Networks Library Vol. 5, 5-3,
-the Safety Supervisor object): its TUNID, a proposed TUNID awaiting Apply_TUNID, its safety
+"""What a CIP Safety target keeps in its non-volatile memory (CIP Networks Library Vol. 5,
+chapter 5, the Safety Supervisor object): its TUNID, a proposed TUNID awaiting Apply_TUNID, its safety
 configuration identifier (SCID), the configuration owner (CFUNID), the configuration lock and the
 password that Safety_Reset asks for. Sans-IO: the Safety Supervisor object changes it, SafetyOpen
 admission reads it.
 
-What each reset keeps (Vol. 5, 5-3.7.1 Safety_Reset; Vol. 1, 5-2.4.1 Identity Reset):
+What each reset keeps (Vol. 5, the Safety_Reset service; Vol. 1, 5-2.4.1 Identity Reset):
 - Safety_Reset type 0 and Identity Reset type 0 (power cycle): everything.
 - Safety_Reset type 1 (out of box): nothing: the TUNID is unset again (the device waits for one),
   the SCID and CFUNID are cleared, the lock is released, the password goes back to its default.

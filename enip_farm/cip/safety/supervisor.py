@@ -1,5 +1,5 @@
 """The Safety Supervisor object, class 0x39, instance 1, of a safety target (CIP Networks Library
-Vol. 5, 5-3; attribute numbers, service codes and request layouts as Wireshark's CIP Safety
+Vol. 5, chapter 5; attribute numbers, service codes and request layouts as Wireshark's CIP Safety
 dissector, packet-cipsafety.c, decodes them).
 
 | # | attribute | here |
