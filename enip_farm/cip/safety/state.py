@@ -34,16 +34,14 @@ PRESERVE_CFUNID, PRESERVE_OCPUNID, RESERVED_BIT, EXTENDED_MAP = 0x10, 0x20, 0x40
 
 
 class SafetyState:
-    """The safety target's settings as they stand; `out_of_box` values are what type-1 resets
-    return to (a TUNID unset, no SCID, no owner)."""
+    """The safety target's settings as they stand, from the farm's configuration at first; a
+    type-1 reset returns them to out of box (TUNID unset, no SCID, no owner)."""
 
-    __slots__ = ("tunid", "proposed_tunid", "scid", "cfunid", "locked", "password", "configured_tunid",
-                 "configured_scid", "configuration_data")
+    __slots__ = ("tunid", "proposed_tunid", "scid", "cfunid", "locked", "password", "configuration_data")
 
     def __init__(self, tunid: Unid, scid: bytes) -> None:
         if len(scid) != SCID_SIZE:
             raise ValueError("an SCID has 10 bytes")
-        self.configured_tunid, self.configured_scid = tunid, scid  # the farm's configuration
         self.tunid = tunid
         self.proposed_tunid: Unid | None = None
         self.scid = scid
