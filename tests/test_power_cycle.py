@@ -43,6 +43,9 @@ def test_power_cycle_through_the_http_api_drops_everything_and_answers_again(eni
         reply = httpx.post(url, json={"type": 0})
         assert reply.status_code == 200 and reply.json() == {"device": "io1", "type": 0, "reset_time_s": RESET_TIME_S}
         assert httpx.post(url, json={"type": 0}).status_code == 409  # resetting already
+        shown = httpx.get(url.removesuffix("/reset")).json()
+        if time.monotonic() < sent + RESET_TIME_S - 0.2:
+            assert shown["identity"]["state"] == 1  # self testing, as Identity attribute 8 says
         with pytest.raises(CommError):  # its session ended with the power cycle
             driver.generic_message(service=Services.get_attribute_single, class_code=1, instance=1, attribute=1,
                                    connected=False, route_path=False)
@@ -59,6 +62,8 @@ def test_power_cycle_through_the_http_api_drops_everything_and_answers_again(eni
     assert [e.kind for e in farm["io1"].events() if e.kind.startswith("reset")] == ["reset", "reset done"]
     assert farm["io1"].events("reset")[0].detail.startswith("type 0 (power cycle)")
     assert _identity_state(address) == b"\x03"
+    shown = httpx.get(url.removesuffix("/reset")).json()
+    assert shown["identity"]["state"] == 3 and shown["restarts"] == 1
     assert httpx.post(url, json={"type": 3}).status_code == 422
 
 

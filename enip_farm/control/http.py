@@ -121,7 +121,8 @@ def _device(farm: FarmControl, name: str, detail: bool = False) -> dict[str, Any
         "name": p.name, "address": p.address, "model": p.model, "addons": list(p.addons),
         "identity": {"vendor_id": p.vendor_id, "device_type": p.device_type, "product_code": device.product_code,
                      "revision": list(p.revision), "serial_number": p.serial_number, "product_name": p.product_name,
-                     "status": device.status},
+                     "status": device.status, "state": device.identity_state},
+        "restarts": device.restarts,  # resets begun (Identity Reset, the reset API); state 1 while resetting
         "input_size": p.input_size, "output_size": p.output_size,
         "connections": _connections(device),
         "faults": farm[name].faults,
