@@ -120,19 +120,22 @@ def _banner(devices: int, config: FarmConfig, config_path: Path | None, http_url
 @click.option("--heartbeat", envvar="ENIP_FARM_HEARTBEAT", type=click.Path(dir_okay=False, path_type=Path),
               default=None, help="set this file's time every second while cyclic I/O runs (worker i: FILE.i); "
                                  "docker/healthcheck.sh reads it (or ENIP_FARM_HEARTBEAT)")
+@click.option("--state", "state", type=click.Path(dir_okay=False, path_type=Path), default=None,
+              help="keep the devices' non-volatile state (a safety target's TUNID, configuration, owner) in this "
+                   "JSON file across restarts: read at start, written at stop")
 def serve(config_path: Path | None, log_level: str, quiet: bool, http: str | None, token: str | None, workers: int,
-          shard_spec: str | None, record: Path | None, heartbeat: Path | None) -> None:
+          shard_spec: str | None, record: Path | None, heartbeat: Path | None, state: Path | None) -> None:
     """Serve every device of a cell until Ctrl-C or SIGTERM, logging what happens to them."""
     address = _http_address(http)
     configure_logging(log_level, quiet)
     config = _select(_load(config_path, build=bool(shard_spec) or workers > 1), shard_spec)
     if workers > 1:
-        if record:
-            raise click.UsageError("--record writes one file: use it with --workers 1")
+        if record or state:
+            raise click.UsageError("--record and --state write one file: use them with --workers 1")
         from enip_farm.workers import serve_workers
 
         sys.exit(serve_workers(config, workers, address, token, log_level, quiet, heartbeat))
-    farm = _farm(config, http=address, token=token, record=record, heartbeat=heartbeat)
+    farm = _farm(config, http=address, token=token, record=record, heartbeat=heartbeat, state=state)
     loop = new_event_loop()
     asyncio.set_event_loop(loop)
     try:
@@ -377,6 +380,19 @@ def fault(first: str, second: str | None, third: str | None, delay_ms: float, ma
         sys.exit(2)
     active = _request("POST", api, f"/devices/{first}/faults", token, json=body)
     click.echo(f"{first}: active faults: " + ", ".join(f["kind"] for f in active))  # type: ignore[union-attr]
+
+
+@main.command()
+@click.argument("device")
+@click.option("--type", "kind", type=click.IntRange(0, 2), default=0, show_default=True,
+              help="0 power cycle, 1 out-of-box configuration, 2 out-of-box but the communication parameters")
+@_api_option
+@_token_option
+def reset(device: str, kind: int, api: str, token: str | None) -> None:
+    """Power-cycle or reset a device of a running farm, as its Identity Reset does: its TCP
+    connections drop, its connections close, it answers nothing for its reset time."""
+    done = _request("POST", api, f"/devices/{device}/reset", token, json={"type": kind})
+    click.echo(f"{device}: reset type {kind}, answering again in {done['reset_time_s']:g} s")  # type: ignore[index]
 
 
 #: The `fault` command's flag for each parameter of a Fault.

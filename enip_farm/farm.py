@@ -29,7 +29,7 @@ from typing import Any, TypeVar
 
 from enip_farm.capture.recorder import Recorder
 from enip_farm.cip.budget import CyclicBudget
-from enip_farm.config import FarmConfig, as_config
+from enip_farm.config import ConfigError, FarmConfig, as_config
 from enip_farm.control.handle import DeviceHandle
 from enip_farm.control.http import HttpApi, bind_problem
 from enip_farm.control.wiring import Wiring
@@ -38,6 +38,7 @@ from enip_farm.device.catalogue import Catalogue, shipped_catalogue
 from enip_farm.device.device import ENIP_PORT, Device
 from enip_farm.device.events import Event
 from enip_farm.device.faults import Fault, FaultKind
+from enip_farm.device.nonvolatile import load_state, save_state
 from enip_farm.server.calibrate import DEFAULT_DATAGRAMS_PER_S, measure_budget
 from enip_farm.server.implicit import IO_PORT, ImplicitIo
 from enip_farm.server.limits import RateLimitedLog, TcpLimits
@@ -106,13 +107,16 @@ class Farm:
 
     def __init__(self, config: FarmConfig | Mapping[str, Any] | str | Path, http: tuple[str, int] | None = None,
                  token: str | None = None, record: str | Path | None = None,
-                 catalogue: Catalogue | None = None, heartbeat: str | Path | None = None) -> None:
+                 catalogue: Catalogue | None = None, heartbeat: str | Path | None = None,
+                 state: str | Path | None = None) -> None:
         """`config`: a FarmConfig, a dict as a YAML file holds it, or a file's path; `http`: serve
         the HTTP API on (host, port), port 0 picks a free one (see `http.port`); `record`: write the
         farm's traffic to this pcap file; `catalogue`: the models the devices name (default: the
         shipped catalogue); `heartbeat`: a file whose time the farm sets every second while its
-        cyclic I/O runs (docker/healthcheck.sh reads it). Raises ConfigError if the configuration is
-        invalid or its devices cannot be built."""
+        cyclic I/O runs (docker/healthcheck.sh reads it); `state`: a JSON file of the devices'
+        non-volatile state (a safety target's TUNID, configuration and owner), restored now if it
+        exists and written at `stop` (device/nonvolatile.py). Raises ConfigError if the configuration
+        is invalid or its devices cannot be built, or the state file is not one."""
         self.config = config = as_config(config)
         profiles = build_profiles(config, shipped_catalogue() if catalogue is None else catalogue)
         self.recorder = Recorder(record) if record else None
@@ -126,6 +130,12 @@ class Farm:
         self.handles: dict[str, DeviceHandle] = {name: DeviceHandle(self, d) for name, d in self.devices.items()}
         for device in self.devices.values():
             device.recorder = self.recorder
+        self.state_file = Path(state) if state is not None else None
+        if self.state_file is not None:
+            try:
+                load_state(self.devices, self.state_file)
+            except (ValueError, KeyError, TypeError) as error:
+                raise ConfigError(f"state file: {error}") from None
         self.wiring = Wiring(self)
         self._servers: dict[str, asyncio.AbstractServer] = {}
         self._connections: set[EncapsulationProtocol] = set()
@@ -261,6 +271,8 @@ class Farm:
         self._servers.clear()
         if self.recorder is not None:
             self.recorder.close()
+        if self.state_file is not None:
+            save_state(self.devices, self.state_file)
         self.running = False
 
     # -- supervision ---------------------------------------------------------------------------

@@ -166,6 +166,15 @@ class DeviceHandle:
                 callback(self, event.detail.old, event.detail.new)
         self.device.observe(listener)
 
+    # -- reset ----------------------------------------------------------------------------------------
+
+    def reset(self, kind: int = 0) -> bool:
+        """Reset the device as an Identity Reset of type `kind` does (0: power cycle, 1: out-of-box
+        configuration, 2: out-of-box but the communication parameters): its TCP connections drop,
+        its CIP connections close, it answers nothing for its `reset_time_s`, Identity attribute 8
+        says self-testing meanwhile. False if it is resetting already."""
+        return self.device.reset(kind, time.monotonic_ns())
+
     # -- faults -------------------------------------------------------------------------------------
 
     def inject(self, kind: FaultKind | str, duration_s: float | None = None, **params: Any) -> None:

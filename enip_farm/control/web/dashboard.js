@@ -615,6 +615,13 @@
         .then(() => requestState([device]), error => say(`${device.name}: ${error.message}`));
       return;
     }
+    if (event.target.closest('button.power-cycle')) {
+      api(devicePath(device.name) + '/reset', { method: 'POST', json: { type: 0 } }).then(done => {
+        say(`${device.name}: power cycled, answering again in ${done.reset_time_s} s`, true);
+        requestState([device]);
+      }, error => say(`${device.name}: ${error.message}`));
+      return;
+    }
     const target = event.target.closest('[data-signal]');
     if (!target || !device.index.has(target.dataset.signal)) return;
     const signal = device.index.get(target.dataset.signal);
