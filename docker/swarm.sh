@@ -19,6 +19,7 @@ docker image inspect enip-farm:latest >/dev/null 2>&1 || fail "no image enip-far
 [ "$(docker info --format '{{.Swarm.LocalNodeState}}')" = inactive ] || fail "this engine is already in a swarm"
 
 work=$(mktemp -d)
+dockerd2=""
 node2=enipnode2
 sock2=/run/enip-farm-node2.sock
 d1=(docker)
@@ -42,9 +43,11 @@ cleanup() {
     fi
     docker swarm leave --force >/dev/null 2>&1
     docker network rm docker_gwbridge >/dev/null 2>&1  # swarm's, made on the first task
-    if [ -f "$work/dockerd2.pid" ]; then
-        kill "$(cat "$work/dockerd2.pid")" 2>/dev/null
-        for _ in $(seq 30); do kill -0 "$(cat "$work/dockerd2.pid")" 2>/dev/null || break; sleep 1; done
+    if [ -n "$dockerd2" ]; then
+        kill "$dockerd2" 2>/dev/null
+        for _ in $(seq 30); do kill -0 "$dockerd2" 2>/dev/null || break; sleep 1; done
+        dockerd2=""
+        rm -rf /run/enip-farm-node2 "$sock2"
     fi
     ip netns del "$node2" 2>/dev/null
     ip link del enipcell 2>/dev/null
@@ -144,9 +147,11 @@ left=$(docker ps -aq | wc -l)
 lap "phase 1: stack removed, swarm left, nothing running"
 
 # -- phase 2: a second engine in its own network namespace, joined as a worker -----------------------------
-ip netns exec "$node2" dockerd --data-root "$work/docker2" --exec-root /run/enip-farm-node2 -H "unix://$sock2" \
+# nsenter, not `ip netns exec`: that mounts a sysfs of its own, without the cgroups dockerd needs
+nsenter --net="/run/netns/$node2" dockerd --data-root "$work/docker2" --exec-root /run/enip-farm-node2 -H "unix://$sock2" \
     --pidfile "$work/dockerd2.pid" --storage-driver vfs --iptables=false --ip-masq=false --bridge=none \
     >"$work/dockerd2.log" 2>&1 &
+dockerd2=$!
 for _ in $(seq 60); do "${d2[@]}" info >/dev/null 2>&1 && break; sleep 1; done
 "${d2[@]}" info >/dev/null 2>&1 || { tail -20 "$work/dockerd2.log" >&2; fail "phase 2: the second engine did not start"; }
 docker save enip-farm:latest | "${d2[@]}" load -q >/dev/null
@@ -167,7 +172,10 @@ for _ in $(seq 180); do
     sleep 1
 done
 [ "$nodes" = 2 ] || fail "phase 2: shards running on $nodes node(s), not 2"
-lap "phase 2: shards running on both nodes"
+# shellcheck disable=SC2046
+placed=$(docker inspect $(docker service ps -q -f desired-state=running enip_farm) --format '{{.NodeID}}' \
+    | sort | uniq -c | awk '{print $1}' | paste -sd+)
+lap "phase 2: shards running on both nodes ($placed)"
 tester_verdict || fail "phase 2: the tester"
 lap "phase 2: tester done"
 api_check || fail "phase 2: the fleet API"
