@@ -131,6 +131,27 @@ tester_verdict || fail "phase 1: the tester"
 lap "phase 1: tester done"
 api_check || fail "phase 1: the fleet API"
 lap "phase 1: fleet API checked"
+# a shard that dies: swarm starts another task in its slot, which serves the same devices again
+victim=$(docker ps --format '{{.ID}} {{.Names}}' | awk '$2 ~ /^enip_farm\.1\./ {print $1}')
+[ -n "$victim" ] || fail "phase 1: no task in slot 1"
+docker kill "$victim" >/dev/null
+back=""
+for _ in $(seq 120); do
+    back=$(docker ps -f health=healthy --format '{{.ID}} {{.Names}}' | awk -v old="$victim" \
+        '$2 ~ /^enip_farm\.1\./ && index($1, old) != 1 && index(old, $1) != 1 {print $1}')
+    [ -n "$back" ] && break
+    sleep 1
+done
+[ -n "$back" ] || fail "phase 1: slot 1 was not restarted healthy"
+probe=1
+for _ in $(seq 30); do
+    docker run --rm --network enip-cell enip-farm:latest probe --config /opt/enip-farm/docker/cell.yaml \
+        >"$work/probe.out" 2>/dev/null && { probe=0; break; }
+    sleep 2
+done
+cat "$work/probe.out" >&2
+[ "$probe" = 0 ] || fail "phase 1: the restarted shard's devices do not all answer"
+lap "phase 1: slot 1 killed, restarted by swarm, every device answers again"
 docker stack rm enip >/dev/null
 for _ in $(seq 60); do
     [ -z "$(docker ps -aq -f label=com.docker.stack.namespace=enip)" ] \

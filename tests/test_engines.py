@@ -6,9 +6,11 @@ real (CI)."""
 
 from __future__ import annotations
 
+import os
 import shutil
 import socket
 import subprocess
+import sys
 from pathlib import Path
 
 import httpx
@@ -18,7 +20,7 @@ import yaml
 from prometheus_client.parser import text_string_to_metric_families
 
 from enip_farm.config import load_config, parse_config
-from enip_farm.fleet import split
+from enip_farm.fleet import shard, split
 from enip_farm.fleet_api import merge_metrics, serving_router
 from enip_farm.k8s import manifests
 from enip_farm.shard_api import create_shard_router, static_discovery
@@ -178,3 +180,38 @@ def test_the_fleet_api_finds_routes_merges_and_shows_a_shard_down(enip_farm) -> 
         assert up == {"1": 1.0, "2": 1.0, "3": 0.0}
         state = api.get("/state", params={"device": [third, second]}).json()
         assert [(d["name"], d["shard_up"]) for d in state] == [(third, False), (second, True)]
+
+
+@pytest.mark.system
+def test_entrypoint_takes_a_pods_shard_and_the_cells_interface(tmp_path: Path) -> None:
+    """Kubernetes' pod farm-1 of 3 serves slice 2/3; with no ENIP_FARM_IFACE the aliases go on the
+    interface that routes the cell (here a second one, not the default route's), in a namespace."""
+    if shutil.which("ip") is None or os.geteuid() != 0:
+        pytest.skip("needs root and iproute2")
+    namespace = f"enipfarm{os.getpid()}k"
+    subprocess.run(["ip", "netns", "add", namespace], check=True, timeout=STARTUP_S)
+
+    def run(*command: str, **env: str) -> subprocess.CompletedProcess:
+        return subprocess.run(["ip", "netns", "exec", namespace, *command], capture_output=True, text=True,
+                              timeout=2 * STARTUP_S, env={**os.environ, "PATH": path, **env})
+
+    path = f"{Path(sys.executable).parent}:{os.environ['PATH']}"
+    try:
+        for nic, address in (("uplink", "198.18.0.2/24"), ("cellnic", "192.168.125.240/24")):
+            for command in (["ip", "link", "add", nic, "type", "veth", "peer", "name", f"{nic}-peer"],
+                            ["ip", "addr", "add", address, "dev", nic], ["ip", "link", "set", f"{nic}-peer", "up"],
+                            ["ip", "link", "set", nic, "up"]):
+                assert run(*command).returncode == 0, command
+        assert run("ip", "route", "add", "default", "via", "198.18.0.1").returncode == 0
+        aliases = run(str(ROOT / "docker" / "entrypoint.sh"), "serve", "--config", str(CELL),
+                      ENIP_FARM_ALIASES_ONLY="1", ENIP_FARM_POD_NAME="farm-1", ENIP_FARM_SHARDS="3",
+                      ENIP_FARM_ADDRESS_FILE=str(tmp_path / "addresses"))
+        assert aliases.returncode == 0 and "on cellnic" in aliases.stderr, aliases.stderr
+        expected = [str(device.address) for device in shard(load_config(CELL), "2/3").devices]
+        assert (tmp_path / "addresses").read_text().split() == expected
+        shown = run("ip", "-o", "addr", "show", "dev", "cellnic").stdout
+        assert sorted(line.split()[3] for line in shown.splitlines() if " inet " in line) == sorted(
+            [*(f"{address}/32" for address in expected), "192.168.125.240/24"])
+        assert " inet 192.168.125." not in run("ip", "-o", "addr", "show", "dev", "uplink").stdout
+    finally:
+        subprocess.run(["ip", "netns", "del", namespace], timeout=STARTUP_S)
