@@ -105,10 +105,17 @@ class ShardView:
                 for name in shard.devices:
                     device = self.config[name]
                     merged.append({"name": name, "address": str(device.address), "model": device.model,
-                                   "addons": list(device.addons), "connections": [], "faults": [],
+                                   "addons": list(device.addons), "identity": {}, "input_size": 0,
+                                   "output_size": 0, "connections": [], "faults": [], "unverified": [],
                                    "shard": shard.index, "shard_up": False})
         merged.sort(key=lambda device: self.order.get(device["name"], len(self.order)))
         return merged
+
+
+def down_state(name: str, shard: int) -> dict[str, Any]:
+    """A device of a shard that is down, in GET /state's shape: nothing connected, no signals known."""
+    return {"name": name, "monotonic": 0.0, "signals": [], "status": 0, "owners": [], "connections": [],
+            "counters": {}, "faults": [], "shard": shard, "shard_up": False}
 
 
 def create_shard_router(config: FarmConfig, shards: int, discover: Discover, token: str | None,
@@ -225,8 +232,7 @@ def create_shard_router(config: FarmConfig, shards: int, discover: Discover, tok
                 return response_of(reply)
         for shard in shards:
             if shard.index not in answered:
-                merged.extend({"name": name, "shard": shard.index, "shard_up": False}
-                              for name in shard.devices if name in wanted)
+                merged.extend(down_state(name, shard.index) for name in shard.devices if name in wanted)
         position = {name: i for i, name in enumerate(names)} if names else view.order
         merged.sort(key=lambda device: position.get(device.get("name"), len(position)))
         return JSONResponse(merged)
