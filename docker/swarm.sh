@@ -74,7 +74,8 @@ cell_network() {  # $1: docker command array name, $2: this node's part of the c
 
 deploy() {
     docker network create -d macvlan --scope swarm --attachable --config-from enip-cell-node enip-cell >/dev/null
-    docker stack deploy -c stack.yaml enip >/dev/null 2>"$work/deploy.err" || { cat "$work/deploy.err" >&2; fail "stack deploy"; }
+    # from the checkout's top, as the README says (the stack file's paths are relative to its directory)
+    (cd .. && docker stack deploy -c docker/stack.yaml enip) >/dev/null 2>"$work/deploy.err" || { cat "$work/deploy.err" >&2; fail "stack deploy"; }
 }
 
 tester_verdict() {  # wait for the one-shot tester; print its summary; its exit code
