@@ -6,6 +6,7 @@ real (CI)."""
 
 from __future__ import annotations
 
+import json
 import os
 import shutil
 import socket
@@ -180,6 +181,19 @@ def test_the_fleet_api_finds_routes_merges_and_shows_a_shard_down(enip_farm) -> 
         assert up == {"1": 1.0, "2": 1.0, "3": 0.0}
         state = api.get("/state", params={"device": [third, second]}).json()
         assert [(d["name"], d["shard_up"]) for d in state] == [(third, False), (second, True)]
+        assert state[0]["connections"] == [] and state[0]["signals"] == []  # the shape the dashboard reads
+        with api.stream("GET", "/events", params={"kind": "fault injected"}) as stream:  # both shards' streams
+            lines = stream.iter_lines()
+            assert next(lines).startswith(": ")
+            for name in (second, first):
+                assert api.post(f"/devices/{name}/faults", json={"kind": "delay", "delay_ms": 2}).status_code == 201
+            seen = set()
+            for text in lines:  # bounded by the client's timeout; ends once both were seen
+                if text.startswith("data: "):
+                    seen.add(json.loads(text[6:])["device"])
+                if seen == {first, second}:
+                    break
+            assert seen == {first, second}
 
 
 @pytest.mark.system
