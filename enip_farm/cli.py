@@ -19,7 +19,7 @@ from enip_farm.console import Console, configure_logging
 from enip_farm.device.build import build_profiles
 from enip_farm.device.catalogue import shipped_catalogue
 from enip_farm.device.faults import Fault, FaultError, FaultKind
-from enip_farm.farm import BindError, Farm, freeze_heap, new_event_loop
+from enip_farm.farm import BindError, Farm, freeze_heap, new_event_loop, until_stopped_or_failed
 from enip_farm.fleet import shard
 from enip_farm.table import device_table
 
@@ -118,8 +118,11 @@ def _banner(devices: int, config: FarmConfig, config_path: Path | None, http_url
                    "or ENIP_FARM_SHARD)")
 @click.option("--record", type=click.Path(dir_okay=False, path_type=Path), default=None,
               help="write every TCP and UDP exchange to this pcap file")
+@click.option("--heartbeat", envvar="ENIP_FARM_HEARTBEAT", type=click.Path(dir_okay=False, path_type=Path),
+              default=None, help="set this file's time every second while cyclic I/O runs (worker i: FILE.i); "
+                                 "docker/healthcheck.sh reads it (or ENIP_FARM_HEARTBEAT)")
 def serve(config_path: Path | None, log_level: str, quiet: bool, http: str | None, token: str | None, workers: int,
-          shard_spec: str | None, record: Path | None) -> None:
+          shard_spec: str | None, record: Path | None, heartbeat: Path | None) -> None:
     """Serve every device of a cell until Ctrl-C or SIGTERM, logging what happens to them."""
     address = _http_address(http)
     configure_logging(log_level, quiet)
@@ -129,8 +132,8 @@ def serve(config_path: Path | None, log_level: str, quiet: bool, http: str | Non
             raise click.UsageError("--record writes one file: use it with --workers 1")
         from enip_farm.workers import serve_workers
 
-        sys.exit(serve_workers(config, workers, address, token, log_level, quiet))
-    farm = _farm(config, http=address, token=token, record=record)
+        sys.exit(serve_workers(config, workers, address, token, log_level, quiet, heartbeat))
+    farm = _farm(config, http=address, token=token, record=record, heartbeat=heartbeat)
     loop = new_event_loop()
     asyncio.set_event_loop(loop)
     try:
@@ -140,6 +143,8 @@ def serve(config_path: Path | None, log_level: str, quiet: bool, http: str | Non
         sys.exit(1)
     finally:
         loop.close()
+    if farm.failure is not None:
+        sys.exit(1)
 
 
 async def _serve(farm: Farm, config_path: Path | None) -> None:
@@ -156,7 +161,8 @@ async def _serve(farm: Farm, config_path: Path | None) -> None:
         for line in _banner(len(farm.devices), farm.config, config_path,
                             farm.http.url if farm.http is not None else None):
             click.echo(line, err=True)
-        await stop.wait()
+        click.echo(f"cyclic I/O budget: {farm.budget.describe()}", err=True)
+        await until_stopped_or_failed(stop, farm)
     finally:
         console.close()
         await farm.stop()

@@ -142,6 +142,19 @@ def create_router(owners: dict[str, int], apis: list[str]) -> Starlette:
         merged.sort(key=lambda device: wanted.get(device.get("name"), len(wanted)))
         return JSONResponse(merged)
 
+    async def health(request: Request) -> Response:
+        """Every worker's /health; 503 unless every worker answers ok (a worker that does not
+        answer is not ok)."""
+        async def one(api: str) -> dict:
+            try:
+                reply = await client().get(api + "/health", timeout=2.0)
+                return reply.json()
+            except (httpx.HTTPError, ValueError) as error:
+                return {"ok": False, "failure": f"no answer: {error!r}"}
+        workers = await asyncio.gather(*(one(api) for api in apis))
+        ok = all(worker.get("ok") for worker in workers)
+        return JSONResponse({"ok": ok, "workers": workers}, status_code=200 if ok else 503)
+
     async def other(request: Request) -> Response:  # /openapi.json, /docs: every worker has the same
         return await forward(request, 0)
 
@@ -159,6 +172,7 @@ def create_router(owners: dict[str, int], apis: list[str]) -> Starlette:
         Route("/metrics", metrics, methods=["GET"]),
         Route("/events", events, methods=["GET"]),
         Route("/state", state, methods=["GET"]),
+        Route("/health", health, methods=["GET"]),
         Route("/{rest:path}", other, methods=methods),
     ], lifespan=lifespan)
 

@@ -43,6 +43,10 @@ class FarmControl(Protocol):
 
     async def clear_faults(self, name: str, kind: FaultKind | None = None) -> list[FaultKind]: ...
 
+    def health(self) -> dict[str, Any]: ...
+
+    def cyclic_io_load(self) -> dict[str, Any]: ...
+
 
 class DeviceHandle:
     def __init__(self, farm: FarmControl, device: Device) -> None:

@@ -27,7 +27,7 @@ from typing import Annotated, Any
 import uvicorn
 from fastapi import FastAPI, HTTPException, Query
 from fastapi.exceptions import RequestValidationError
-from fastapi.responses import PlainTextResponse
+from fastapi.responses import JSONResponse, PlainTextResponse
 from fastapi_offline import FastAPIOffline
 from prometheus_client import CollectorRegistry, generate_latest
 from prometheus_client.exposition import CONTENT_TYPE_LATEST
@@ -133,7 +133,7 @@ def create_app(farm: FarmControl, hub: EventHub | None = None) -> FastAPI:
     app = FastAPIOffline(title="enip-farm", description="Drive and observe a farm of virtual EtherNet/IP devices. "
                          "The dashboard is at /.")
     registry = CollectorRegistry()
-    registry.register(FarmCollector(farm.devices.values()))
+    registry.register(FarmCollector(farm.devices.values(), farm.health, farm.cyclic_io_load))
     hub = hub if hub is not None else EventHub(farm.devices.values())
 
     def known(name: str) -> str:
@@ -208,6 +208,13 @@ def create_app(farm: FarmControl, hub: EventHub | None = None) -> FastAPI:
         for name in device:
             known(name)
         return EventStream(hub, device, kind, exclude_kind)
+
+    @app.get("/health", responses={503: {"description": "class-1 I/O is not running, or the farm failed"}})
+    def health() -> JSONResponse:
+        """Whether the farm serves: `ok`, and whether its cyclic I/O thread runs (`cyclic_io.running`)
+        with the errors it met and went on from; 503 while it does not serve as it should."""
+        answer = farm.health()
+        return JSONResponse(answer, status_code=200 if answer["ok"] else 503)
 
     @app.get("/metrics", response_class=PlainTextResponse)
     def metrics() -> PlainTextResponse:

@@ -27,6 +27,7 @@ from types import MappingProxyType
 
 from enip_farm.cip.admission import ConnectionPolicy, KeyIdentity
 from enip_farm.cip.assembly import AssemblyInstance, AssemblyObject
+from enip_farm.cip.budget import CyclicBudget
 from enip_farm.cip.connection import Connection
 from enip_farm.cip.connection_manager import ConnectionManager
 from enip_farm.cip.connection_table import TABLE_COUNTERS, ConnectionEvent, ConnectionTable
@@ -94,13 +95,16 @@ def _policy(profile: DeviceProfile) -> ConnectionPolicy:
         first_watchdog_ns=round(implicit.first_watchdog_s * 1e9),
         input_only_point=profile.input_only_point, listen_only_point=profile.listen_only_point,
         multicast_group=profile.multicast_group, safety=_safety_policy(profile),
+        class3_rpi_min_us=implicit.class3_rpi_min_us, class3_rpi_max_us=implicit.class3_rpi_max_us,
     )
 
 
 class Device:
     """Implements the encapsulation `Target` protocol for one configured device."""
 
-    def __init__(self, profile: DeviceProfile) -> None:
+    def __init__(self, profile: DeviceProfile, budget: CyclicBudget | None = None) -> None:
+        """`budget`: the cyclic I/O budget this device's connections share with the other devices of
+        its I/O thread (None: no limit but each device's connection counts)."""
         self.profile = profile
         writable = profile.implicit.explicit_output_writes_while_owned
         self.assemblies: dict[str, AssemblyInstance] = {
@@ -116,7 +120,8 @@ class Device:
         self.events = EventLog(profile.name)
         self._observers: list[Observer] = []
         self.lock = threading.Lock()
-        self.table = ConnectionTable(self.assemblies, _policy(profile), self._key_identity, self.counters)
+        self.table = ConnectionTable(self.assemblies, _policy(profile), self._key_identity, self.counters,
+                                     budget=budget)
         self.reset_window = ResetWindow(round(profile.reset_time_s * 1e9))
         self._reset_requested: int | None = None  # the type of an Identity Reset being answered
         self._tcpip = TcpIpInterfaceObject(address=profile.address, netmask=profile.netmask, gateway=profile.gateway,
@@ -444,14 +449,13 @@ class Device:
             if expiring:  # a timeout may change the outputs: look before and after
                 before = self._snapshot()
                 table.handle_timer(now)
-            due = table.datagrams_to_send(now)
+            due, timer = table.produce(now)
             if due and not self.faults.io_stopped:
                 for packet, address in due:
                     send(packet, address)
             if expiring:
                 connections = table.pop_events()
                 after = self._snapshot()
-            timer = table.get_timer()
         if expiring and connections:
             self._publish(before, after, (), connections)
         return timer

@@ -52,7 +52,8 @@ class ExtendedStatus(IntEnum):
     NULL_FORWARD_OPEN_NOT_SUPPORTED = 0x0132
     CONNECTION_TIMED_OUT = 0x0203
     PARAMETER_ERROR = 0x0205  # parameter error in unconnected request service (Vol. 1); the farm's
-    # choice for a SafetyOpen whose server initial timestamp / rollover is not "not used"
+    # choice for a SafetyOpen whose server initial timestamp / rollover is not "not used", and for a
+    # Forward Open whose timeout multiplier is reserved (8-255)
     INVALID_PORT = 0x0311
     INVALID_LINK_ADDRESS = 0x0312
     INVALID_SEGMENT = 0x0315
