@@ -13,6 +13,7 @@ from urllib.parse import urlsplit
 
 import click
 
+from enip_farm.cli_engines import COMMANDS as engine_commands
 from enip_farm.config import ConfigError, FarmConfig, default_config_path, load_config
 from enip_farm.console import Console, configure_logging
 from enip_farm.device.build import build_profiles
@@ -741,3 +742,9 @@ def eio_export(config_path: Path | None, output: Path | None) -> None:
     output.write_text(text)
     click.echo(f"{output}: {len(config.devices)} devices, {sum(len(d.signals) for d in config.devices)} "
                "named signals", err=True)
+
+
+# -- beyond one host: Docker Swarm, Kubernetes, the shards' one HTTP API (cli_engines.py) -----------
+
+for _command in engine_commands:
+    main.add_command(_command)

@@ -301,7 +301,8 @@
     card.dataset.device = device.name;
     $('.name', card).textContent = device.name;
     $('.address', card).textContent = info.address;
-    $('.model', card).textContent = [info.model, ...info.addons].join(' + ');
+    $('.model', card).textContent = [info.model, ...info.addons].join(' + ')
+      + (info.shard_up === false ? ` \u00b7 shard ${info.shard} down` : '');  // the fleet API over shards
     fillIdentity($('.identity', card), info);
     const kinds = $('.fault-kind', card);
     for (const kind of FAULT_KINDS) kinds.appendChild(el('option', '', kind));
