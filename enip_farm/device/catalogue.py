@@ -65,6 +65,32 @@ class AssemblySizes(_Strict):
     configuration: int = Field(0, ge=0, le=MAX_ASSEMBLY_SIZE)
 
 
+RealTimeFormat = Literal["modeless", "zero length", "heartbeat", "run/idle"]
+
+
+class ConnectionEntry(_Strict):
+    """A class-1 connection a device serves as its EDS declares it (a ConnectionN of [Connection
+    Manager], Vol. 1 7-3.6.11): its points, its application data sizes (without the sequence count
+    and a run/idle header), real-time formats, connection types and RPI range."""
+
+    entry: str = Field("", description="the EDS keyword, ConnectionN")
+    name: str = ""
+    kind: Literal["exclusive owner", "input only", "listen only", "redundant owner"]
+    configuration: int | None = Field(None, ge=1, description="configuration point; none: the path may omit it")
+    o_t: int = Field(ge=1, description="consumed connection point (O->T)")
+    t_o: int = Field(ge=1, description="produced connection point (T->O)")
+    o_t_size: int = Field(0, ge=0, le=MAX_ASSEMBLY_SIZE)
+    t_o_size: int = Field(0, ge=0, le=MAX_ASSEMBLY_SIZE)
+    o_t_format: RealTimeFormat = "run/idle"
+    t_o_format: RealTimeFormat = "modeless"
+    o_t_variable: bool = False
+    t_o_variable: bool = False
+    t_o_multicast: bool = True
+    t_o_point_to_point: bool = True
+    configuration_size: int = Field(0, ge=0, le=MAX_ASSEMBLY_SIZE)
+    rpi_us: tuple[int, int] | None = Field(None, description="the RPI range the entry allows; none: the device's")
+
+
 class SafetyDefaults(_Strict):
     """A CIP Safety target (Vol. 5): its safety network number and configuration signature, and
     the null connection point of its SafetyOpens. The model's `assemblies` are its safety
@@ -109,6 +135,12 @@ class Model(_Strict):
     unverified: tuple[str, ...] = ()
     replay: tuple[ReplayEntry, ...] = ()
     safety: SafetyDefaults | None = Field(None, description="a CIP Safety target (safety I/O over CIP Safety only)")
+    connections: tuple[ConnectionEntry, ...] = Field((), description="every class-1 connection the device serves "
+                                                     "(from its EDS); none: the assemblies' roles decide")
+    points: dict[int, int] = Field({}, description="every assembly instance the device serves, with its size (EDS)")
+    configuration_data: str = Field("", pattern=r"^([0-9A-Fa-f]{2})*$",
+                                    description="the configuration assembly's default bytes, hex")
+    rpi_us: tuple[int, int] | None = Field(None, description="the RPI range of the device's connection entries")
 
     @model_validator(mode="before")
     @classmethod

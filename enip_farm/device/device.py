@@ -25,9 +25,9 @@ from collections import Counter
 from collections.abc import Callable, Iterable, Mapping
 from types import MappingProxyType
 
-from enip_farm.cip.admission import ConnectionPolicy, KeyIdentity
+from enip_farm.cip.admission import ConnectionPolicy, DeclaredConnection, KeyIdentity
 from enip_farm.cip.assembly import AssemblyInstance, AssemblyObject
-from enip_farm.cip.connection import Connection
+from enip_farm.cip.connection import Connection, ConnectionKind
 from enip_farm.cip.connection_manager import ConnectionManager
 from enip_farm.cip.connection_table import TABLE_COUNTERS, ConnectionEvent, ConnectionTable
 from enip_farm.cip.ethernet_link import EthernetLinkObject, InterfaceCounters
@@ -38,6 +38,7 @@ from enip_farm.cip.safety.admission import SafetyPolicy
 from enip_farm.cip.safety.objects import SafetySupervisor, SafetyValidatorObject
 from enip_farm.cip.safety.segment import Unid
 from enip_farm.cip.tcpip_interface import TcpIpInterfaceObject
+from enip_farm.device.catalogue import ConnectionEntry
 from enip_farm.device.events import Event, EventLog, ImageChange
 from enip_farm.device.faults import DeviceFaults
 from enip_farm.device.latency import LatencyHistogram
@@ -94,7 +95,23 @@ def _policy(profile: DeviceProfile) -> ConnectionPolicy:
         first_watchdog_ns=round(implicit.first_watchdog_s * 1e9),
         input_only_point=profile.input_only_point, listen_only_point=profile.listen_only_point,
         multicast_group=profile.multicast_group, safety=_safety_policy(profile),
+        declared=tuple(_declared(entry) for entry in profile.connections),
     )
+
+
+_DECLARED_KINDS: Mapping[str, ConnectionKind] = MappingProxyType({
+    "exclusive owner": ConnectionKind.EXCLUSIVE_OWNER, "redundant owner": ConnectionKind.EXCLUSIVE_OWNER,
+    "input only": ConnectionKind.INPUT_ONLY, "listen only": ConnectionKind.LISTEN_ONLY})
+
+
+def _declared(entry: ConnectionEntry) -> DeclaredConnection:
+    """An EDS's connection entry as admission holds Forward Opens against it."""
+    return DeclaredConnection(
+        kind=_DECLARED_KINDS[entry.kind], configuration=entry.configuration, o_t=entry.o_t, t_o=entry.t_o,
+        o_t_size=entry.o_t_size, t_o_size=entry.t_o_size, o_t_format=entry.o_t_format, t_o_format=entry.t_o_format,
+        o_t_variable=entry.o_t_variable, t_o_variable=entry.t_o_variable, t_o_multicast=entry.t_o_multicast,
+        t_o_point_to_point=entry.t_o_point_to_point, configuration_size=entry.configuration_size,
+        rpi_us=entry.rpi_us, shared_owner=entry.kind == "redundant owner", name=entry.name)
 
 
 class Device:
@@ -107,6 +124,9 @@ class Device:
             spec.role: AssemblyInstance(spec.instance_id, spec.size, spec.settable, writable)
             for spec in profile.assemblies
         }
+        configuration = self.assemblies.get("configuration")
+        if configuration is not None and len(profile.configuration_data) == len(configuration.data):
+            configuration.data[:] = profile.configuration_data
         self.faults = DeviceFaults()
         self.recorder: TrafficTap | None = None  # serve --record
         self.counters: Counter[str] = Counter(dict.fromkeys(COUNTERS, 0))

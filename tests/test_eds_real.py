@@ -1,0 +1,182 @@
+"""Real vendors' EDS files (tests/data/eds/, README there names each one's source): each is read
+by the grammar without an error, imported, served, and checked over CIP with the project's codec
+as the peer: identity, every assembly's size, a Forward Open per class-1 connection entry with the
+entry's own path, sizes and RPI (accepted), then class-1 I/O both ways on the main connection."""
+
+from __future__ import annotations
+
+import socket
+import struct
+from pathlib import Path
+
+import pytest
+import yaml
+
+from enip_farm.device.catalogue import Catalogue
+from enip_farm.eds.grammar import decode_eds_bytes, parse_eds_text
+from enip_farm.eds.reader import EdsDevice, eds_profile, read_eds
+from enip_farm.protocol.cip import encode_request
+from enip_farm.protocol.commands import SocketAddress, encode_sockaddr
+from enip_farm.protocol.connection import (
+    ConnectionTriad,
+    ConnectionType,
+    ForwardCloseRequest,
+    ForwardOpenRequest,
+    NetworkParameters,
+    decode_forward_open_reply,
+    decode_io_packet,
+    encode_forward_close,
+    encode_forward_open,
+    encode_io_packet,
+)
+from enip_farm.protocol.cpf import ItemType
+from enip_farm.protocol.epath import encode_request_path
+from tests.helpers import ROOT, RawClient, wait_for
+
+REAL = ROOT / "tests" / "data" / "eds"
+FILES = sorted(p.name for p in REAL.glob("*.eds"))
+#: What each file declares: (vendor id, product code, class-1 connection entries).
+EXPECTED = {
+    "abb_robotics_anybus_enip_fa.eds": (75, 28, 5),
+    "eds_pie_demo.eds": (65535, 1, 1),
+    "esp32p4_opener.eds": (55512, 1, 3),
+    "esp32p4_opener_file_object.eds": (55512, 1, 3),
+    "mettler_toledo_m800.eds": (666, 2048, 2),
+    "opener_sample_app.eds": (1, 65001, 3),
+    "opener_sample_app_2012.eds": (1, 200, 3),
+    "sick_inspector_pi50.eds": (808, 131, 19),
+    "teknic_clearlink.eds": (424, 1, 4),
+    "yaskawa_mp3300iec.eds": (44, 132, 8),
+}
+P2P, MULTICAST = ConnectionType.POINT_TO_POINT, ConnectionType.MULTICAST
+SEQUENCE, HEADER = 2, 4
+
+
+def _read(name: str) -> tuple[EdsDevice, str, dict, list[str]]:
+    text = decode_eds_bytes((REAL / name).read_bytes())
+    device = read_eds(text, name)
+    model_name, document, notes = eds_profile(device, name)
+    return device, model_name, document, notes
+
+
+def test_the_real_files_are_ten_from_at_least_five_vendors() -> None:
+    assert FILES == sorted(EXPECTED) and len(FILES) >= 10
+    assert len({vendor for vendor, _, _ in EXPECTED.values()}) >= 5
+
+
+@pytest.mark.parametrize("name", FILES)
+def test_every_real_file_is_read_and_imported(name: str) -> None:
+    raw = (REAL / name).read_bytes()
+    parsed = parse_eds_text(decode_eds_bytes(raw))
+    assert parsed.errors == []
+    device, model_name, document, _ = _read(name)
+    vendor, product, entries = EXPECTED[name]
+    assert (device.vendor_id, device.product_code) == (vendor, product)
+    model = document["models"][model_name]
+    assert len(model["connections"]) == entries  # every class-1 entry is served
+    Catalogue.from_document(document)  # the profile is a valid catalogue document
+
+
+def _wire(entry: dict, direction: str) -> int:
+    form, size = entry[f"{direction}_format"], entry[f"{direction}_size"]
+    if form == "heartbeat":
+        return SEQUENCE
+    return SEQUENCE + (HEADER if form == "run/idle" else 0) + size
+
+
+def _rpi(entry: dict) -> int:
+    low, high = entry.get("rpi_us") or (2_000, 10_000_000)
+    return min(max(20_000, low), high)
+
+
+def _path(device: EdsDevice, entry: dict) -> bytes:
+    return next(c.path_bytes for c in device.connections if c.keyword == entry["entry"])
+
+
+def _open(client: RawClient, path: bytes, entry: dict, serial: int, multicast: bool, port: int = 0):
+    triad = ConnectionTriad(serial, 0x1234, 0xABCD)
+    request = ForwardOpenRequest(
+        0x0A, 0x0E, 0, 0x7E570000 + serial, triad, 1, _rpi(entry),
+        NetworkParameters(False, P2P, 2, False, _wire(entry, "o_t")), _rpi(entry),
+        NetworkParameters(False, MULTICAST if multicast else P2P, 2, False, _wire(entry, "t_o")), 0x01, path,
+        max(_wire(entry, "o_t"), _wire(entry, "t_o")) > 511)
+    message = encode_request(0x5B if request.large else 0x54, encode_request_path(6, 1), encode_forward_open(request))
+    items = [(ItemType.SOCKADDR_T_O, encode_sockaddr(SocketAddress("0.0.0.0", port)))] if port else []
+    reply, _ = client.request_items(message, items)
+    return reply, triad
+
+
+def _close(client: RawClient, triad: ConnectionTriad, path: bytes) -> None:
+    message = encode_request(0x4E, encode_request_path(6, 1),
+                             encode_forward_close(ForwardCloseRequest(0x0A, 0x0E, triad, path)))
+    assert client.request(message).general_status == 0
+
+
+def _served_farm(enip_farm, tmp_path: Path, name: str):
+    device, model_name, document, _ = _read(name)
+    profile = tmp_path / "profile.yaml"
+    profile.write_text(yaml.safe_dump(document, sort_keys=False))
+    farm = enip_farm(name="dev", model=str(profile), implicit={"first_watchdog_s": 30})
+    return device, document["models"][model_name], farm
+
+
+@pytest.mark.parametrize("name", FILES)
+def test_a_real_file_is_served_as_its_eds_says(enip_farm, tmp_path: Path, name: str) -> None:
+    device, model, farm = _served_farm(enip_farm, tmp_path, name)
+    accepted, refused = 0, []
+    with RawClient(farm["dev"].address) as client:
+        client.register()
+        for attribute, value in ((1, struct.pack("<H", device.vendor_id)), (2, struct.pack("<H", device.device_type)),
+                                 (3, struct.pack("<H", device.product_code)), (4, bytes(device.revision))):
+            assert client.get(1, 1, attribute).data == value
+        product = device.product_name[:32].encode("latin-1")
+        assert client.get(1, 1, 7).data == bytes((len(product),)) + product
+        for instance, size in model["points"].items():
+            assert client.get(4, instance, 4).data == struct.pack("<H", size), instance
+            assert len(client.get(4, instance, 3).data) == size, instance
+        serial = 1
+        for entry in model["connections"]:
+            path = _path(device, entry)
+            owner = None
+            if entry["kind"] == "listen only":  # it needs a multicast T->O opened by another connection
+                owner_entry = next(e for e in model["connections"] if e["t_o"] == entry["t_o"]
+                                   and e["kind"] in ("exclusive owner", "input only") and e["t_o_multicast"])
+                serial += 1
+                reply, owner = _open(client, _path(device, owner_entry), owner_entry, serial, True)
+                assert reply.general_status == 0, (owner_entry["entry"], reply)
+            serial += 1
+            multicast = entry["kind"] == "listen only" or not entry["t_o_point_to_point"]
+            reply, triad = _open(client, path, entry, serial, multicast)
+            if reply.general_status == 0:
+                accepted += 1
+                _close(client, triad, path)
+            else:
+                refused.append((entry["entry"], hex(reply.general_status), reply.additional_status))
+            if owner is not None:
+                _close(client, owner, _path(device, owner_entry))
+    assert refused == [] and accepted == EXPECTED[name][2]
+
+
+@pytest.mark.parametrize("name", ["opener_sample_app.eds", "teknic_clearlink.eds", "sick_inspector_pi50.eds"])
+def test_io_both_ways_on_the_main_connection(enip_farm, tmp_path: Path, name: str) -> None:
+    device, model, farm = _served_farm(enip_farm, tmp_path, name)
+    main = next(e for e in model["connections"] if e["o_t"] == model["assemblies"]["output"]
+                and e["t_o"] == model["assemblies"]["input"])
+    inputs = bytes((n + 1) & 0xFF for n in range(main["t_o_size"]))
+    outputs = bytes((7 * n) & 0xFF for n in range(main["o_t_size"]))
+    farm["dev"].set_inputs(inputs)
+    path = _path(device, main)
+    with RawClient(farm["dev"].address) as client, socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as udp:
+        client.register()
+        udp.bind(("127.0.0.1", 0))
+        udp.settimeout(5)
+        reply, triad = _open(client, path, main, 1, False, udp.getsockname()[1])
+        assert reply.general_status == 0, reply
+        opened = decode_forward_open_reply(reply.data)
+        header = b"\x01\x00\x00\x00" if main["o_t_format"] == "run/idle" else b""
+        udp.sendto(encode_io_packet(opened.o_t_connection_id, 1, 1, header + outputs), (farm["dev"].address, 2222))
+        assert wait_for(lambda: farm["dev"].outputs == outputs)
+        packet = decode_io_packet(udp.recv(2048))
+        t_o_header = b"\x01\x00\x00\x00" if main["t_o_format"] == "run/idle" else b""
+        assert packet is not None and packet.data == t_o_header + inputs
+        _close(client, triad, path)
