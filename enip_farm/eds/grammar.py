@@ -26,7 +26,7 @@ list: "{" value ("," value)* "}"
 SECTION_NAME.-5: /[^\]\r\n]+/
 KEYWORD: /[A-Za-z0-9_][A-Za-z0-9_.\-]*/
 STRING: /"(\\.|[^"\\\r\n])*"/
-BARE: /[^\s,;{}"$=]+/
+BARE: /[^\s,;{}"$=\[][^\s,;{}"$=]*/
 COMMENT: /\$[^\r\n]*/
 %ignore COMMENT
 %ignore /[ \t\f\r\n\x1a]+/
@@ -148,6 +148,8 @@ def _describe(error: UnexpectedInput) -> str:
             return "a string without its closing quote on the same line"
         return f"unexpected character {error.char!r}"
     token = error.token  # type: ignore[attr-defined]
+    if str(token).startswith('"'):  # the lexer's fallback took an unterminated string as another token
+        return "a string without its closing quote on the same line"
     if token.type == "EQUAL":
         return "'=' where a value was expected: a ';' missing at the end of the entry before?"
     if token.type == "LSQB":
@@ -157,33 +159,75 @@ def _describe(error: UnexpectedInput) -> str:
     return f"unexpected {str(token)!r}"
 
 
+#: Repairs tried before a file is given up on (each one is an error reported).
+_MAX_REPAIRS = 50
+
+
+def _close_string(text: str, position: int) -> str:
+    """A string without its closing quote, closed at the end of its line."""
+    end = len(text)
+    for stop in ("\r", "\n"):
+        found = text.find(stop, position)
+        end = found if 0 <= found < end else end
+    return text[:end] + '"' + text[end:]
+
+
+def _repair(text: str, error: UnexpectedInput) -> str | None:
+    """The text with the smallest change that lets parsing go past `error`, on the same lines (so
+    the lines of later errors are still the file's): a ';' before the keyword of an entry that
+    follows one without its ';', a closing quote at the end of a line, a closing brace or ';'
+    where the parser needs one, or the offending token blanked out."""
+    if isinstance(error, UnexpectedCharacters):
+        position = error.pos_in_stream
+        if error.char == '"':
+            return _close_string(text, position)
+        return text[:position] + " " + text[position + 1:]
+    if isinstance(error, UnexpectedEOF):
+        return text + "}" if "RBRACE" in error.expected else text + ";"
+    assert isinstance(error, UnexpectedToken)
+    token, accepts = error.token, error.accepts or error.expected
+    if token.type == "$END":
+        return text + ("}" if "RBRACE" in accepts else ";")
+    position = token.start_pos or 0
+    if str(token).startswith('"'):
+        return _close_string(text, position)
+    if token.type == "EQUAL":  # `A = 1` then `B = 2` without the ';': end A's entry before B
+        keyword_start = position
+        while keyword_start > 0 and text[keyword_start - 1] in " \t":
+            keyword_start -= 1
+        while keyword_start > 0 and text[keyword_start - 1] not in " \t\r\n,;{}=\"":
+            keyword_start -= 1
+        return text[:keyword_start] + ";" + text[keyword_start:]
+    if "RBRACE" in accepts:
+        return text[:position] + "}" + text[position:]
+    if "SEMICOLON" in accepts:
+        return text[:position] + ";" + text[position:]
+    return text[:position] + " " * len(str(token)) + text[position + len(str(token)):]
+
+
 def parse_eds_text(text: str) -> EdsText:
-    """The sections and entries of an EDS's text, and every syntax error with its line. After an
-    error the entry is ended where it is and parsing goes on with what follows."""
+    """The sections and entries of an EDS's text, and every syntax error with its line: after an
+    error the text is repaired as little as it takes (`_repair`) and parsed again."""
     errors: list[tuple[int, str]] = []
     last_line = text.count("\n") + 1
-
-    def on_error(error: UnexpectedInput) -> bool:
-        line = getattr(error, "line", None)
-        if not isinstance(line, int) or line < 1 or (isinstance(error, UnexpectedToken) and error.token.type == "$END"):
-            line = last_line
-        if not errors or errors[-1][0] != line:  # one error per line: what follows is its consequence
-            errors.append((line, _describe(error)))
-        if isinstance(error, UnexpectedToken):
-            parser = error.interactive_parser
-            if "SEMICOLON" in parser.accepts():  # end the entry here
-                parser.feed_token(Token("SEMICOLON", ";"))
-        return len(errors) < 100
-
-    try:
-        result: EdsText = _PARSER.parse(text, on_error=on_error)  # type: ignore[assignment]
-    except UnexpectedInput as error:  # recovery gave up (or the file ended inside an entry)
-        if not errors or errors[-1][1] != _describe(error):
-            errors.append((last_line if isinstance(error, UnexpectedEOF) else getattr(error, "line", last_line),
-                           _describe(error)))
-        return EdsText({}, errors)
-    result.errors = errors
-    return result
+    for _ in range(_MAX_REPAIRS):
+        try:
+            result: EdsText = _PARSER.parse(text)  # type: ignore[assignment]
+        except UnexpectedInput as error:
+            line = getattr(error, "line", None)
+            if not isinstance(line, int) or line < 1 or isinstance(error, UnexpectedEOF) or (
+                    isinstance(error, UnexpectedToken) and error.token.type == "$END"):
+                line = last_line
+            if (line, _describe(error)) not in errors:
+                errors.append((line, _describe(error)))
+            repaired = _repair(text, error)
+            if repaired is None or repaired == text:
+                break
+            text = repaired
+            continue
+        result.errors = errors
+        return result
+    return EdsText({}, errors or [(last_line, "too many errors")])
 
 
 def decode_eds_bytes(data: bytes) -> str:

@@ -382,6 +382,9 @@ class _Reader:
         elif not rpi_value.empty:
             rpi_default = self.number(rpi_value, entry, 2, f"{where} RPI")
             rpi = (rpi_default, rpi_default) if rpi_default is not None else None
+        t_o_rpi = self.field(entry, 5)
+        if _REFERENCE.match(t_o_rpi.text or "-") and t_o_rpi.text.strip("[]") not in self.params:
+            self.error(self.line(entry, 5), f"{where}: T->O RPI {t_o_rpi.text} is not in [Params]")
         path = self.field(entry, 14).text
         path_bytes = self.resolve_path(path, self.line(entry, 14), where) if path else b""
         points, key = None, None
