@@ -379,7 +379,7 @@ class Admission:
             raise _refuse(X.INVALID_T_O_SIZE, expected_t_o)
         data = [s.data for s in _data_segments(request.connection_path)]
         configuration_data = data[0] if data else None
-        if configuration_data and entry.configuration_size and len(configuration_data) != entry.configuration_size:
+        if configuration_data and len(configuration_data) != entry.configuration_size:
             raise _refuse(X.INVALID_CONFIGURATION_PATH)  # data for another configuration than the EDS's
         kind = entry.kind
         io_connections = [c for c in connections if c.is_io]
