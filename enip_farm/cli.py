@@ -18,6 +18,7 @@ from enip_farm.console import Console, configure_logging
 from enip_farm.device.build import build_profiles
 from enip_farm.device.catalogue import shipped_catalogue
 from enip_farm.device.faults import Fault, FaultError, FaultKind
+from enip_farm.eds.reader import eds_catalogue
 from enip_farm.farm import BindError, Farm, freeze_heap, new_event_loop
 from enip_farm.fleet import shard
 from enip_farm.table import device_table
@@ -32,7 +33,7 @@ def _load(path: Path | None, build: bool = True) -> FarmConfig:
     try:
         config = load_config(path or default_config_path())
         if build:
-            build_profiles(config, shipped_catalogue())
+            build_profiles(config, eds_catalogue())
     except ConfigError as error:
         click.echo(str(error), err=True)
         sys.exit(2)

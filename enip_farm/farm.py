@@ -26,10 +26,11 @@ from enip_farm.control.handle import DeviceHandle
 from enip_farm.control.http import HttpApi, bind_problem
 from enip_farm.control.wiring import Wiring
 from enip_farm.device.build import build_profiles
-from enip_farm.device.catalogue import Catalogue, shipped_catalogue
+from enip_farm.device.catalogue import Catalogue
 from enip_farm.device.device import ENIP_PORT, Device
 from enip_farm.device.events import Event
 from enip_farm.device.faults import Fault, FaultKind
+from enip_farm.eds.reader import eds_catalogue
 from enip_farm.server.implicit import IO_PORT, ImplicitIo
 from enip_farm.server.limits import TcpLimits
 from enip_farm.server.tcp import EncapsulationProtocol
@@ -101,7 +102,7 @@ class Farm:
         shipped catalogue). Raises ConfigError if the configuration is invalid or its devices
         cannot be built."""
         self.config = config = as_config(config)
-        profiles = build_profiles(config, shipped_catalogue() if catalogue is None else catalogue)
+        profiles = build_profiles(config, eds_catalogue(catalogue))
         self.recorder = Recorder(record) if record else None
         self._http_address = http
         self._http_token = token

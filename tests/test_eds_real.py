@@ -180,3 +180,19 @@ def test_io_both_ways_on_the_main_connection(enip_farm, tmp_path: Path, name: st
         t_o_header = b"\x01\x00\x00\x00" if main["t_o_format"] == "run/idle" else b""
         assert packet is not None and packet.data == t_o_header + inputs
         _close(client, triad, path)
+
+
+def test_a_cell_names_eds_files_as_models(enip_farm, tmp_path: Path) -> None:
+    cell = tmp_path / "cell.yaml"
+    (tmp_path / "vendor").mkdir()
+    for name in ("teknic_clearlink.eds", "sick_inspector_pi50.eds"):
+        (tmp_path / "vendor" / name).write_bytes((REAL / name).read_bytes())
+    cell.write_text(yaml.safe_dump({"devices": [
+        {"name": "drive", "address": "127.0.0.1", "model": str(tmp_path / "vendor" / "teknic_clearlink.eds")},
+        {"name": "camera", "address": "127.0.0.1", "model": str(tmp_path / "vendor" / "sick_inspector_pi50.eds")}]}))
+    farm = enip_farm(str(cell))
+    for name, vendor, size in (("drive", 424, 332), ("camera", 808, 36)):
+        with RawClient(farm[name].address) as client:
+            client.register()
+            assert client.get(1, 1, 1).data == struct.pack("<H", vendor)
+            assert len(farm[name].inputs) == size

@@ -7,7 +7,7 @@ one). Who needs models is handed a catalogue; there is no process-wide registry.
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from functools import lru_cache
 from importlib import resources
@@ -174,6 +174,9 @@ class Catalogue:
 
     models: Mapping[str, Model]
     origins: Mapping[str, str] = field(default_factory=dict)
+    #: Profile files of another format than YAML, by suffix (".eds"): a function that makes the
+    #: catalogue document of one (the layer that reads the format hands it in).
+    readers: Mapping[str, Callable[[Path], Any]] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
         origins = {name: self.origins.get(name, BUILT_IN) for name in self.models}
@@ -200,12 +203,19 @@ class Catalogue:
                 where = "the built-in model" if self.origins[name] == BUILT_IN else f"the model of {self.origins[name]}"
                 raise ValueError(f"profile {origin} defines model {name!r}, which would replace {where}: "
                                  "give the profile's model another name (enip-farm learn --name)")
-        return Catalogue({**self.models, **models}, {**self.origins, **{name: origin for name in models}})
+        return Catalogue({**self.models, **models}, {**self.origins, **{name: origin for name in models}},
+                         self.readers)
+
+    def with_readers(self, readers: Mapping[str, Callable[[Path], Any]]) -> Catalogue:
+        """A new catalogue that also reads profile files of these suffixes (".eds") with these functions."""
+        return Catalogue(self.models, self.origins, {**self.readers, **readers})
 
     def with_profile(self, path: str | Path) -> tuple[Catalogue, str]:
         """A new catalogue with the models of a profile file, and the name of its base model.
         Raises OSError, yaml.YAMLError, pydantic.ValidationError or ValueError."""
-        profile = Catalogue.from_document(yaml.safe_load(Path(path).read_text()), str(path))
+        reader = self.readers.get(Path(path).suffix.lower())
+        document = reader(Path(path)) if reader is not None else yaml.safe_load(Path(path).read_text())
+        profile = Catalogue.from_document(document, str(path))
         bases = profile.bases()
         if len(bases) != 1:
             raise ValueError(f"profile {path} holds one base model, found {len(bases)}")

@@ -32,10 +32,11 @@ import threading
 from collections.abc import Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any
 
 from enip_farm.device.catalogue import MAX_ASSEMBLY_SIZE, Catalogue, shipped_catalogue
-from enip_farm.eds.grammar import EdsText, Entry, Value, parse_eds_text
+from enip_farm.eds.grammar import EdsText, Entry, Value, decode_eds_bytes, parse_eds_text
 from enip_farm.protocol.epath import (
     DataSegment,
     ElectronicKey,
@@ -621,6 +622,18 @@ def eds_profile(device: EdsDevice, source: str, name: str | None = None,
     while model_name in catalogue.models:
         model_name += "_eds"
     return model_name, {"models": {model_name: model}}, notes
+
+
+def eds_document(path: Path) -> dict[str, Any]:
+    """The profile document of an EDS file named as a device's model (`model: vendor.eds`): as
+    `enip-farm eds import` makes it, its model named after the file. Raises EdsError (a ValueError)."""
+    device = read_eds(decode_eds_bytes(path.read_bytes()), str(path))
+    return eds_profile(device, path.name, f"{path.name} ({device.product_name})")[1]
+
+
+def eds_catalogue(catalogue: Catalogue | None = None) -> Catalogue:
+    """`catalogue` (default: the shipped one) reading EDS files named as a device's model."""
+    return (shipped_catalogue() if catalogue is None else catalogue).with_readers({".eds": eds_document})
 
 
 # -- eds-pie, the independent checker of exported files ---------------------------------------------
