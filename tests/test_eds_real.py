@@ -196,3 +196,30 @@ def test_a_cell_names_eds_files_as_models(enip_farm, tmp_path: Path) -> None:
             client.register()
             assert client.get(1, 1, 1).data == struct.pack("<H", vendor)
             assert len(farm[name].inputs) == size
+
+
+@pytest.mark.parametrize("name", FILES)
+def test_export_writes_every_served_connection_and_both_readers_read_it_back(name: str) -> None:
+    import datetime
+
+    from enip_farm.eds.reader import eds_catalogue, parse_eds
+    from enip_farm.eds.writer import model_profile, write_eds
+
+    _, _, document, _ = _read(name)
+    original = next(iter(document["models"].values()))
+    text = write_eds(model_profile(str(REAL / name), (), eds_catalogue()), datetime.datetime(2024, 5, 6))
+    exported = read_eds(text, "exported.eds")
+    model = next(iter(eds_profile(exported, "exported.eds")[1]["models"].values()))
+
+    def served(connections: list[dict]) -> list[dict]:
+        return [{k: v for k, v in c.items() if k not in ("entry", "name")} for c in connections]
+
+    assert served(model["connections"]) == served(original["connections"])
+    assert model["points"] == original["points"]
+    eds, messages = parse_eds(text)  # eds-pie: no warning, and the same entries
+    assert messages == []
+    for connection in exported.connections:
+        fields = [f.value for f in eds.get_entry("Connection Manager", connection.keyword).fields]
+        assert (fields[0], fields[1], fields[3] or 0, fields[6] or 0, fields[14]) == (
+            connection.transport_classes, connection.parameters, connection.o_t_size, connection.t_o_size,
+            connection.path)
