@@ -139,6 +139,10 @@ def test_import_a_vendors_eds(newline: str) -> None:
     name, document, notes = eds_profile(read_eds(text, "example_adapter.eds"), "example_adapter.eds")
     model = document["models"][name]
     connections = model.pop("connections")
+    parameters = model.pop("parameters")
+    assert [(p["instance"], p["name"], p.get("default")) for p in parameters] == [
+        (1, "RPI", 10000), (2, "Digital inputs", 0), (3, "Digital outputs", 0), (4, "Analog input", 0),
+        (5, "T->O size", 8), (6, "Filter time", 3)]
     assert name == "EX-IO_8DI/8DO/2AI" and document == {"models": {name: EXAMPLE_MODEL}}
     assert [(c["entry"], c["kind"], c["configuration"], c["o_t"], c["t_o"], c["o_t_size"], c["t_o_size"],
              c["o_t_format"], c["t_o_multicast"], c["t_o_point_to_point"]) for c in connections] == EXAMPLE_CONNECTIONS

@@ -223,3 +223,28 @@ def test_export_writes_every_served_connection_and_both_readers_read_it_back(nam
         assert (fields[0], fields[1], fields[3] or 0, fields[6] or 0, fields[14]) == (
             connection.transport_classes, connection.parameters, connection.o_t_size, connection.t_o_size,
             connection.path)
+
+
+def test_params_are_parameter_object_instances_with_limits_and_access(enip_farm, tmp_path: Path) -> None:
+    device, model, farm = _served_farm(enip_farm, tmp_path, "mettler_toledo_m800.eds")
+    parameters = {p["instance"]: p for p in model["parameters"]}
+    assert len(parameters) == len([k for k in device.params if k.startswith("Param")])
+    settable = next(p for p in parameters.values() if not p["descriptor"] & 0x10 and p["data_type"] in (0xC7, 0xC8)
+                    and p.get("minimum") is not None and p.get("maximum") is not None
+                    and p["minimum"] < p["maximum"] and p["maximum"] < 2 ** (8 * p["size"]) - 1)
+    read_only = next((p for p in parameters.values() if p["descriptor"] & 0x10), None)
+    with RawClient(farm["dev"].address) as client:
+        client.register()
+        for number, parameter in parameters.items():
+            value = client.get(0x0F, number, 1).data
+            assert len(value) == parameter["size"] and client.get(0x0F, number, 5).data == bytes(
+                (parameter["data_type"],)), number
+            if parameter["data_type"] in (0xC6, 0xC7, 0xC8) and "default" in parameter:
+                assert int.from_bytes(value, "little") == parameter["default"], number
+        size, number = settable["size"], settable["instance"]
+        assert client.set(0x0F, number, 1, int(settable["maximum"]).to_bytes(size, "little")).general_status == 0
+        assert client.get(0x0F, number, 1).data == int(settable["maximum"]).to_bytes(size, "little")
+        assert client.set(0x0F, number, 1, int(settable["maximum"] + 1).to_bytes(size, "little")).general_status == 0x09
+        assert client.set(0x0F, number, 1, bytes(size + 1)).general_status == 0x15
+        if read_only is not None:
+            assert client.set(0x0F, read_only["instance"], 1, bytes(read_only["size"])).general_status == 0x0E

@@ -68,6 +68,20 @@ class AssemblySizes(_Strict):
 RealTimeFormat = Literal["modeless", "zero length", "heartbeat", "run/idle"]
 
 
+class ParameterEntry(_Strict):
+    """A parameter of an EDS's [Params] (ParamN: instance N of the Parameter Object, class 0x0F)."""
+
+    instance: int = Field(ge=1, le=0xFFFF)
+    name: str = ""
+    descriptor: int = Field(0, ge=0, le=0xFFFF, description="bit 4: read only")
+    data_type: int = Field(ge=0, le=0xFF)
+    size: int = Field(ge=1, le=8)
+    minimum: float | None = None
+    maximum: float | None = None
+    default: float | None = None
+    link_path: str = Field("", pattern=r"^([0-9A-Fa-f]{2})*$", description="hex")
+
+
 class ConnectionEntry(_Strict):
     """A class-1 connection a device serves as its EDS declares it (a ConnectionN of [Connection
     Manager], Vol. 1 7-3.6.11): its points, its application data sizes (without the sequence count
@@ -141,6 +155,8 @@ class Model(_Strict):
     configuration_data: str = Field("", pattern=r"^([0-9A-Fa-f]{2})*$",
                                     description="the configuration assembly's default bytes, hex")
     rpi_us: tuple[int, int] | None = Field(None, description="the RPI range of the device's connection entries")
+    parameters: tuple[ParameterEntry, ...] = Field((), description="the EDS's [Params], served by the Parameter "
+                                                   "Object (class 0x0F)")
 
     @model_validator(mode="before")
     @classmethod

@@ -34,6 +34,7 @@ from enip_farm.cip.ethernet_link import EthernetLinkObject, InterfaceCounters
 from enip_farm.cip.identity import RESET_OUT_OF_BOX, STATE_OPERATIONAL, STATE_SELF_TESTING, IdentityObject
 from enip_farm.cip.message_router import Handled, MessageRouter
 from enip_farm.cip.object import ReplyItems
+from enip_farm.cip.parameter import ParameterObject, ParameterSpec
 from enip_farm.cip.safety.admission import SafetyPolicy
 from enip_farm.cip.safety.objects import SafetySupervisor, SafetyValidatorObject
 from enip_farm.cip.safety.segment import Unid
@@ -166,6 +167,9 @@ class Device:
                 reset=self._request_reset,
             ),
             AssemblyObject(list(self.assemblies.values())),
+            *([ParameterObject([ParameterSpec(p.instance, p.name, p.descriptor, p.data_type, p.size, p.minimum,
+                                              p.maximum, p.default, bytes.fromhex(p.link_path))
+                                for p in profile.parameters])] if profile.parameters else []),
             ConnectionManager(self.router, self.table, unconnected_send=profile.routing.unconnected_send),
             self._tcpip,
             self.link,

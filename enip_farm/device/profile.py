@@ -11,7 +11,7 @@ import zlib
 from dataclasses import dataclass
 
 from enip_farm.config import DeviceConfig, ImplicitConfig, LimitsConfig
-from enip_farm.device.catalogue import Catalogue, ConnectionEntry, IoCounts, Routing
+from enip_farm.device.catalogue import Catalogue, ConnectionEntry, IoCounts, ParameterEntry, Routing
 from enip_farm.device.named_signals import NamedSignal, named_signal
 
 
@@ -79,6 +79,7 @@ class DeviceProfile:
     safety: SafetyProfile | None = None  # a CIP Safety target: its assemblies are safety assemblies
     connections: tuple[ConnectionEntry, ...] = ()  # an EDS's class-1 connections: only these are admitted
     configuration_data: bytes = b""  # the configuration assembly's default bytes (an EDS's)
+    parameters: tuple[ParameterEntry, ...] = ()  # an EDS's [Params]: the Parameter Object's instances
 
     def assembly(self, role: str) -> AssemblySpec | None:
         return next((a for a in self.assemblies if a.role == role), None)
@@ -198,4 +199,5 @@ def resolve(config: DeviceConfig, catalogue: Catalogue) -> DeviceProfile:
         safety=safety,
         connections=model.connections,
         configuration_data=bytes.fromhex(model.configuration_data),
+        parameters=model.parameters,
     )

@@ -533,6 +533,22 @@ def _served(connection: EdsConnection, notes: list[str]) -> dict[str, Any] | Non
     return entry
 
 
+def _parameter(param: EdsParam, notes: list[str]) -> dict[str, Any] | None:
+    """The profile's entry of a ParamN the Parameter Object serves, or None (a note says why)."""
+    if not 1 <= param.size <= 8 or param.data_type not in _TYPE_SIZES:
+        notes.append(f"[Params] {param.keyword}: data type 0x{param.data_type:02X} size {param.size}; not served "
+                     "by the Parameter Object")
+        return None
+    link = param.link_path.replace(" ", "")
+    entry: dict[str, Any] = {"instance": int(param.keyword[len("Param"):]), "name": param.name,
+                             "descriptor": param.descriptor, "data_type": param.data_type, "size": param.size}
+    entry.update({k: v for k, v in (("minimum", param.minimum), ("maximum", param.maximum),
+                                    ("default", param.default)) if v is not None})
+    if re.fullmatch(r"([0-9A-Fa-f]{2})*", link):
+        entry["link_path"] = link.upper()
+    return entry
+
+
 def _configuration_data(device: EdsDevice, connection: EdsConnection, size: int) -> str:
     """The configuration assembly's default bytes: its [Assembly] members' parameter defaults."""
     assembly = device.assemblies.get(connection.configuration_format)
@@ -615,6 +631,9 @@ def eds_profile(device: EdsDevice, source: str, name: str | None = None,
         notes.append("no class-1 connection entry the farm serves: an explicit-only device (identity and its "
                      "assemblies)")
     model["io"] = {}
+    parameters = [_parameter(p, notes) for p in device.params.values() if p.keyword.startswith("Param")]
+    if any(parameters):
+        model["parameters"] = [p for p in parameters if p]
     model["connections"] = [e for _, e in served]
     model["points"] = dict(sorted(points.items()))
     model["unverified"] = list(dict.fromkeys(["io layout", *device.unverified]))
