@@ -248,3 +248,30 @@ def test_params_are_parameter_object_instances_with_limits_and_access(enip_farm,
         assert client.set(0x0F, number, 1, bytes(size + 1)).general_status == 0x15
         if read_only is not None:
             assert client.set(0x0F, read_only["instance"], 1, bytes(read_only["size"])).general_status == 0x0E
+
+
+def test_the_ethernetip_scanner_opens_an_eds_made_device(enip_farm, tmp_path: Path) -> None:
+    """A real scanner (PyPI's `ethernetip`) opens OpENer's sample EDS's exclusive owner (config 151,
+    O->T 150, T->O 100, 32 bytes each way) on the device made from that EDS, and I/O goes both ways."""
+    ethernetip = pytest.importorskip("ethernetip")
+    _, _, farm = _served_farm(enip_farm, tmp_path, "opener_sample_app.eds")
+    address = farm["dev"].address
+    enip = ethernetip.EtherNetIP(address)
+    conn = enip.explicit_conn(address)
+    assert conn.registerSession() == 0
+    inputs = enip.registerAssembly(ethernetip.EtherNetIP.ENIP_IO_TYPE_INPUT, 32, 100, conn)
+    outputs = enip.registerAssembly(ethernetip.EtherNetIP.ENIP_IO_TYPE_OUTPUT, 32, 150, conn)
+    enip.startIO(udp_port=0)
+    try:
+        assert conn.sendFwdOpenReq(100, 150, 151, torpi=10, otrpi=10, multiplier=2,
+                                   originator_udp_port=enip.originator_udp_port) == 0
+        outputs[3] = outputs[255] = True
+        conn.produce()
+        assert wait_for(lambda: farm["dev"].outputs == b"\x08" + bytes(30) + b"\x80")
+        farm["dev"].set_inputs(b"\x01" + bytes(30) + b"\x40")
+        assert wait_for(lambda: [i for i, bit in enumerate(inputs) if bit] == [0, 254])
+        conn.stopProduce()
+        assert conn.sendFwdCloseReq(100, 150, 151) == 0
+    finally:
+        conn.stopProduce()
+        enip.stopIO()
