@@ -613,6 +613,14 @@ def eds_profile(device: EdsDevice, source: str, name: str | None = None,
                  "configuration": configuration if configuration is not None else 1}
         if configuration is None:
             notes.append(f"{_describe(connection)} names no configuration point: the profile takes instance 1")
+        if roles["configuration"] in (roles["output"], roles["input"]) or roles["output"] == roles["input"]:
+            taken = set(points) | {roles["output"], roles["input"]}
+            if roles["output"] == roles["input"]:
+                raise EdsError(f"{source}: {_describe(connection)}: O->T and T->O are the same assembly "
+                               f"{roles['output']}; the farm serves them as two")
+            roles["configuration"] = next(n for n in range(1, 0x10000) if n not in taken)
+            notes.append(f"{_describe(connection)}: its configuration point is also an I/O point; the profile's "
+                         f"configuration assembly is instance {roles['configuration']}")
         for role, kind in (("input_only", "input only"), ("listen_only", "listen only")):
             heartbeat = next((e for c, e in served if c.kind == kind and e["t_o"] == entry["t_o"]), None)
             if heartbeat is not None:
