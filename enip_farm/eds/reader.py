@@ -655,7 +655,7 @@ def eds_document(path: Path) -> dict[str, Any]:
     """The profile document of an EDS file named as a device's model (`model: vendor.eds`): as
     `enip-farm eds import` makes it, its model named after the file. Raises EdsError (a ValueError)."""
     device = read_eds(decode_eds_bytes(path.read_bytes()), str(path))
-    return eds_profile(device, path.name, f"{path.name} ({device.product_name})")[1]
+    return eds_profile(device, path.name, path.name)[1]
 
 
 def eds_catalogue(catalogue: Catalogue | None = None) -> Catalogue:
