@@ -15,8 +15,17 @@ and writes outputs over CIP with pycomm3 (Set Attribute Single, assembly 100, at
      of cards in the DOM, and the longest gap between animation frames while loading; then, for
      each rate of `--load-hz`, the latency of `--load-changes` writes to the first device and the
      longest frame gap while that many inputs change.
+  3. the overview of `--devices` DSQC1030s (overview.js): `--overview-loads` page loads, each timed in
+     the page from navigation to every device's tile and the counts shown; then `--faults` faults
+     injected through the API on devices picked at random, each timed from the API's reply to its
+     tile's change of colour (stamped by a MutationObserver in the page), and the longest frame gap.
+  4. the same while `--connections` class-1 connections run at `--rpi-ms` (bench/bench_implicit.py's
+     originator in another process, one exclusive owner per device): how long until the overview
+     counts them all running, then the same page loads and faults, and what the originator saw
+     (T->O received, lost, late, connections the farm timed out, the farm's CPU).
 
     python bench/bench_dashboard.py [--changes 200] [--devices 1000] [--load-hz 0,2000,10000]
+                                    [--connections 1000] [--rpi-ms 100]
 
 Every wait is bounded; traffic goes to 127.0.0.0/8 only. Prints a line per phase and a JSON line.
 """
@@ -38,16 +47,27 @@ from pycomm3 import CIPDriver, Services
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
-from tests.browser import FILTER_ROUND_TRIP, MEASURE_FRAMES, RECORD_CHANGES, chromium, open_page, until  # noqa: E402
+import httpx  # noqa: E402
+
+from tests.browser import (  # noqa: E402
+    FILTER_ROUND_TRIP,
+    MEASURE_FRAMES,
+    OVERVIEW_COMPLETE,
+    RECORD_CHANGES,
+    RECORD_TILES,
+    chromium,
+    open_page,
+    until,
+)
 
 FARM = """
 import sys, threading, time
 from enip_farm.config import parse_config
 from enip_farm.farm import Farm
-first, count = sys.argv[1], int(sys.argv[2])
-device = {"name": "io{n}", "address": first, "model": "DSQC1030"}
+first, count, addons = sys.argv[1], int(sys.argv[2]), sys.argv[3:]
+device = {"name": "io{n}", "address": first, "model": "DSQC1030", "addons": addons}
 if count > 1:
-    device.update(count=count, addons=["DSQC1032"])
+    device.update(count=count, netmask="255.255.0.0")
 farm = Farm(parse_config({"devices": [device], "discovery": False}, "<bench>"), http=("127.0.0.1", 0))
 rate, done = [0.0], [0]
 def load():
@@ -77,10 +97,20 @@ with farm.running_in_thread():
 """
 
 
+# bench/bench_implicit.py's originator: argv = farm pid, RPI in us, seconds, then the devices' addresses.
+ORIGINATOR = """
+import json, sys
+sys.path.insert(0, "bench")
+from bench_implicit import run_load
+pid, rpi_us, seconds, hosts = int(sys.argv[1]), int(sys.argv[2]), float(sys.argv[3]), sys.argv[4:]
+print(json.dumps(run_load(hosts, rpi_us, seconds, pid)), flush=True)
+"""
+
+
 class FarmProcess:
-    def __init__(self, first: str, count: int) -> None:
+    def __init__(self, first: str, count: int, addons: tuple[str, ...] = ()) -> None:
         env = {**os.environ, "PYTHONPATH": str(ROOT)}
-        self.process = subprocess.Popen([sys.executable, "-c", FARM, first, str(count)], stdin=subprocess.PIPE,
+        self.process = subprocess.Popen([sys.executable, "-c", FARM, first, str(count), *addons], stdin=subprocess.PIPE,
                                         stdout=subprocess.PIPE, text=True, env=env, cwd=ROOT)
         self.url = f"http://127.0.0.1:{int(self.process.stdout.readline())}/"  # type: ignore[union-attr]
         self.first = first
@@ -122,6 +152,51 @@ def latencies(driver, address: str, changes: int, size: int, seed: int = 13) -> 
     return sorted(out)
 
 
+def overview_loads(driver, url: str, devices: int, loads: int) -> dict:
+    """Page loads until the overview is complete (tests/browser.py OVERVIEW_COMPLETE, the page's clock
+    from navigation), and when its first answer arrived; medians and the worst."""
+    complete, answered = [], []
+    for _ in range(loads):
+        driver.get("about:blank")
+        driver.get(url)
+        complete.append(until(lambda: driver.execute_script("return window.overviewComplete"), "the overview"))
+        answered.append(driver.execute_script(
+            "return performance.getEntriesByType('resource').filter(e => /\\/overview(\\?|$)/.test(e.name))"
+            "[0].responseEnd"))
+        tiles = driver.execute_script("return document.querySelectorAll('#tiles .tile').length")
+        if tiles != devices:
+            raise RuntimeError(f"{tiles} tiles for {devices} devices")
+    return {"loads": loads, "complete_p50_ms": round(statistics.median(complete)),
+            "complete_max_ms": round(max(complete)), "first_answer_p50_ms": round(statistics.median(answered))}
+
+
+def recolours(driver, api: str, names: list[str], faults: int, seed: int = 7) -> dict:
+    """`faults` faults injected (POST /devices/{name}/faults) on devices picked at random, each timed
+    from the API's reply to its tile turning `faulted` in the page, then cleared (and its tile seen
+    back) before the next; the longest frame gap meanwhile."""
+    rng = random.Random(seed)
+    driver.execute_script(RECORD_TILES)
+    driver.execute_script("window.frameGaps.max = 0")
+    out = []
+    with httpx.Client(base_url=api, timeout=30) as client:
+        for _ in range(faults):
+            name = rng.choice(names)
+            driver.execute_script("window.tileChanges = []")
+            client.post(f"/devices/{name}/faults", json={"kind": "drop"}).raise_for_status()
+            replied = time.time()
+            shown = until(lambda name=name: driver.execute_script(
+                "const hit = window.tileChanges.find(c => c[0] === arguments[0] && /\\bs-faulted\\b/.test(c[1]));"
+                "return hit ? hit[2] / 1000 : null;", name), f"{name}'s tile faulted")
+            out.append(shown - replied)
+            client.delete(f"/devices/{name}/faults").raise_for_status()
+            until(lambda name=name: driver.execute_script(
+                "return !document.querySelector(`#tiles [data-device='${arguments[0]}']`).classList"
+                ".contains('s-faulted')", name), f"{name}'s tile back")
+    timed = summary(sorted(out))
+    timed["longest_frame_gap_ms"] = round(driver.execute_script("return window.frameGaps.max"))
+    return timed
+
+
 def summary(values: list[float]) -> dict:
     ms = [v * 1000 for v in values]
     return {"n": len(ms), "p50_ms": round(statistics.median(ms), 1), "p95_ms": round(ms[int(0.95 * len(ms)) - 1], 1),
@@ -135,6 +210,10 @@ def main() -> None:
     parser.add_argument("--load-hz", default="0,2000,10000", help="input changes a second across the devices")
     parser.add_argument("--load-changes", type=int, default=50, help="CIP writes timed at each load")
     parser.add_argument("--first", default="127.0.205.1", help="the first device's address")
+    parser.add_argument("--overview-loads", type=int, default=5, help="page loads timed to the overview complete")
+    parser.add_argument("--faults", type=int, default=20, help="faults injected, each timed to its tile")
+    parser.add_argument("--connections", type=int, default=1000, help="class-1 connections in phase 4 (0: none)")
+    parser.add_argument("--rpi-ms", type=int, default=100, help="their RPI")
     args = parser.parse_args()
     result: dict = {}
     with chromium() as driver:
@@ -145,7 +224,7 @@ def main() -> None:
         finally:
             farm.close()
         print(f"1 device, CIP write reply -> LED: {result['one_device']}")
-        farm = FarmProcess(args.first, args.devices)
+        farm = FarmProcess(args.first, args.devices, ("DSQC1032",))
         try:
             driver.execute_cdp_cmd("Page.addScriptToEvaluateOnNewDocument", {"source": MEASURE_FRAMES})
             loaded = open_page(driver, farm.url)
@@ -170,7 +249,54 @@ def main() -> None:
             farm.load(0)
         finally:
             farm.close()
+        farm = FarmProcess(args.first, args.devices)  # DSQC1030s, as the originator opens them
+        try:
+            overview(driver, farm, args, result)
+        finally:
+            farm.close()
     print(json.dumps(result))
+
+
+def overview(driver, farm: FarmProcess, args: argparse.Namespace, result: dict) -> None:
+    """Phases 3 and 4: the overview idle, then while class-1 connections run."""
+    driver.execute_cdp_cmd("Page.addScriptToEvaluateOnNewDocument", {"source": OVERVIEW_COMPLETE % args.devices})
+    api = farm.url.rstrip("/")
+    devices = httpx.get(api + "/devices", timeout=30).json()
+    names = [device["name"] for device in devices]
+    idle = result["overview"] = overview_loads(driver, farm.url, args.devices, args.overview_loads)
+    idle.update(recolours(driver, api, names, args.faults))
+    print(f"{args.devices} devices, overview: {idle}")
+    if not args.connections:
+        return
+    hosts = [device["address"] for device in devices[:args.connections]]
+    seconds = 40.0  # after every connection is open: the measures take about 20 s of it
+    originator = subprocess.Popen([sys.executable, "-c", ORIGINATOR, str(farm.process.pid), str(args.rpi_ms * 1000),
+                                   str(seconds), *hosts], stdout=subprocess.PIPE, text=True, cwd=ROOT,
+                                  env={**os.environ, "PYTHONPATH": str(ROOT)})
+    try:
+        started = time.monotonic()
+        with httpx.Client(base_url=api, timeout=30) as client:
+            def all_running() -> bool:
+                if originator.poll() is not None:
+                    raise RuntimeError("the originator ended before its connections ran")
+                return client.get("/overview").json()["counts"]["running"] >= args.connections
+
+            until(all_running, f"{args.connections} connections running", timeout=300, step=0.1)
+        opened = time.monotonic() - started
+        busy = result["overview_with_connections"] = {"connections": args.connections, "rpi_ms": args.rpi_ms,
+                                                      "all_running_after_s": round(opened, 1)}
+        busy.update(overview_loads(driver, farm.url, args.devices, args.overview_loads))
+        busy.update(recolours(driver, api, names[:args.connections], args.faults))
+        counts = driver.execute_script("return [...document.querySelectorAll('#counts b')].map(b => b.textContent)")
+        busy["page_counts"] = counts
+        print(f"{args.devices} devices, {args.connections} connections at {args.rpi_ms} ms, overview: {busy}")
+        out, _ = originator.communicate(timeout=seconds + 120)
+        busy["originator"] = json.loads(out.strip().splitlines()[-1])
+        print(f"the originator: {busy['originator']}")
+    finally:
+        if originator.poll() is None:
+            originator.kill()
+            originator.wait()
 
 
 if __name__ == "__main__":

@@ -79,7 +79,9 @@
         headers['Content-Type'] = 'application/json';
         body = JSON.stringify(options.json);
       }
-      const response = await fetch(path, { method: options.method || 'GET', headers, body, cache: 'no-store' });
+      // timeoutMs: a request the browser holds (e.g. across a network change of the host) fails then
+      const signal = options.timeoutMs ? AbortSignal.timeout(options.timeoutMs) : undefined;
+      const response = await fetch(path, { method: options.method || 'GET', headers, body, cache: 'no-store', signal });
       if (response.status === 401 && attempt < 3 && (token !== used || await askToken())) continue;
       if (!response.ok && !(options.answers || []).includes(response.status)) {  // answers: statuses with a body
         let detail = response.statusText;

@@ -5,15 +5,18 @@
 //
 // Data: GET overview (every device's state in one answer, control/overview.py) at load, every
 // POLL_MS, and REFRESH_MS after a stream event that can change a state (connections, faults,
-// resets); once the stream is live, the recent events (overview?events=N) for the events panel.
+// resets); what such an event surely means (a fault injected: faulted; a class-1 connection opened:
+// running) shows at once, and the read after it confirms it. Once the stream is live, the recent
+// events (overview?events=N) go to the events panel. The counts are the tiles', so they agree.
 // GET health's `cyclic_io` ({running, errors}), when the farm gives it, shows a banner while the
-// class-1 I/O thread does not run (a farm without GET health, or without the field: no banner). All DOM work for a snapshot happens in one animation frame.
+// class-1 I/O thread does not run (a farm without GET health, or without the field: no banner).
+// All DOM work happens in one animation frame, however many reads and events came since the last.
 'use strict';
 (() => {
   const farm = window.enipFarm;
   const STATES = ['idle', 'running', 'timed_out', 'faulted'];
   const LABELS = { idle: 'idle', running: 'class-1 running', timed_out: 'timed out', faulted: 'faulted' };
-  const POLL_MS = 2000, REFRESH_MS = 250, HEALTH_MS = 2000, RETRY_MS = 1000, HISTORY = 200;
+  const POLL_MS = 2000, REFRESH_MS = 250, HEALTH_MS = 2000, RETRY_MS = 1000, HISTORY = 200, TIMEOUT_MS = 10000;
   const NAMED_MAX = 120;  // up to this many devices a tile shows its name; beyond, a small square
   const STATE_KINDS = /^(connection |fault |reset|safety )/;
 
@@ -24,6 +27,9 @@
   let names = '';  // the devices the tiles were built for, in order
   let stateFilter = null;  // a state, or null for all
   let selected = null;
+  let snapshot = null;  // read, not yet drawn
+  const guessed = new Set();  // tiles an event recoloured, not yet drawn
+  let filterDirty = true, framed = false;
 
   // -- tiles ------------------------------------------------------------------------------------------
 
@@ -71,7 +77,9 @@
     }
   }
 
-  function showCounts(counts) {
+  function showCounts() {
+    const counts = Object.fromEntries(STATES.map(state => [state, 0]));
+    for (const tile of tiles.values()) counts[tile.info.state]++;
     for (const state of STATES) {
       const button = $(`#counts [data-state="${state}"]`);
       button.querySelector('b').textContent = counts[state];
@@ -84,23 +92,55 @@
     let shown = 0;
     for (const tile of tiles.values()) {
       const visible = (!stateFilter || tile.info.state === stateFilter) && words.every(w => tile.search.includes(w));
-      tile.element.hidden = !visible;
+      if (tile.element.hidden === visible) tile.element.hidden = !visible;
       shown += visible;
     }
     shownLabel.textContent = shown === tiles.size ? `${tiles.size} devices` : `${shown} of ${tiles.size} shown`;
   }
 
-  function render(snapshot) {
-    const order = snapshot.devices.map(info => info.name).join('\n');
+  function render(read) {
+    const order = read.devices.map(info => info.name).join('\n');
     if (order !== names) {
-      buildTiles(snapshot.devices);
+      buildTiles(read.devices);
       names = order;
+      filterDirty = true;
     } else {
-      updateTiles(snapshot.devices);
+      updateTiles(read.devices);
     }
-    showCounts(snapshot.counts);
-    applyTileFilter();
-    document.body.dataset.overview = 'complete';
+  }
+
+  function draw() {  // one animation frame: the last read, the events' recolouring, the counts, the filter
+    framed = false;
+    if (snapshot) {
+      render(snapshot);
+      snapshot = null;
+    }
+    for (const tile of guessed) paint(tile);
+    guessed.clear();
+    showCounts();
+    if (filterDirty || stateFilter) applyTileFilter();
+    filterDirty = false;
+    if (tiles.size) document.body.dataset.overview = 'complete';
+  }
+
+  function redraw() {
+    if (!framed) {
+      framed = true;
+      requestAnimationFrame(draw);
+    }
+  }
+
+  function guess(event) {  // what an event surely means, until the read it asks for says it all
+    const tile = tiles.get(event.device);
+    if (!tile) return;
+    let state = null;
+    if (event.kind === 'fault injected') state = 'faulted';
+    else if (event.kind === 'connection opened' && !String(event.detail).startsWith('explicit')
+             && tile.info.state !== 'faulted') state = 'running';
+    if (state === null || state === tile.info.state) return;
+    tile.info = { ...tile.info, state };
+    guessed.add(tile);
+    redraw();
   }
 
   // -- reading the overview: at load, every POLL_MS, soon after an event that changes a state -----------
@@ -117,9 +157,10 @@
     }
     reading = (async () => {
       try {
-        const snapshot = await farm.api('overview' + (events ? `?events=${events}` : ''));
-        requestAnimationFrame(() => render(snapshot));
-        if (events) farm.addHistory(snapshot.events);
+        const read = await farm.api('overview' + (events ? `?events=${events}` : ''), { timeoutMs: TIMEOUT_MS });
+        snapshot = read;
+        redraw();
+        if (events) farm.addHistory(read.events);
         return true;
       } catch (error) {
         farm.say(`overview: ${error.message}`);
@@ -147,6 +188,7 @@
       historyRead = true;
       read(HISTORY).then(done => { if (!done) historyRead = false; });
     } else if (STATE_KINDS.test(event.kind)) {
+      guess(event);
       soon();
     }
   });
@@ -156,7 +198,8 @@
   async function checkHealth() {
     let health;
     try {
-      health = await farm.api('health', { answers: [503] });  // 503: not serving as it should, and why
+      // 503: it does not serve as it should, and the answer says why
+      health = await farm.api('health', { answers: [503], timeoutMs: TIMEOUT_MS });
     } catch (error) {
       if (error.status === 404) return;  // a farm without it: no banner, and no more asking
       setTimeout(checkHealth, HEALTH_MS);
@@ -187,13 +230,11 @@
     const button = event.target.closest('[data-state]');
     if (!button) return;
     stateFilter = stateFilter === button.dataset.state ? null : button.dataset.state;
-    for (const other of document.querySelectorAll('#counts [data-state]')) {
-      other.classList.toggle('on', other.dataset.state === stateFilter);
-    }
-    applyTileFilter();
+    filterDirty = true;
+    redraw();
   });
 
-  tileFilter.addEventListener('input', applyTileFilter);
+  tileFilter.addEventListener('input', () => { filterDirty = true; redraw(); });
 
   async function start() {
     while (!await read()) await new Promise(resolve => setTimeout(resolve, RETRY_MS));
