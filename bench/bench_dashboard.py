@@ -20,9 +20,11 @@ and writes outputs over CIP with pycomm3 (Set Attribute Single, assembly 100, at
      injected through the API on devices picked at random, each timed from the API's reply to its
      tile's change of colour (stamped by a MutationObserver in the page), and the longest frame gap.
   4. the same while `--connections` class-1 connections run at `--rpi-ms` (bench/bench_implicit.py's
-     originator in another process, one exclusive owner per device): how long until the overview
-     counts them all running, then the same page loads and faults, and what the originator saw
-     (T->O received, lost, late, connections the farm timed out, the farm's CPU).
+     originator in another process, one exclusive owner per device, for 90 s once all are open):
+     how long until the overview counts them all running, then the same page loads (and the counts
+     the page shows) and faults, the farm's own counts after them, and what the originator saw
+     (T->O received, lost, late, the period error, the farm's CPU; its `timeouts` counts the
+     Forward Closes it sends one by one at the end that found their connection gone).
 
     python bench/bench_dashboard.py [--changes 200] [--devices 1000] [--load-hz 0,2000,10000]
                                     [--connections 1000] [--rpi-ms 100]
@@ -170,6 +172,19 @@ def overview_loads(driver, url: str, devices: int, loads: int) -> dict:
             "complete_max_ms": round(max(complete)), "first_answer_p50_ms": round(statistics.median(answered))}
 
 
+def network_changed(driver) -> str:
+    """What the browser said of its requests: Chromium fails (after holding them for up to 30 s) the
+    requests under way when the host's network interfaces change, e.g. while containers start."""
+    failed = [entry["message"] for entry in driver.get_log("browser") if "ERR_NETWORK_CHANGED" in entry["message"]]
+    return (f"{len(failed)} requests failed with ERR_NETWORK_CHANGED (the host's interfaces changed)" if failed
+            else "no request failed")
+
+
+def page_counts(driver) -> dict[str, int]:
+    return dict(driver.execute_script("return [...document.querySelectorAll('#counts [data-state]')]"
+                                      ".map(b => [b.dataset.state, Number(b.querySelector('b').textContent)])"))
+
+
 def recolours(driver, api: str, names: list[str], faults: int, seed: int = 7) -> dict:
     """`faults` faults injected (POST /devices/{name}/faults) on devices picked at random, each timed
     from the API's reply to its tile turning `faulted` in the page, then cleared (and its tile seen
@@ -186,12 +201,13 @@ def recolours(driver, api: str, names: list[str], faults: int, seed: int = 7) ->
             replied = time.time()
             shown = until(lambda name=name: driver.execute_script(
                 "const hit = window.tileChanges.find(c => c[0] === arguments[0] && /\\bs-faulted\\b/.test(c[1]));"
-                "return hit ? hit[2] / 1000 : null;", name), f"{name}'s tile faulted")
+                "return hit ? hit[2] / 1000 : null;", name),
+                lambda name=name: f"{name}'s tile faulted; {network_changed(driver)}")
             out.append(shown - replied)
             client.delete(f"/devices/{name}/faults").raise_for_status()
             until(lambda name=name: driver.execute_script(
                 "return !document.querySelector(`#tiles [data-device='${arguments[0]}']`).classList"
-                ".contains('s-faulted')", name), f"{name}'s tile back")
+                ".contains('s-faulted')", name), lambda name=name: f"{name}'s tile back; {network_changed(driver)}")
     timed = summary(sorted(out))
     timed["longest_frame_gap_ms"] = round(driver.execute_script("return window.frameGaps.max"))
     return timed
@@ -214,41 +230,13 @@ def main() -> None:
     parser.add_argument("--faults", type=int, default=20, help="faults injected, each timed to its tile")
     parser.add_argument("--connections", type=int, default=1000, help="class-1 connections in phase 4 (0: none)")
     parser.add_argument("--rpi-ms", type=int, default=100, help="their RPI")
+    parser.add_argument("--overview-only", action="store_true", help="phases 3 and 4 only")
     args = parser.parse_args()
     result: dict = {}
     with chromium() as driver:
-        farm = FarmProcess(args.first, 1)
-        try:
-            open_page(driver, farm.url)
-            result["one_device"] = summary(latencies(driver, args.first, args.changes, 2))
-        finally:
-            farm.close()
-        print(f"1 device, CIP write reply -> LED: {result['one_device']}")
-        farm = FarmProcess(args.first, args.devices, ("DSQC1032",))
-        try:
-            driver.execute_cdp_cmd("Page.addScriptToEvaluateOnNewDocument", {"source": MEASURE_FRAMES})
-            loaded = open_page(driver, farm.url)
-            filtered = driver.execute_async_script(FILTER_ROUND_TRIP, "io99")
-            cleared = driver.execute_async_script(FILTER_ROUND_TRIP, "")
-            many = result["many_devices"] = {
-                "devices": args.devices, "page_with_cards_s": round(loaded, 2), "filter_ms": round(filtered["ms"]),
-                "unfilter_ms": round(cleared["ms"]), "cards_in_dom": cleared["cards"],
-                "longest_frame_gap_ms": round(driver.execute_script("return window.frameGaps.max"))}
-            print(f"{args.devices} devices: {many}")
-            for rate in [float(r) for r in args.load_hz.split(",")]:
-                farm.load(rate)
-                time.sleep(1.0)
-                farm.load(rate)  # the count starts here
-                driver.execute_script("window.frameGaps.max = 0")
-                timed = summary(latencies(driver, args.first, args.load_changes, 10))
-                timed["longest_frame_gap_ms"] = round(driver.execute_script("return window.frameGaps.max"))
-                timed["load_hz"] = rate
-                timed["reached_hz"] = round(farm.load(rate))  # same rate on: only the count is read
-                result.setdefault("under_load", []).append(timed)
-                print(f"{args.devices} devices, {rate:g} input changes/s asked, {timed['reached_hz']} reached: {timed}")
-            farm.load(0)
-        finally:
-            farm.close()
+        driver.execute_cdp_cmd("Page.addScriptToEvaluateOnNewDocument", {"source": MEASURE_FRAMES})
+        if not args.overview_only:
+            cards(driver, args, result)
         farm = FarmProcess(args.first, args.devices)  # DSQC1030s, as the originator opens them
         try:
             overview(driver, farm, args, result)
@@ -256,6 +244,40 @@ def main() -> None:
             farm.close()
     print(json.dumps(result))
 
+
+def cards(driver, args: argparse.Namespace, result: dict) -> None:
+    """Phases 1 and 2: the cards."""
+    farm = FarmProcess(args.first, 1)
+    try:
+        open_page(driver, farm.url)
+        result["one_device"] = summary(latencies(driver, args.first, args.changes, 2))
+    finally:
+        farm.close()
+    print(f"1 device, CIP write reply -> LED: {result['one_device']}")
+    farm = FarmProcess(args.first, args.devices, ("DSQC1032",))
+    try:
+        loaded = open_page(driver, farm.url)
+        filtered = driver.execute_async_script(FILTER_ROUND_TRIP, "io99")
+        cleared = driver.execute_async_script(FILTER_ROUND_TRIP, "")
+        many = result["many_devices"] = {
+            "devices": args.devices, "page_with_cards_s": round(loaded, 2), "filter_ms": round(filtered["ms"]),
+            "unfilter_ms": round(cleared["ms"]), "cards_in_dom": cleared["cards"],
+            "longest_frame_gap_ms": round(driver.execute_script("return window.frameGaps.max"))}
+        print(f"{args.devices} devices: {many}")
+        for rate in [float(r) for r in args.load_hz.split(",")]:
+            farm.load(rate)
+            time.sleep(1.0)
+            farm.load(rate)  # the count starts here
+            driver.execute_script("window.frameGaps.max = 0")
+            timed = summary(latencies(driver, args.first, args.load_changes, 10))
+            timed["longest_frame_gap_ms"] = round(driver.execute_script("return window.frameGaps.max"))
+            timed["load_hz"] = rate
+            timed["reached_hz"] = round(farm.load(rate))  # same rate on: only the count is read
+            result.setdefault("under_load", []).append(timed)
+            print(f"{args.devices} devices, {rate:g} input changes/s asked, {timed['reached_hz']} reached: {timed}")
+        farm.load(0)
+    finally:
+        farm.close()
 
 def overview(driver, farm: FarmProcess, args: argparse.Namespace, result: dict) -> None:
     """Phases 3 and 4: the overview idle, then while class-1 connections run."""
@@ -269,7 +291,7 @@ def overview(driver, farm: FarmProcess, args: argparse.Namespace, result: dict) 
     if not args.connections:
         return
     hosts = [device["address"] for device in devices[:args.connections]]
-    seconds = 40.0  # after every connection is open: the measures take about 20 s of it
+    seconds = 90.0  # after every connection is open: the measures below take 20 to 60 s of it
     originator = subprocess.Popen([sys.executable, "-c", ORIGINATOR, str(farm.process.pid), str(args.rpi_ms * 1000),
                                    str(seconds), *hosts], stdout=subprocess.PIPE, text=True, cwd=ROOT,
                                   env={**os.environ, "PYTHONPATH": str(ROOT)})
@@ -286,9 +308,9 @@ def overview(driver, farm: FarmProcess, args: argparse.Namespace, result: dict) 
         busy = result["overview_with_connections"] = {"connections": args.connections, "rpi_ms": args.rpi_ms,
                                                       "all_running_after_s": round(opened, 1)}
         busy.update(overview_loads(driver, farm.url, args.devices, args.overview_loads))
+        busy["page_counts"] = page_counts(driver)
         busy.update(recolours(driver, api, names[:args.connections], args.faults))
-        counts = driver.execute_script("return [...document.querySelectorAll('#counts b')].map(b => b.textContent)")
-        busy["page_counts"] = counts
+        busy["farm_counts_after"] = httpx.get(api + "/overview", timeout=30).json()["counts"]
         print(f"{args.devices} devices, {args.connections} connections at {args.rpi_ms} ms, overview: {busy}")
         out, _ = originator.communicate(timeout=seconds + 120)
         busy["originator"] = json.loads(out.strip().splitlines()[-1])
