@@ -585,7 +585,7 @@
   let liveKeys = new Set();  // the live events logged until the history came
 
   function addHistory(events) {
-    const seen = liveKeys;
+    const seen = liveKeys || new Set();
     liveKeys = null;
     const older = events.filter(event => !seen.has(eventKey(event)));
     const batch = shownInLog(older).slice(-LOG_MAX);
