@@ -68,7 +68,7 @@ from enip_farm.protocol.cpf import ItemType
 HERE = Path(__file__).resolve().parent
 BUILD = HERE / "build"
 DEFAULT_ROWS = "100@10,300@10,500@10,1000@10,100@2,200@2"
-FIRST_ADDRESS = "127.0.201.1"
+FIRST_ADDRESS = "127.0.230.1"
 O_T_SIZE = 8  # DSQC1030: 2-byte sequence count + 4-byte run/idle header + 2 bytes of outputs
 T_O_SIZE = 4  # 2-byte sequence count + 2 bytes of inputs
 START_TIMEOUT = 180.0
@@ -255,7 +255,8 @@ def read_line(stream, timeout: float) -> str:
 
 
 def drive(binary: Path, connections: list[Connection], rpi_us: int, udp: socket.socket, seconds: float,
-          warmup: float, cpus: str | None, peer_pids: list[int], work: Path, during_hold=None) -> dict:
+          warmup: float, cpus: str | None, peer_pids: list[int], work: Path, during_hold=None,
+          realtime: int = 0) -> dict:
     """Run the originator over `connections`; its figures plus CPU and drops sampled over its window."""
     listing = work / "originator.txt"
     listing.write_text("".join(f"{c.host} {c.o_t_id} {c.t_o_id} {rpi_us} {O_T_SIZE} {T_O_SIZE}\n"
@@ -264,6 +265,7 @@ def drive(binary: Path, connections: list[Connection], rpi_us: int, udp: socket.
     fd = udp.fileno()
     originator = subprocess.Popen([*taskset(cpus), str(binary), "--connections", str(listing), "--fd", str(fd),
                                    "--seconds", str(seconds), "--warmup", str(warmup), "--hold", "300",
+                                   "--realtime", str(realtime),
                                    "--json", str(out)],
                                   pass_fds=(fd,), stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True)
     try:
@@ -325,7 +327,7 @@ def run_farm(count: int, rpi_us: int, args: argparse.Namespace, originator: Path
                 return closes
 
             figures = drive(originator, connections, rpi_us, udp, args.seconds, args.warmup, args.originator_cpus,
-                            pids, work, close_all)
+                            pids, work, close_all, args.realtime)
         finally:
             udp.close()
     finally:
@@ -351,7 +353,7 @@ def run_responder(count: int, rpi_us: int, args: argparse.Namespace, originator:
             if read_line(process.stdout, 30) != "ready":
                 raise SystemExit(f"the C responder did not start: {process.stderr.read() if process.poll() else ''}")
             figures = drive(originator, connections, rpi_us, udp, args.seconds, args.warmup, args.originator_cpus,
-                            [process.pid], work)
+                            [process.pid], work, realtime=args.realtime)
         finally:
             stop(process)
         counts = process.stdout.read().strip()
@@ -412,6 +414,9 @@ def main() -> None:
     parser.add_argument("--farm-cpus", default=None, help="taskset -c list for the farm (default: not pinned)")
     parser.add_argument("--responder-cpus", default=None, help="taskset -c list for the C responder")
     parser.add_argument("--originator-cpus", default=None, help="taskset -c list for the C originator")
+    parser.add_argument("--realtime", type=int, default=10, metavar="PRIORITY",
+                        help="the originator's threads run SCHED_FIFO at this priority (root; 0: not), so that "
+                             "the machine's other load does not make it late (10)")
     parser.add_argument("--no-responder", action="store_true", help="leave out the C responder's runs")
     parser.add_argument("--first-address", default=FIRST_ADDRESS,
                         help="the first device's address (127.0.0.0/8); 250 per /24 from there")

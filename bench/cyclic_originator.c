@@ -11,9 +11,13 @@
  * (sizes as in the Forward Open: O->T = 2-byte sequence count + 4-byte run/idle header + data,
  * T->O = 2 + data; PORT defaults to 2222) and uses the UDP socket inherited as --fd N (or binds
  * --bind ADDR:PORT). A sender thread sends O->T on absolute deadlines (clock_nanosleep
- * TIMER_ABSTIME, connection k offset by k/N of its RPI) in batches with sendmmsg; a receiver thread
- * takes T->O with recvmmsg and the kernel's receive time of each datagram (SO_TIMESTAMPNS), so this
- * program's own scheduling does not count against the peer.
+ * TIMER_ABSTIME, connection k offset by k/N of its RPI) in batches with sendmmsg, waking on a grid of
+ * --batch-us (default 100 us: a send is at most that late by design, so that 1000 connections do not
+ * cost 100 000 wake-ups a second); a receiver thread drains the socket with recvmmsg every 200 us
+ * and takes each T->O datagram's kernel receive time (SO_TIMESTAMPNS), so this program's own
+ * scheduling does not count against the peer. With --realtime P (root) both threads run SCHED_FIFO at
+ * priority P, so that other load on the machine does not make the originator late; they sleep
+ * between batches, and the kernel's RT throttling bounds them anyway.
  *
  * Phases: --warmup S (sending, nothing measured), the window of --seconds S (measured; "start" and
  * "end" lines on stdout mark it), then it goes on sending until its stdin closes (so the driver can
@@ -29,6 +33,7 @@
 #include <netinet/in.h>
 #include <poll.h>
 #include <pthread.h>
+#include <sched.h>
 #include <stdatomic.h>
 #include <stdint.h>
 #include <stdio.h>
@@ -83,6 +88,9 @@ static uint64_t unknown_t_o, malformed_t_o, receive_errors;
 /* sender's own figures */
 static uint64_t sends_late, send_errors;
 static int64_t send_lag_max_ns;
+static int realtime;                      /* --realtime: SCHED_FIFO for both threads (root) */
+static int64_t batch_ns = 100000;         /* --batch-us */
+static int64_t receive_pause_ns = 200000; /* the receiver reads the socket this often when it is drained */
 static uint32_t *table; /* T->O id -> index + 1, open addressing */
 static uint32_t table_mask;
 
@@ -173,7 +181,9 @@ static void *sender(void *unused) {
         int64_t now = now_ns(CLOCK_MONOTONIC);
         if (now >= t_hard_end) break;
         if (heap[0].when > now) {
-            struct timespec until = to_timespec(heap[0].when < t_hard_end ? heap[0].when : t_hard_end);
+            /* wake on a grid of --batch-us: the sends due in one step leave in one sendmmsg */
+            int64_t wake = (heap[0].when + batch_ns - 1) / batch_ns * batch_ns;
+            struct timespec until = to_timespec(wake < t_hard_end ? wake : t_hard_end);
             clock_nanosleep(CLOCK_MONOTONIC, TIMER_ABSTIME, &until, NULL);
             continue;
         }
@@ -277,10 +287,14 @@ static void *receiver(void *unused) {
                                                   .msg_control = controls[i],
                                                   .msg_controllen = sizeof controls[i]};
         }
-        int n = recvmmsg(sock, messages, BATCH, MSG_WAITFORONE, NULL);
+        int n = recvmmsg(sock, messages, BATCH, MSG_DONTWAIT, NULL);
         if (n < 0) {
             if (errno != EAGAIN && errno != EWOULDBLOCK && errno != EINTR) receive_errors++;
-            continue;
+            n = 0;
+        }
+        if (n < BATCH) { /* drained: the kernel keeps each datagram's time, so reading later costs no accuracy */
+            struct timespec pause = to_timespec(receive_pause_ns);
+            nanosleep(&pause, NULL);
         }
         int64_t fallback = now_ns(CLOCK_MONOTONIC);
         for (int i = 0; i < n; i++) {
@@ -353,7 +367,7 @@ static int read_connections(const char *path) {
 
 static void usage(void) {
     fprintf(stderr, "usage: cyclic_originator --connections FILE (--fd N | --bind ADDR:PORT) --seconds S "
-                    "[--warmup S] [--hold S] --json FILE\n");
+                    "[--warmup S] [--hold S] [--batch-us US] [--realtime PRIORITY] --json FILE\n");
     exit(2);
 }
 
@@ -368,9 +382,11 @@ int main(int argc, char **argv) {
         else if (!strcmp(argv[i], "--warmup")) warmup = atof(argv[i + 1]);
         else if (!strcmp(argv[i], "--hold")) hold = atof(argv[i + 1]);
         else if (!strcmp(argv[i], "--json")) json_path = argv[i + 1];
+        else if (!strcmp(argv[i], "--realtime")) realtime = atoi(argv[i + 1]);
+        else if (!strcmp(argv[i], "--batch-us")) batch_ns = (int64_t)(atof(argv[i + 1]) * 1000);
         else usage();
     }
-    if (!connections_path || !json_path || seconds <= 0 || seconds > 3600 || warmup < 0 || hold < 0 || hold > 600 ||
+    if (!connections_path || !json_path || seconds <= 0 || seconds > 3600 || warmup < 0 || hold < 0 || hold > 600 || batch_ns < 1 || batch_ns > 1000000 ||
         (sock < 0 && !bind_to))
         usage();
     if (read_connections(connections_path) <= 0) {
@@ -395,8 +411,6 @@ int main(int argc, char **argv) {
     }
     int on = 1;
     setsockopt(sock, SOL_SOCKET, SO_TIMESTAMPNS, &on, sizeof on);
-    struct timeval receive_timeout = {0, 50000}; /* the receiver looks at the clock every 50 ms at least */
-    setsockopt(sock, SOL_SOCKET, SO_RCVTIMEO, &receive_timeout, sizeof receive_timeout);
     table_mask = 1;
     while (table_mask < 4u * (uint32_t)connection_count) table_mask <<= 1;
     table = calloc(table_mask, sizeof *table);
@@ -416,6 +430,14 @@ int main(int argc, char **argv) {
     pthread_t send_thread, receive_thread;
     pthread_create(&receive_thread, NULL, receiver, NULL);
     pthread_create(&send_thread, NULL, sender, NULL);
+    if (realtime > 0) { /* so that the machine's other load does not make this originator late */
+        struct sched_param priority = {.sched_priority = realtime};
+        if (pthread_setschedparam(send_thread, SCHED_FIFO, &priority) ||
+            pthread_setschedparam(receive_thread, SCHED_FIFO, &priority)) {
+            fprintf(stderr, "cyclic_originator: SCHED_FIFO refused, running without it\n");
+            realtime = 0;
+        }
+    }
 
     struct timespec until = to_timespec(t0);
     clock_nanosleep(CLOCK_MONOTONIC, TIMER_ABSTIME, &until, NULL);
@@ -447,13 +469,14 @@ int main(int argc, char **argv) {
         return 2;
     }
     uint64_t sent_window = 0, sent_total = 0, received_window = 0, lost = 0, late = 0, duplicates = 0, reordered = 0;
-    uint64_t wrong_size = 0, expected_window = 0, intervals = 0;
+    uint64_t wrong_size = 0, expected_window = 0, intervals = 0, received_total = 0;
     int64_t max_error = 0, worst_p99 = 0;
     for (int k = 0; k < connection_count; k++) {
         struct connection *c = &connections[k];
         sent_window += c->sent_window;
         sent_total += c->sent_total;
         received_window += c->received_window;
+        received_total += c->received_total;
         lost += c->lost;
         late += c->late;
         duplicates += c->duplicates;
@@ -467,12 +490,14 @@ int main(int argc, char **argv) {
         int64_t p99 = quantile_us(c->histogram, count, 0.99);
         if (p99 > worst_p99) worst_p99 = p99;
     }
-    fprintf(out, "{\n \"connections\": %d, \"window_s\": %.6f,\n", connection_count, (t1 - t0) / 1e9);
+    fprintf(out, "{\n \"connections\": %d, \"window_s\": %.6f, \"realtime\": %d,\n", connection_count,
+            (t1 - t0) / 1e9, realtime);
     fprintf(out, " \"o_t_sent_window\": %lu, \"o_t_sent_total\": %lu, \"send_errors\": %lu,\n", sent_window,
             sent_total, send_errors);
     fprintf(out, " \"sends_late\": %lu, \"send_lag_max_ms\": %.3f,\n", sends_late, send_lag_max_ns / 1e6);
     fprintf(out, " \"t_o_expected_window\": %lu, \"t_o_received_window\": %lu, \"lost\": %lu, \"late\": %lu,\n",
             expected_window, received_window, lost, late);
+    fprintf(out, " \"t_o_received_total\": %lu,\n", received_total);
     fprintf(out, " \"duplicates\": %lu, \"reordered\": %lu, \"wrong_size\": %lu, \"unknown\": %lu, "
                  "\"malformed\": %lu, \"receive_errors\": %lu,\n",
             duplicates, reordered, wrong_size, unknown_t_o, malformed_t_o, receive_errors);
