@@ -20,7 +20,10 @@ For each row (N connections at RPI R):
 2. the ceiling: cyclic_responder.c on the same addresses (one socket per device, epoll, one
    receive and one send per datagram, T->O at the RPI), driven by the same originator the same way.
 
-CPU (utime + stime from /proc, every process of the farm) and kernel drops (the drops column of
+The originator's threads run SCHED_FIFO (--realtime, default priority 10; root) so that other load
+on the machine does not make it late; its `late sends` column (sends more than 1 ms after their
+deadline) says whether it kept time, so a timeout is the farm's only when that column is 0.
+CPU (utime + stime from /proc, every process of the farm; % of one core) and kernel drops (the drops column of
 /proc/net/udp for the farm's and the originator's sockets; /proc/net/snmp Udp RcvbufErrors +
 InErrors for the whole host) are read when the originator says the window starts and ends.
 Pairs per CPU second = (O->T sent - dropped at the receiver's sockets + T->O received) / 2 in the
@@ -42,6 +45,7 @@ import select
 import shutil
 import signal
 import socket
+import statistics
 import subprocess
 import sys
 import tempfile
@@ -363,6 +367,20 @@ def run_responder(count: int, rpi_us: int, args: argparse.Namespace, originator:
     return figures
 
 
+def medians(runs: list[dict]) -> dict:
+    """Each figure's median over the runs (one run: itself, with its connections)."""
+    if len(runs) == 1:
+        return runs[0]
+    merged = {}
+    for key, value in runs[0].items():
+        values = [run[key] for run in runs]
+        if isinstance(value, bool) or not all(isinstance(v, int | float) for v in values):
+            continue
+        middle = statistics.median(values)
+        merged[key] = round(middle) if all(isinstance(v, int) for v in values) else middle
+    return merged
+
+
 def parse_rows(text: str) -> list[tuple[int, float]]:
     rows = []
     for item in text.split(","):
@@ -410,6 +428,7 @@ def main() -> None:
     parser.add_argument("--seconds", type=float, default=None, help="measured window per run (60; --quick: 3)")
     parser.add_argument("--warmup", type=float, default=None, help="sending before the window (2; --quick: 1)")
     parser.add_argument("--quick", action="store_true", help="a short smoke run: 3 s windows")
+    parser.add_argument("--repeat", type=int, default=1, help="runs per row, farm and C interleaved; medians shown")
     parser.add_argument("--workers", type=int, default=2, help="enip-farm serve --workers (2: the README's layout)")
     parser.add_argument("--farm-cpus", default=None, help="taskset -c list for the farm (default: not pinned)")
     parser.add_argument("--responder-cpus", default=None, help="taskset -c list for the C responder")
@@ -421,6 +440,8 @@ def main() -> None:
     parser.add_argument("--first-address", default=FIRST_ADDRESS,
                         help="the first device's address (127.0.0.0/8); 250 per /24 from there")
     parser.add_argument("--json", type=Path, default=None, help="also write every figure here")
+    parser.add_argument("--keep", type=Path, default=None, metavar="DIR",
+                        help="keep the configs, connection lists, logs and raw JSON of the last row here")
     parser.add_argument("--per-connection", action="store_true", help="with --json: each connection's figures too")
     args = parser.parse_args()
     args.seconds = args.seconds if args.seconds is not None else 3.0 if args.quick else 60.0
@@ -434,30 +455,41 @@ def main() -> None:
     responder = build("cyclic_responder")
     results = []
     with tempfile.TemporaryDirectory(prefix="bench-cyclic-") as tmp:
-        work = Path(tmp)
+        work = args.keep or Path(tmp)
+        work.mkdir(parents=True, exist_ok=True)
         for n, (count, rpi_ms) in enumerate(rows, 1):
             rpi_us = round(rpi_ms * 1000)
-            print(f"row {n}/{len(rows)}: {count} connections at RPI {rpi_ms:g} ms, {args.seconds:g} s: farm ...",
-                  file=sys.stderr, flush=True)
-            result = {"connections": count, "rpi_ms": rpi_ms, "farm": run_farm(count, rpi_us, args, originator, work)}
-            farm = result["farm"]
-            print(f"  farm: {farm['admitted']} admitted, {farm['refused']} refused, T->O "
-                  f"{farm['t_o_received_window']}/{farm['t_o_expected_window']}, p99 {farm['err_p99_ms']:.2f} ms, "
-                  f"{farm['timeouts']} timed out, CPU {farm['peer_cpu_percent']:.0f}%", file=sys.stderr, flush=True)
-            if not args.no_responder:
-                c = result["c"] = run_responder(farm["admitted"], rpi_us, args, originator, responder, work)
-                print(f"  C responder: T->O {c['t_o_received_window']}/{c['t_o_expected_window']}, p99 "
-                      f"{c['err_p99_ms']:.2f} ms, CPU {c['peer_cpu_percent']:.0f}%", file=sys.stderr, flush=True)
+            runs = []
+            for attempt in range(1, args.repeat + 1):
+                print(f"row {n}/{len(rows)}, run {attempt}/{args.repeat}: {count} connections at RPI {rpi_ms:g} ms, "
+                      f"{args.seconds:g} s: farm ...", file=sys.stderr, flush=True)
+                run = {"farm": run_farm(count, rpi_us, args, originator, work)}
+                farm = run["farm"]
+                print(f"  farm: {farm['admitted']} admitted, {farm['refused']} refused, T->O "
+                      f"{farm['t_o_received_window']}/{farm['t_o_expected_window']}, p99 {farm['err_p99_ms']:.2f} ms, "
+                      f"{farm['timeouts']} timed out, {farm['sends_late']} late sends, "
+                      f"CPU {farm['peer_cpu_percent']:.0f}%", file=sys.stderr, flush=True)
+                if not args.no_responder:
+                    c = run["c"] = run_responder(farm["admitted"], rpi_us, args, originator, responder, work)
+                    print(f"  C responder: T->O {c['t_o_received_window']}/{c['t_o_expected_window']}, p99 "
+                          f"{c['err_p99_ms']:.2f} ms, CPU {c['peer_cpu_percent']:.0f}%", file=sys.stderr, flush=True)
+                runs.append(run)
+            result = {"connections": count, "rpi_ms": rpi_ms,
+                      **{side: medians([run[side] for run in runs]) for side in runs[0]}}
+            if len(runs) > 1:
+                result["runs"] = runs
             results.append(result)
-    print(f"{args.seconds:g} s windows, farm: --workers {args.workers}"
+    print(f"{args.seconds:g} s windows{f', medians of {args.repeat} runs' if args.repeat > 1 else ''}, "
+          f"farm: --workers {args.workers}"
           f"{' on CPUs ' + args.farm_cpus if args.farm_cpus else ''}")
     print(table(results))
     if args.json:
         args.json.parent.mkdir(parents=True, exist_ok=True)
         for result in results:
-            for side in ("farm", "c"):
-                if side in result and not args.per_connection:
-                    result[side].pop("per_connection", None)
+            for figures in [result, *result.get("runs", [])]:
+                for side in ("farm", "c"):
+                    if side in figures and not args.per_connection:
+                        figures[side].pop("per_connection", None)
         args.json.write_text(json.dumps({"args": {k: str(v) for k, v in vars(args).items()}, "rows": results},
                                         indent=1))
 
