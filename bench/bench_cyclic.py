@@ -210,13 +210,14 @@ def stop(process: subprocess.Popen) -> None:
             process.wait(10)
 
 
-def forward_open(hosts: list[str], rpi_us: int, port: int) -> tuple[list[Connection], int]:
-    """One exclusive-owner connection per host; (the admitted ones, how many were refused 0x0113)."""
+def forward_open(hosts: list[str], rpi_us: int, port: int, multiplier: int = 2) -> tuple[list[Connection], int]:
+    """One exclusive-owner connection per host; (the admitted ones, how many were refused 0x0113).
+    The farm times a connection out after RPI x 2^(2 + multiplier) without O->T."""
     opened, refused = [], 0
     for i, host in enumerate(hosts):
         session = Session(host)
         triad = ConnectionTriad(i + 1, 0x0BE0, 0x12345678)
-        request = ForwardOpenRequest(0x0A, 0x0E, 0, 0x70000000 + i, triad, 2, rpi_us,
+        request = ForwardOpenRequest(0x0A, 0x0E, 0, 0x70000000 + i, triad, multiplier, rpi_us,
                                      NetworkParameters(False, ConnectionType.POINT_TO_POINT, 2, False, O_T_SIZE),
                                      rpi_us,
                                      NetworkParameters(False, ConnectionType.POINT_TO_POINT, 2, False, T_O_SIZE),
@@ -319,7 +320,7 @@ def run_farm(count: int, rpi_us: int, args: argparse.Namespace, originator: Path
         try:
             hosts = [address(i, args.first_address) for i in range(count)]
             t = time.monotonic()
-            connections, refused = forward_open(hosts, rpi_us, udp.getsockname()[1])
+            connections, refused = forward_open(hosts, rpi_us, udp.getsockname()[1], args.timeout_multiplier)
             opening = time.monotonic() - t
             if not connections:
                 raise SystemExit("every Forward Open was refused")
@@ -429,6 +430,8 @@ def main() -> None:
     parser.add_argument("--warmup", type=float, default=None, help="sending before the window (2; --quick: 1)")
     parser.add_argument("--quick", action="store_true", help="a short smoke run: 3 s windows")
     parser.add_argument("--repeat", type=int, default=1, help="runs per row, farm and C interleaved; medians shown")
+    parser.add_argument("--timeout-multiplier", type=int, choices=range(8), default=2, metavar="0-7",
+                        help="the Forward Open's: the farm's timeout is RPI x 2^(2 + this) (2: 16 RPI)")
     parser.add_argument("--workers", type=int, default=2, help="enip-farm serve --workers (2: the README's layout)")
     parser.add_argument("--farm-cpus", default=None, help="taskset -c list for the farm (default: not pinned)")
     parser.add_argument("--responder-cpus", default=None, help="taskset -c list for the C responder")

@@ -23,7 +23,8 @@
  * "end" lines on stdout mark it), then it goes on sending until its stdin closes (so the driver can
  * Forward Close every connection while O->T still flows) or --hold S has passed; then it writes the
  * figures as JSON to --json FILE. In the window, per connection: T->O received, lost (gaps in the
- * 32-bit sequence), late (an interval of 2 RPI or more), duplicates, period error |interval - RPI|
+ * 32-bit sequence), late (an interval of 2 RPI or more), missed (RPIs without a packet: an interval of
+ * k RPI, rounded, misses k - 1), duplicates, period error |interval - RPI|
  * p50/p99/max; and how late this program sent (so "the originator sent on time" is checked, not
  * assumed). Every loop is bounded in time.
  */
@@ -68,6 +69,7 @@ struct connection {
     int64_t last_stamp;
     uint32_t last_sequence;
     uint64_t received_window, received_total, lost, late, duplicates, reordered, wrong_size;
+    uint64_t missed; /* RPIs with no packet: an interval of k RPI (rounded) misses k - 1 */
     int64_t max_error_ns;
     uint32_t *histogram;
 };
@@ -259,6 +261,8 @@ static void take(const uint8_t *data, int length, int64_t stamp_mono) {
             int64_t interval = stamp_mono - c->last_stamp;
             int64_t error = interval > c->rpi_ns ? interval - c->rpi_ns : c->rpi_ns - interval;
             if (interval >= 2 * c->rpi_ns) c->late++;
+            int64_t periods = (interval + c->rpi_ns / 2) / c->rpi_ns;
+            if (periods > 1) c->missed += periods - 1;
             if (error > c->max_error_ns) c->max_error_ns = error;
             int64_t bucket = error / CONN_BUCKET_NS;
             c->histogram[bucket < CONN_BUCKETS - 1 ? bucket : CONN_BUCKETS - 1]++;
@@ -469,7 +473,7 @@ int main(int argc, char **argv) {
         return 2;
     }
     uint64_t sent_window = 0, sent_total = 0, received_window = 0, lost = 0, late = 0, duplicates = 0, reordered = 0;
-    uint64_t wrong_size = 0, expected_window = 0, intervals = 0, received_total = 0;
+    uint64_t wrong_size = 0, expected_window = 0, intervals = 0, received_total = 0, missed = 0;
     int64_t max_error = 0, worst_p99 = 0;
     for (int k = 0; k < connection_count; k++) {
         struct connection *c = &connections[k];
@@ -477,6 +481,7 @@ int main(int argc, char **argv) {
         sent_total += c->sent_total;
         received_window += c->received_window;
         received_total += c->received_total;
+        missed += c->missed;
         lost += c->lost;
         late += c->late;
         duplicates += c->duplicates;
@@ -497,7 +502,7 @@ int main(int argc, char **argv) {
     fprintf(out, " \"sends_late\": %lu, \"send_lag_max_ms\": %.3f,\n", sends_late, send_lag_max_ns / 1e6);
     fprintf(out, " \"t_o_expected_window\": %lu, \"t_o_received_window\": %lu, \"lost\": %lu, \"late\": %lu,\n",
             expected_window, received_window, lost, late);
-    fprintf(out, " \"t_o_received_total\": %lu,\n", received_total);
+    fprintf(out, " \"t_o_received_total\": %lu, \"missed\": %lu,\n", received_total, missed);
     fprintf(out, " \"duplicates\": %lu, \"reordered\": %lu, \"wrong_size\": %lu, \"unknown\": %lu, "
                  "\"malformed\": %lu, \"receive_errors\": %lu,\n",
             duplicates, reordered, wrong_size, unknown_t_o, malformed_t_o, receive_errors);
@@ -511,8 +516,8 @@ int main(int argc, char **argv) {
         uint64_t count = 0;
         for (int b = 0; b < CONN_BUCKETS; b++) count += c->histogram[b];
         fprintf(out, "  {\"host\": \"%s\", \"t_o_id\": %u, \"o_t_sent\": %lu, \"received\": %lu, \"lost\": %lu, "
-                     "\"late\": %lu, \"duplicates\": %lu, \"p50_us\": %ld, \"p99_us\": %ld, \"max_us\": %ld}%s\n",
-                c->host, c->t_o_id, c->sent_window, c->received_window, c->lost, c->late, c->duplicates,
+                     "\"late\": %lu, \"missed\": %lu, \"duplicates\": %lu, \"p50_us\": %ld, \"p99_us\": %ld, \"max_us\": %ld}%s\n",
+                c->host, c->t_o_id, c->sent_window, c->received_window, c->lost, c->late, c->missed, c->duplicates,
                 quantile_us(c->histogram, count, 0.5), quantile_us(c->histogram, count, 0.99),
                 c->max_error_ns / 1000, k + 1 < connection_count ? "," : "");
     }

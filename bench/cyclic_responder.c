@@ -11,7 +11,7 @@
  * sockets and one timerfd; one recvfrom per O->T datagram (checked: items, connection id, size;
  * the outputs copied to the connection's image), one sendto per T->O datagram, produced at the RPI
  * on absolute deadlines (connection k offset by k/N of its RPI; a binary heap of deadlines, the
- * timerfd armed for the earliest) from the device's own socket to the originator. Prints "ready"
+ * timerfd armed for the earliest; one a whole RPI behind skips to its first deadline after now) from the device's own socket to the originator. Prints "ready"
  * once every socket is bound, runs until SIGTERM/SIGINT or --seconds S (at most 3600), then reads
  * what is still queued on its sockets and prints its counts as one JSON line on stdout. Traffic only to and from 127.0.0.0/8.
  */
@@ -240,6 +240,8 @@ int main(int argc, char **argv) {
             struct deadline d = heap_pop(heap, &size);
             produce(&connections[d.index]);
             d.when += connections[d.index].rpi_ns;
+            if (d.when <= now) /* behind by a whole RPI: skip to the first deadline after now, as the farm does */
+                d.when += ((now - d.when) / connections[d.index].rpi_ns + 1) * connections[d.index].rpi_ns;
             heap_push(heap, &size, d);
         }
         struct itimerspec arm = {.it_value = {heap[0].when / 1000000000LL, heap[0].when % 1000000000LL}};
