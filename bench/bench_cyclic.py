@@ -395,6 +395,10 @@ def parse_rows(text: str) -> list[tuple[int, float]]:
     return rows
 
 
+def p99(figures: dict) -> str:
+    return f"{figures['err_p99_ms']:.2f}" if figures["intervals"] else "-"
+
+
 COLUMNS = [
     ("conns", lambda r: f"{r['farm']['admitted']}" + (f" (+{r['farm']['refused']} refused)" if r['farm']['refused']
                                                         else "")),
@@ -408,14 +412,14 @@ COLUMNS = [
     ("timed out", lambda r: f"{r['farm']['timeouts']}"),
     ("originator late sends (latest ms)",
      lambda r: f"{r['farm']['sends_late']:,} ({r['farm']['send_lag_max_ms']:.1f})"),
-    ("error p50/p99/max ms", lambda r: f"{r['farm']['err_p50_ms']:.2f} / {r['farm']['err_p99_ms']:.2f} / "
-                                       f"{r['farm']['err_max_ms']:.1f}"),
+    ("error p50/p99/max ms", lambda r: "-" if not r['farm']['intervals'] else
+     f"{r['farm']['err_p50_ms']:.2f} / {r['farm']['err_p99_ms']:.2f} / {r['farm']['err_max_ms']:.1f}"),
     ("farm CPU %", lambda r: f"{r['farm']['peer_cpu_percent']:.0f}"),
     ("originator CPU %", lambda r: f"{r['farm']['originator_cpu_percent']:.0f}"),
     ("kernel drops", lambda r: f"{r['farm']['peer_socket_drops'] + r['farm']['originator_socket_drops']:,} "
                                f"({r['farm']['host_udp_errors']:,})"),
-    ("C responder: lost, p99 ms, CPU %", lambda r: "-" if not r.get("c") else
-     f"{r['c']['lost']}, {r['c']['err_p99_ms']:.2f}, {r['c']['peer_cpu_percent']:.0f}"),
+    ("C responder: T->O received, p99 ms, CPU %", lambda r: "-" if not r.get("c") else
+     f"{r['c']['t_o_received_window']:,}, {p99(r['c'])}, {r['c']['peer_cpu_percent']:.0f}"),
     ("pairs/CPU-s farm / C", lambda r: f"{r['farm']['pairs_per_cpu_s']:,.0f} / " +
      ("-" if not r.get("c") else f"{r['c']['pairs_per_cpu_s']:,.0f}")),
     ("ratio", lambda r: "-" if not r.get("c") else f"{r['farm']['pairs_per_cpu_s'] / r['c']['pairs_per_cpu_s']:.3f}"),
