@@ -47,8 +47,10 @@
 
 #define MAX_CONNECTIONS 20000
 #define BATCH 256
-#define CONN_BUCKET_NS 5000    /* per-connection error histogram: 5 us buckets */
-#define CONN_BUCKETS 4001      /* up to 20 ms, the last bucket is "more" */
+#define CONN_BUCKET_NS 5000    /* per-connection error histogram: 5 us buckets up to 20 ms, */
+#define CONN_FINE 4000
+#define CONN_COARSE_NS 1000000 /* then 1 ms buckets up to 1 s, */
+#define CONN_BUCKETS (CONN_FINE + 980 + 1) /* the last bucket is "more" */
 #define ALL_BUCKET_NS 1000     /* all connections: 1 us buckets */
 #define ALL_BUCKETS 1000001    /* up to 1 s */
 #define LATE_SEND_NS 1000000   /* a send more than 1 ms after its deadline is a late send */
@@ -265,6 +267,7 @@ static void take(const uint8_t *data, int length, int64_t stamp_mono) {
             if (periods > 1) c->missed += periods - 1;
             if (error > c->max_error_ns) c->max_error_ns = error;
             int64_t bucket = error / CONN_BUCKET_NS;
+            if (bucket >= CONN_FINE) bucket = CONN_FINE + (error - (int64_t)CONN_FINE * CONN_BUCKET_NS) / CONN_COARSE_NS;
             c->histogram[bucket < CONN_BUCKETS - 1 ? bucket : CONN_BUCKETS - 1]++;
             bucket = error / ALL_BUCKET_NS;
             all_histogram[bucket < ALL_BUCKETS - 1 ? bucket : ALL_BUCKETS - 1]++;
@@ -322,7 +325,10 @@ static int64_t quantile_us(const uint32_t *histogram, uint64_t count, double q) 
     uint64_t rank = (uint64_t)(q * (count - 1)), seen = 0;
     for (int b = 0; b < CONN_BUCKETS; b++) {
         seen += histogram[b];
-        if (seen > rank) return (int64_t)b * CONN_BUCKET_NS / 1000;
+        if (seen > rank)
+            return (b < CONN_FINE ? (int64_t)b * CONN_BUCKET_NS
+                                  : (int64_t)CONN_FINE * CONN_BUCKET_NS + (int64_t)(b - CONN_FINE) * CONN_COARSE_NS) /
+                   1000;
     }
     return -1;
 }
