@@ -151,6 +151,12 @@ def udp_drops(inodes: set[int]) -> int:
     return total
 
 
+def host_busy_seconds() -> float:
+    """CPU time every CPU of the host spent busy (/proc/stat: all but idle and iowait)."""
+    fields = [int(v) for v in Path("/proc/stat").read_text().split("\n", 1)[0].split()[1:]]
+    return (sum(fields[:8]) - fields[3] - fields[4]) / CLK_TCK
+
+
 def snmp_udp_errors() -> int:
     """Host-wide UDP RcvbufErrors + InErrors (/proc/net/snmp)."""
     lines = [line.split() for line in Path("/proc/net/snmp").read_text().splitlines() if line.startswith("Udp:")]
@@ -282,9 +288,9 @@ def drive(binary: Path, connections: list[Connection], rpi_us: int, udp: socket.
         peer_inodes = socket_inodes(peer_pids)
         own_inode = {os.fstat(fd).st_ino}
 
-        def sample() -> tuple[float, float, int, int, int]:
+        def sample() -> tuple[float, float, int, int, int, float]:
             return (cpu_seconds(peer_pids), cpu_seconds([originator.pid]), udp_drops(peer_inodes),
-                    udp_drops(own_inode), snmp_udp_errors())
+                    udp_drops(own_inode), snmp_udp_errors(), host_busy_seconds())
 
         if read_line(originator.stdout, warmup + LINE_TIMEOUT_MARGIN) != "start":
             raise SystemExit("the originator did not start its window")
@@ -307,6 +313,8 @@ def drive(binary: Path, connections: list[Connection], rpi_us: int, udp: socket.
         "originator_cpu_percent": 100 * (after[1] - before[1]) / wall,
         "peer_socket_drops": after[2] - before[2], "originator_socket_drops": after[3] - before[3],
         "host_udp_errors": after[4] - before[4],
+        # what else kept the host busy in the window (other programs, this script, the kernel's own work)
+        "other_cpu_percent": 100 * ((after[5] - before[5]) - (after[0] - before[0]) - (after[1] - before[1])) / wall,
     })
     delivered = figures["o_t_sent_window"] - figures["peer_socket_drops"]
     figures["o_t_received_window"] = delivered
@@ -416,6 +424,7 @@ COLUMNS = [
      f"{r['farm']['err_p50_ms']:.2f} / {r['farm']['err_p99_ms']:.2f} / {r['farm']['err_max_ms']:.1f}"),
     ("farm CPU %", lambda r: f"{r['farm']['peer_cpu_percent']:.0f}"),
     ("originator CPU %", lambda r: f"{r['farm']['originator_cpu_percent']:.0f}"),
+    ("other CPU %", lambda r: f"{r['farm']['other_cpu_percent']:.0f}"),
     ("kernel drops", lambda r: f"{r['farm']['peer_socket_drops'] + r['farm']['originator_socket_drops']:,} "
                                f"({r['farm']['host_udp_errors']:,})"),
     ("C responder: T->O received, p99 ms, CPU %", lambda r: "-" if not r.get("c") else
