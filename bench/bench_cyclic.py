@@ -40,6 +40,7 @@ Every loop is bounded in count and time; traffic goes to 127.0.0.0/8 only.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import os
 import resource
@@ -211,14 +212,34 @@ def start_farm(config: Path, workers: int, cpus: str | None, log: Path) -> subpr
     raise SystemExit("the farm did not listen in time")
 
 
-def stop(process: subprocess.Popen) -> None:
+def started(pid: int) -> int | None:
+    """The process's start time (clock ticks after boot), None once it has gone or is a zombie:
+    with the pid, it names one process even after the pid is reused."""
+    try:
+        fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+    except (FileNotFoundError, ProcessLookupError):
+        return None
+    return None if fields[0] == "Z" else int(fields[19])
+
+
+def stop(process: subprocess.Popen, timeout: float = 60.0) -> None:
+    """SIGTERM, then wait until the process and every process below it (the farm's workers) have
+    gone, SIGKILL for any left after `timeout`: the next run binds the same addresses."""
+    below = [(pid, started(pid)) for pid in descendants(process.pid)[1:]]
+    below = [(pid, start) for pid, start in below if start is not None]
     if process.poll() is None:
         process.send_signal(signal.SIGTERM)
-        try:
-            process.wait(30)
-        except subprocess.TimeoutExpired:
-            process.kill()
-            process.wait(10)
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline and (process.poll() is None
+                                           or any(started(pid) == start for pid, start in below)):
+        time.sleep(0.05)
+    for pid, start in below:
+        if started(pid) == start:  # still the same process
+            with contextlib.suppress(ProcessLookupError):
+                os.kill(pid, signal.SIGKILL)
+    if process.poll() is None:
+        process.kill()
+    process.wait(10)
 
 
 def forward_open(hosts: list[str], rpi_us: int, port: int, multiplier: int = 2) -> tuple[list[Connection], int]:

@@ -13,7 +13,7 @@
  * --bind ADDR:PORT). A sender thread sends O->T on absolute deadlines (clock_nanosleep
  * TIMER_ABSTIME, connection k offset by k/N of its RPI) in batches with sendmmsg, waking on a grid of
  * --batch-us (default 100 us: a send is at most that late by design, so that 1000 connections do not
- * cost 100 000 wake-ups a second); a receiver thread drains the socket with recvmmsg every 200 us
+ * cost 100 000 wake-ups a second); a receiver thread drains the socket with recvmmsg every millisecond
  * and takes each T->O datagram's kernel receive time (SO_TIMESTAMPNS), so this program's own
  * scheduling does not count against the peer. With --realtime P (root) both threads run SCHED_FIFO at
  * priority P, so that other load on the machine does not make the originator late; they sleep
@@ -94,7 +94,7 @@ static uint64_t sends_late, send_errors;
 static int64_t send_lag_max_ns;
 static int realtime;                      /* --realtime: SCHED_FIFO for both threads (root) */
 static int64_t batch_ns = 100000;         /* --batch-us */
-static int64_t receive_pause_ns = 200000; /* the receiver reads the socket this often when it is drained */
+static int64_t receive_pause_ns = 1000000; /* the receiver reads the socket this often when it is drained */
 static uint32_t *table; /* T->O id -> index + 1, open addressing */
 static uint32_t table_mask;
 
