@@ -195,7 +195,26 @@ def write_farm_config(path: Path, count: int, first: str, implicit: str = "") ->
                          f"implicit: {{first_watchdog_s: 60{', ' + implicit if implicit else ''}}}}}\n")
 
 
-def start_farm(config: Path, workers: int, cpus: str | None, log: Path) -> subprocess.Popen:
+def start_farm(config: Path, workers: int, cpus: str | None, log: Path, attempts: int = 3) -> subprocess.Popen:
+    """`enip-farm serve` once every device listens. A port that is in use for a moment (a listener on
+    0.0.0.0:44818 somewhere else on a shared machine takes every address) is tried again."""
+    for attempt in range(1, attempts + 1):
+        try:
+            return _start_farm(config, workers, cpus, log)
+        except PortInUse as error:
+            print(f"  {error}; {'trying again in 2 s' if attempt < attempts else 'giving up'}",
+                  file=sys.stderr, flush=True)
+            if attempt == attempts:
+                raise SystemExit(str(error)) from None
+            time.sleep(2)
+    raise AssertionError("unreachable")
+
+
+class PortInUse(Exception):
+    pass
+
+
+def _start_farm(config: Path, workers: int, cpus: str | None, log: Path) -> subprocess.Popen:
     out = log.with_suffix(".out")
     with out.open("w") as stdout, log.open("w") as stderr:
         farm = subprocess.Popen([*taskset(cpus), sys.executable, "-m", "enip_farm", "serve", "--quiet",
@@ -206,7 +225,10 @@ def start_farm(config: Path, workers: int, cpus: str | None, log: Path) -> subpr
         if out.read_text().strip():
             return farm
         if farm.poll() is not None:
-            raise SystemExit(f"the farm exited with {farm.returncode}: {log.read_text()[-2000:]}")
+            errors = log.read_text()[-2000:]
+            if "already in use" in errors:
+                raise PortInUse(f"the farm could not bind: {errors.strip().splitlines()[-1]}")
+            raise SystemExit(f"the farm exited with {farm.returncode}: {errors}")
         time.sleep(0.1)
     farm.kill()
     raise SystemExit("the farm did not listen in time")
