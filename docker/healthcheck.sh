@@ -1,10 +1,30 @@
 #!/bin/bash
 # The image's HEALTHCHECK: healthy when every device address the entrypoint added has a socket
 # listening on TCP 44818, read from the kernel's table (/proc/net/tcp) rather than by connecting, so
-# the probe costs no connection and adds no line to the farm's log. Bash builtins only (no
-# interpreter start per probe); the cost grows with this container's device count.
+# the probe costs no connection and adds no line to the farm's log, and when class-1 I/O runs: the
+# farm sets its heartbeat file's time every second while its cyclic I/O thread turns (one file per
+# worker, FILE.i), so a file older than HEARTBEAT_MAX_AGE seconds means a farm that answers explicit
+# requests while no device sends T->O. Bash and stat only; the cost grows with the device count.
 #   ENIP_FARM_ADDRESS_FILE  the entrypoint's list of addresses (default /run/enip-farm.addresses)
+#   ENIP_FARM_HEARTBEAT     the farm's heartbeat file (the image sets it; unset: not checked)
+#   ENIP_FARM_HEARTBEAT_MAX_AGE  seconds (default 10)
 set -u
+HEARTBEAT_MAX_AGE=${ENIP_FARM_HEARTBEAT_MAX_AGE:-10}
+heartbeat=${ENIP_FARM_HEARTBEAT:-}
+if [ -n "$heartbeat" ]; then
+    now=$(printf '%(%s)T' -1)
+    beats=0
+    for beat in "$heartbeat" "$heartbeat".*; do
+        [ -e "$beat" ] || continue
+        beats=$((beats + 1))
+        age=$((now - $(stat -c %Y "$beat")))
+        if [ "$age" -gt "$HEARTBEAT_MAX_AGE" ]; then
+            echo "class-1 I/O is not running: $beat was last set ${age} s ago" >&2
+            exit 1
+        fi
+    done
+    [ "$beats" -gt 0 ] || { echo "no heartbeat at $heartbeat yet: class-1 I/O is not running" >&2; exit 1; }
+fi
 file=${ENIP_FARM_ADDRESS_FILE:-/run/enip-farm.addresses}
 [ -s "$file" ] || { echo "no address list at $file yet" >&2; exit 1; }
 # /proc/net/tcp: "sl local_address rem_address st ...", the address as 8 hex digits of the
@@ -24,4 +44,4 @@ while read -r address; do
     fi
     count=$((count + 1))
 done < "$file"
-echo "$count devices listen on TCP 44818"
+echo "$count devices listen on TCP 44818${heartbeat:+, class-1 I/O running}"

@@ -1,6 +1,8 @@
 """The compose file's tester: read every device of the cell with pycomm3 and print a summary.
 
-    python docker/tester.py /etc/enip-farm/cell.yaml [--passes 3]
+    python docker/tester.py /etc/enip-farm/cell.yaml [--passes 3] [--wait SECONDS]
+With --wait (an engine that starts everything at once: Swarm, Kubernetes), first send ListIdentity
+to every device (`enip-farm probe`) until all answer or SECONDS pass.
 For every device: ListIdentity (UDP), then its input and output assemblies (Get Attribute Single
 of class 4, instances 101 and 100, over TCP). Devices that fail are tried again, up to `--passes`
 passes one second apart. Exit status 0 only if every device answered all three.
@@ -9,6 +11,7 @@ passes one second apart. Exit status 0 only if every device answered all three.
 from __future__ import annotations
 
 import argparse
+import subprocess
 import sys
 import time
 
@@ -45,7 +48,17 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("config", nargs="?", default="/etc/enip-farm/cell.yaml")
     parser.add_argument("--passes", type=int, default=3)
+    parser.add_argument("--wait", type=float, default=0.0, metavar="SECONDS")
     args = parser.parse_args(argv)
+    deadline = time.monotonic() + args.wait
+    while args.wait > 0:
+        probe = subprocess.run(["enip-farm", "probe", "--config", args.config, "--timeout", "2"],
+                               capture_output=True, text=True, timeout=60)
+        if probe.returncode == 0 or time.monotonic() >= deadline:
+            print(f"waited {args.wait - max(0.0, deadline - time.monotonic()):.0f} s: {probe.stdout.strip()}",
+                  flush=True)
+            break
+        time.sleep(1.0)
     profiles = build_profiles(load_config(args.config), shipped_catalogue())
     lines: dict[str, str] = {}
     pending = list(profiles)

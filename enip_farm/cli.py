@@ -13,12 +13,13 @@ from urllib.parse import urlsplit
 
 import click
 
+from enip_farm.cli_engines import COMMANDS as engine_commands
 from enip_farm.config import ConfigError, FarmConfig, default_config_path, load_config
 from enip_farm.console import Console, configure_logging
 from enip_farm.device.build import build_profiles
 from enip_farm.device.catalogue import shipped_catalogue
 from enip_farm.device.faults import Fault, FaultError, FaultKind
-from enip_farm.farm import BindError, Farm, freeze_heap, new_event_loop
+from enip_farm.farm import BindError, Farm, freeze_heap, new_event_loop, until_stopped_or_failed
 from enip_farm.fleet import shard
 from enip_farm.table import device_table
 
@@ -117,19 +118,25 @@ def _banner(devices: int, config: FarmConfig, config_path: Path | None, http_url
                    "or ENIP_FARM_SHARD)")
 @click.option("--record", type=click.Path(dir_okay=False, path_type=Path), default=None,
               help="write every TCP and UDP exchange to this pcap file")
+@click.option("--heartbeat", envvar="ENIP_FARM_HEARTBEAT", type=click.Path(dir_okay=False, path_type=Path),
+              default=None, help="set this file's time every second while cyclic I/O runs (worker i: FILE.i); "
+                                 "docker/healthcheck.sh reads it (or ENIP_FARM_HEARTBEAT)")
+@click.option("--state", "state", type=click.Path(dir_okay=False, path_type=Path), default=None,
+              help="keep the devices' non-volatile state (a safety target's TUNID, configuration, owner) in this "
+                   "JSON file across restarts: read at start, written at stop")
 def serve(config_path: Path | None, log_level: str, quiet: bool, http: str | None, token: str | None, workers: int,
-          shard_spec: str | None, record: Path | None) -> None:
+          shard_spec: str | None, record: Path | None, heartbeat: Path | None, state: Path | None) -> None:
     """Serve every device of a cell until Ctrl-C or SIGTERM, logging what happens to them."""
     address = _http_address(http)
     configure_logging(log_level, quiet)
     config = _select(_load(config_path, build=bool(shard_spec) or workers > 1), shard_spec)
     if workers > 1:
-        if record:
-            raise click.UsageError("--record writes one file: use it with --workers 1")
+        if record or state:
+            raise click.UsageError("--record and --state write one file: use them with --workers 1")
         from enip_farm.workers import serve_workers
 
-        sys.exit(serve_workers(config, workers, address, token, log_level, quiet))
-    farm = _farm(config, http=address, token=token, record=record)
+        sys.exit(serve_workers(config, workers, address, token, log_level, quiet, heartbeat))
+    farm = _farm(config, http=address, token=token, record=record, heartbeat=heartbeat, state=state)
     loop = new_event_loop()
     asyncio.set_event_loop(loop)
     try:
@@ -139,6 +146,8 @@ def serve(config_path: Path | None, log_level: str, quiet: bool, http: str | Non
         sys.exit(1)
     finally:
         loop.close()
+    if farm.failure is not None:
+        sys.exit(1)
 
 
 async def _serve(farm: Farm, config_path: Path | None) -> None:
@@ -155,7 +164,8 @@ async def _serve(farm: Farm, config_path: Path | None) -> None:
         for line in _banner(len(farm.devices), farm.config, config_path,
                             farm.http.url if farm.http is not None else None):
             click.echo(line, err=True)
-        await stop.wait()
+        click.echo(f"cyclic I/O budget: {farm.budget.describe()}", err=True)
+        await until_stopped_or_failed(stop, farm)
     finally:
         console.close()
         await farm.stop()
@@ -371,6 +381,19 @@ def fault(first: str, second: str | None, third: str | None, delay_ms: float, ma
         sys.exit(2)
     active = _request("POST", api, f"/devices/{first}/faults", token, json=body)
     click.echo(f"{first}: active faults: " + ", ".join(f["kind"] for f in active))  # type: ignore[union-attr]
+
+
+@main.command()
+@click.argument("device")
+@click.option("--type", "kind", type=click.IntRange(0, 2), default=0, show_default=True,
+              help="0 power cycle, 1 out-of-box configuration, 2 out-of-box but the communication parameters")
+@_api_option
+@_token_option
+def reset(device: str, kind: int, api: str, token: str | None) -> None:
+    """Power-cycle or reset a device of a running farm, as its Identity Reset does: its TCP
+    connections drop, its connections close, it answers nothing for its reset time."""
+    done = _request("POST", api, f"/devices/{device}/reset", token, json={"type": kind})
+    click.echo(f"{device}: reset type {kind}, answering again in {done['reset_time_s']:g} s")  # type: ignore[index]
 
 
 #: The `fault` command's flag for each parameter of a Fault.
@@ -719,3 +742,9 @@ def eio_export(config_path: Path | None, output: Path | None) -> None:
     output.write_text(text)
     click.echo(f"{output}: {len(config.devices)} devices, {sum(len(d.signals) for d in config.devices)} "
                "named signals", err=True)
+
+
+# -- beyond one host: Docker Swarm, Kubernetes, the shards' one HTTP API (cli_engines.py) -----------
+
+for _command in engine_commands:
+    main.add_command(_command)

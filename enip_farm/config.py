@@ -80,6 +80,10 @@ class ImplicitConfig(_Strict):
     rpi_max_us: int = Field(10_000_000, le=0xFFFFFFFF, description="largest accepted RPI, microseconds")
     max_class1_connections: int = Field(8, ge=0, le=256)
     max_class3_connections: int = Field(6, ge=0, le=256)
+    class3_rpi_min_us: int = Field(1_000, ge=1, description="smallest accepted RPI of a class-3 (explicit) "
+                                   "connection, microseconds; its timeout is RPI x 2^(2 + multiplier)")
+    class3_rpi_max_us: int = Field(60_000_000, le=0xFFFFFFFF, description="largest accepted class-3 RPI, "
+                                   "microseconds (pycomm3 asks for 2.1 s, cpppo for 2 s)")
     idle_state: Literal["off", "hold"] = Field("off", description="outputs on Idle and on Forward Close")
     fault_state: Literal["off", "hold"] = Field("off", description="outputs when a connection times out")
     explicit_output_writes_while_owned: bool = Field(
@@ -93,6 +97,8 @@ class ImplicitConfig(_Strict):
     def _range(self) -> ImplicitConfig:
         if self.rpi_min_us > self.rpi_max_us:
             raise ValueError("rpi_min_us is larger than rpi_max_us")
+        if self.class3_rpi_min_us > self.class3_rpi_max_us:
+            raise ValueError("class3_rpi_min_us is larger than class3_rpi_max_us")
         return self
 
 
@@ -239,8 +245,25 @@ class RuleConfig(_Strict):
     delay_ms: float = Field(0.0, ge=0)
 
 
+class CyclicIoConfig(_Strict):
+    """What the farm's cyclic I/O thread (one per worker) may carry."""
+
+    budget_datagrams_per_s: int | Literal["auto"] = Field(
+        "auto", description="class-1 datagrams per second (O->T taken plus T->O sent) one worker admits "
+        "connections for; past it a Forward Open gets 0x01/0x0113. auto: measured at start (the CPU cost of "
+        "a consumed and produced packet on this machine, for 70 % of a core)")
+
+    @field_validator("budget_datagrams_per_s")
+    @classmethod
+    def _positive(cls, value: int | str) -> int | str:
+        if isinstance(value, int) and value <= 0:
+            raise ValueError("must be positive, or auto")
+        return value
+
+
 class FarmConfig(_Strict):
     devices: list[DeviceConfig] = Field(min_length=1)
+    cyclic_io: CyclicIoConfig = CyclicIoConfig()
     discovery: bool = Field(True, description="answer broadcast ListIdentity on 0.0.0.0:44818")
     max_tcp_connections: int = Field(60000, ge=1, description="TCP connections of all devices at once (also "
                                      "bounded by the open-file limit)")

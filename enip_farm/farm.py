@@ -4,7 +4,14 @@ responder), and closes them all again.
 
 When a device resets (Identity Reset, its "reset" event), the farm closes the device's TCP
 connections and listener once the reply has been written, and listens again when the device's
-reset window ends (`Device.end_reset`, asked at the window's deadline and never before)."""
+reset window ends (`Device.end_reset`, asked at the window's deadline and never before).
+
+Nothing of the farm dies silently: an exception that escapes a callback or task of the event loop
+is counted (`loop_errors`) and logged with its traceback (once per kind and 10 s); the cyclic I/O
+thread supervises its own loop (server/implicit.py) and the farm checks every second that it
+runs: `health()` says so (the HTTP API's /health, /metrics, the container's heartbeat file), and a
+thread that has ended fails the farm (`failed` is set: `enip-farm serve` exits 1), never leaving a
+farm that answers explicit requests while no device sends T->O."""
 
 from __future__ import annotations
 
@@ -21,7 +28,8 @@ from pathlib import Path
 from typing import Any, TypeVar
 
 from enip_farm.capture.recorder import Recorder
-from enip_farm.config import FarmConfig, as_config
+from enip_farm.cip.budget import CyclicBudget
+from enip_farm.config import ConfigError, FarmConfig, as_config
 from enip_farm.control.handle import DeviceHandle
 from enip_farm.control.http import HttpApi, bind_problem
 from enip_farm.control.wiring import Wiring
@@ -30,14 +38,19 @@ from enip_farm.device.catalogue import Catalogue, shipped_catalogue
 from enip_farm.device.device import ENIP_PORT, Device
 from enip_farm.device.events import Event
 from enip_farm.device.faults import Fault, FaultKind
+from enip_farm.device.nonvolatile import load_state, save_state
+from enip_farm.server.calibrate import DEFAULT_DATAGRAMS_PER_S, measure_budget
 from enip_farm.server.implicit import IO_PORT, ImplicitIo
-from enip_farm.server.limits import TcpLimits
+from enip_farm.server.limits import RateLimitedLog, TcpLimits
 from enip_farm.server.tcp import EncapsulationProtocol
 from enip_farm.server.udp import DeviceDatagramProtocol, DiscoveryResponder, udp_socket
+from enip_farm.server.waits import os_wait_s
 
 log = logging.getLogger(__name__)
 #: Sockets per device at rest: a TCP listener, UDP 44818 and UDP 2222; each client connection adds one.
 SOCKETS_PER_DEVICE = 3
+#: How often the farm checks its cyclic I/O thread (and touches the heartbeat file while it runs), s.
+SUPERVISE_S = 1.0
 
 
 T = TypeVar("T")
@@ -94,22 +107,35 @@ class Farm:
 
     def __init__(self, config: FarmConfig | Mapping[str, Any] | str | Path, http: tuple[str, int] | None = None,
                  token: str | None = None, record: str | Path | None = None,
-                 catalogue: Catalogue | None = None) -> None:
+                 catalogue: Catalogue | None = None, heartbeat: str | Path | None = None,
+                 state: str | Path | None = None) -> None:
         """`config`: a FarmConfig, a dict as a YAML file holds it, or a file's path; `http`: serve
         the HTTP API on (host, port), port 0 picks a free one (see `http.port`); `record`: write the
         farm's traffic to this pcap file; `catalogue`: the models the devices name (default: the
-        shipped catalogue). Raises ConfigError if the configuration is invalid or its devices
-        cannot be built."""
+        shipped catalogue); `heartbeat`: a file whose time the farm sets every second while its
+        cyclic I/O runs (docker/healthcheck.sh reads it); `state`: a JSON file of the devices'
+        non-volatile state (a safety target's TUNID, configuration and owner), restored now if it
+        exists and written at `stop` (device/nonvolatile.py). Raises ConfigError if the configuration
+        is invalid or its devices cannot be built, or the state file is not one."""
         self.config = config = as_config(config)
         profiles = build_profiles(config, shipped_catalogue() if catalogue is None else catalogue)
         self.recorder = Recorder(record) if record else None
         self._http_address = http
         self._http_token = token
         self.http: HttpApi | None = None
-        self.devices: dict[str, Device] = {p.name: Device(p) for p in profiles}
+        self._profiles = profiles
+        #: What this farm's cyclic I/O thread admits connections for (set at start: measured or configured).
+        self.budget = CyclicBudget(DEFAULT_DATAGRAMS_PER_S, "not started")
+        self.devices: dict[str, Device] = {p.name: Device(p, self.budget) for p in profiles}
         self.handles: dict[str, DeviceHandle] = {name: DeviceHandle(self, d) for name, d in self.devices.items()}
         for device in self.devices.values():
             device.recorder = self.recorder
+        self.state_file = Path(state) if state is not None else None
+        if self.state_file is not None:
+            try:
+                load_state(self.devices, self.state_file)
+            except (ValueError, KeyError, TypeError) as error:
+                raise ConfigError(f"state file: {error}") from None
         self.wiring = Wiring(self)
         self._servers: dict[str, asyncio.AbstractServer] = {}
         self._connections: set[EncapsulationProtocol] = set()
@@ -124,6 +150,13 @@ class Farm:
             device.observe(lambda event, d=device: self._on_device_event(d, event))
         self.loop: asyncio.AbstractEventLoop | None = None
         self.running = False
+        self.heartbeat = Path(heartbeat) if heartbeat is not None else None
+        self.loop_errors = 0  # exceptions that escaped a callback or task of the event loop
+        self.failure: str | None = None  # why the farm failed (it is not serving as it should)
+        self.failed: asyncio.Event | None = None  # set when it fails: `enip-farm serve` exits 1
+        self._errors = RateLimitedLog(log)
+        self._supervisor: asyncio.TimerHandle | None = None
+        self._previous_handler: Any = None
 
     @property
     def tcp_limits(self) -> TcpLimits | None:
@@ -153,6 +186,9 @@ class Farm:
 
     async def start(self) -> None:
         loop = self.loop = asyncio.get_running_loop()
+        self.failed = asyncio.Event()
+        self._previous_handler = loop.get_exception_handler()
+        loop.set_exception_handler(self._loop_exception)
         raise_open_file_limit()
         self._tcp_limits = TcpLimits(self.config.max_tcp_connections, SOCKETS_PER_DEVICE * len(self.devices),
                                      logging.getLogger("enip_farm.server.tcp"))
@@ -170,6 +206,12 @@ class Farm:
                 )
                 self._datagram_transports.append(transport)
                 endpoints.append(endpoint)
+            budget = self.config.cyclic_io.budget_datagrams_per_s
+            if budget == "auto":
+                measured = measure_budget(self._profiles)
+                self.budget.set(measured.datagrams_per_s, measured.source)
+            else:
+                self.budget.set(budget, "configured")
             self._implicit = ImplicitIo()
             for device in self.devices.values():
                 try:
@@ -177,6 +219,7 @@ class Farm:
                 except OSError as error:
                     raise BindError(_bind_message(device, "UDP", error, IO_PORT)) from None
             self._implicit.start()
+            self._supervisor = loop.call_later(SUPERVISE_S, self._supervise)
             if self._http_address is not None:
                 host, port = self._http_address
                 try:
@@ -198,6 +241,11 @@ class Farm:
         self.running = True
 
     async def stop(self) -> None:
+        if self._supervisor is not None:
+            self._supervisor.cancel()
+            self._supervisor = None
+        if self.loop is not None and self.loop.get_exception_handler() == self._loop_exception:
+            self.loop.set_exception_handler(self._previous_handler)
         if self.http is not None:
             await self.http.stop()
             self.http = None
@@ -223,7 +271,67 @@ class Farm:
         self._servers.clear()
         if self.recorder is not None:
             self.recorder.close()
+        if self.state_file is not None:
+            save_state(self.devices, self.state_file)
         self.running = False
+
+    # -- supervision ---------------------------------------------------------------------------
+
+    def health(self) -> dict[str, Any]:
+        """Whether the farm serves as it should: `ok` is False while class-1 I/O is not running
+        (its thread ended or its loop stalled) or the farm has failed."""
+        implicit = self._implicit
+        running = implicit is not None and implicit.running(time.monotonic_ns())
+        return {"ok": self.running and running and self.failure is None, "failure": self.failure,
+                "cyclic_io": {"running": running, "errors": implicit.loop_errors if implicit is not None else 0,
+                              "device_errors": sum(d.counters["io_errors"] for d in self.devices.values())},
+                "loop_errors": self.loop_errors}
+
+    def cyclic_io_load(self) -> dict[str, Any]:
+        """The budget (datagrams/s), what the open connections take of it, Forward Opens refused for
+        want of it, and how late the I/O thread runs (worst of the last second, overloads)."""
+        implicit = self._implicit
+        return {"budget_datagrams_per_s": self.budget.datagrams_per_s, "budget_source": self.budget.source,
+                "reserved_datagrams_per_s": self.budget.reserved, "refused": self.budget.refused,
+                "lag_s": implicit.lag.worst_ns / 1e9 if implicit is not None else 0.0,
+                "overloads": implicit.lag.overloads if implicit is not None else 0}
+
+    def _loop_exception(self, loop: asyncio.AbstractEventLoop, context: dict[str, Any]) -> None:
+        """The event loop's exception handler: count, log with the traceback (rate-limited), go on."""
+        self.loop_errors += 1
+        message = context.get("message", "unexpected error")
+        exception = context.get("exception")
+        self._errors.log(logging.ERROR, f"loop {message}", time.monotonic(), "event loop: %s (%d so far)%s",
+                         message, self.loop_errors, f": {exception!r}" if exception else "",
+                         exc_info=exception if isinstance(exception, BaseException) else False)
+
+    def _supervise(self) -> None:
+        """Every SUPERVISE_S on the loop: the cyclic I/O thread must be alive; while it runs, the
+        heartbeat file's time is set."""
+        self._supervisor = None
+        if not self.running:
+            if self._implicit is not None and self.loop is not None:  # still starting
+                self._supervisor = self.loop.call_later(SUPERVISE_S, self._supervise)
+            return
+        implicit = self._implicit
+        if implicit is None or not implicit.thread.is_alive():
+            self._fail("the cyclic I/O thread has ended: no device sends T->O")
+            return
+        try:
+            if self.heartbeat is not None and implicit.running(time.monotonic_ns()):
+                self.heartbeat.touch()  # creates it, or sets its time
+        except OSError as error:
+            self._errors.log(logging.WARNING, "heartbeat", time.monotonic(), "heartbeat file %s: %s",
+                             self.heartbeat, error.strerror)
+        self._supervisor = self.loop.call_later(SUPERVISE_S, self._supervise)  # type: ignore[union-attr]
+
+    def _fail(self, reason: str) -> None:
+        """The farm cannot serve as it should: say so once and let `serve` exit non-zero."""
+        if self.failure is None:
+            self.failure = reason
+            log.critical("the farm failed: %s; stopping", reason)
+        if self.failed is not None:
+            self.failed.set()
 
     # -- faults (device/faults.py) ---------------------------------------------------------------
 
@@ -239,9 +347,29 @@ class Farm:
             server = self._servers.pop(name)
             server.close()
         if fault.duration_s is not None:
-            loop = asyncio.get_running_loop()
-            self._fault_timers[name, fault.kind] = loop.call_later(
-                fault.duration_s, lambda: loop.create_task(self.clear_faults(name, fault.kind)))
+            self._arm_fault_end(name, fault.kind, asyncio.get_running_loop().time() + fault.duration_s)
+
+    def _arm_fault_end(self, name: str, kind: FaultKind, end: float) -> None:
+        """Clear the fault at `end` (loop time), in bounded steps (server/waits.py)."""
+        loop = asyncio.get_running_loop()
+        delay = end - loop.time()
+        if delay > 0 and os_wait_s(delay) < delay:
+            self._fault_timers[name, kind] = loop.call_later(os_wait_s(delay), self._arm_fault_end, name, kind, end)
+            return
+        self._fault_timers[name, kind] = loop.call_later(
+            os_wait_s(delay), lambda: self._spawn(self.clear_faults(name, kind)))
+
+    def _spawn(self, coroutine: Coroutine[Any, Any, Any]) -> None:
+        """A task of the farm, kept until it ends; its exception reaches the loop's handler."""
+        task = self.loop.create_task(coroutine)  # type: ignore[union-attr]
+        self._tasks.add(task)
+        task.add_done_callback(self._task_done)
+
+    def _task_done(self, task: asyncio.Task) -> None:
+        self._tasks.discard(task)
+        if not task.cancelled() and task.exception() is not None and self.loop is not None:
+            self.loop.call_exception_handler({"message": "a farm task failed", "exception": task.exception(),
+                                              "task": task})
 
     async def clear_faults(self, name: str, kind: FaultKind | None = None) -> list[FaultKind]:
         """Switch one fault (or all) off; normal behaviour returns without a restart."""
@@ -280,7 +408,7 @@ class Farm:
         if timer is not None:
             timer.cancel()
         if due is not None and self.loop is not None:
-            delay_s = max(due - time.monotonic_ns(), 0) / 1e9
+            delay_s = os_wait_s((due - time.monotonic_ns()) / 1e9)
             self._reset_timers[device.name] = self.loop.call_later(delay_s, self._end_reset, device)
 
     def _end_reset(self, device: Device) -> None:
@@ -289,9 +417,7 @@ class Farm:
             self._arm_reset_end(device)  # the timer came a little early: wait for the deadline itself
             return
         if self.running and not device.faults.offline and device.name not in self._servers:
-            task = self.loop.create_task(self._listen_after_reset(device))  # type: ignore[union-attr]
-            self._tasks.add(task)
-            task.add_done_callback(self._tasks.discard)
+            self._spawn(self._listen_after_reset(device))
 
     async def _listen_after_reset(self, device: Device) -> None:
         try:
@@ -336,6 +462,18 @@ class Farm:
             yield self
         finally:
             thread.stop()
+
+
+async def until_stopped_or_failed(stop: asyncio.Event, farm: Farm) -> None:
+    """Wait for `stop` (a signal) or the farm's failure, whichever comes first."""
+    waits = [asyncio.ensure_future(stop.wait())]
+    if farm.failed is not None:
+        waits.append(asyncio.ensure_future(farm.failed.wait()))
+    try:
+        await asyncio.wait(waits, return_when=asyncio.FIRST_COMPLETED)
+    finally:
+        for wait in waits:
+            wait.cancel()
 
 
 class FarmThread:

@@ -12,6 +12,9 @@ from collections.abc import AsyncIterator, Iterator
 
 import httpx
 import uvicorn
+from prometheus_client import CollectorRegistry, generate_latest
+from prometheus_client.metrics_core import Metric
+from prometheus_client.parser import text_string_to_metric_families
 from starlette.applications import Starlette
 from starlette.requests import Request
 from starlette.responses import JSONResponse, Response, StreamingResponse
@@ -26,25 +29,27 @@ _HOP_HEADERS = frozenset({"connection", "keep-alive", "transfer-encoding", "cont
                           "host", "upgrade", "te", "trailer", "proxy-authorization", "proxy-authenticate"})
 
 
-def _merge_metrics(texts: list[str]) -> str:
-    """Prometheus text of several workers as one exposition: each family once (HELP and TYPE from
-    the first worker that has it), with every worker's samples (their `device` labels differ)."""
-    families: dict[str, tuple[list[str], list[str]]] = {}
-    for text in texts:
-        fresh: set[str] = set()
-        current: tuple[list[str], list[str]] | None = None
-        for line in text.splitlines():
-            if line.startswith(("# HELP ", "# TYPE ")):
-                name = line.split(" ", 3)[2]
-                if name not in families:
-                    families[name] = ([], [])
-                    fresh.add(name)
-                current = families[name]
-                if name in fresh:
-                    current[0].append(line)
-            elif line and not line.startswith("#") and current is not None:
-                current[1].append(line)
-    return "".join("\n".join([*header, *samples]) + "\n" for header, samples in families.values())
+def merge_metrics(texts: list[str], labels: list[dict[str, str]] | None = None,
+                  extra: list[Metric] | None = None) -> str:
+    """Prometheus text of several farms as one exposition, parsed and written by prometheus_client:
+    each family once (HELP and TYPE from the first that has it) with every farm's samples, each
+    given `labels[i]` (e.g. its shard) if given, then the families in `extra`."""
+    families: dict[str, Metric] = {}
+    for index, text in enumerate(texts):
+        for family in text_string_to_metric_families(text):
+            merged = families.get(family.name)
+            if merged is None:
+                merged = families[family.name] = Metric(family.name, family.documentation, family.type, family.unit)
+            added = labels[index] if labels else {}
+            merged.samples.extend(sample._replace(labels={**sample.labels, **added}) for sample in family.samples)
+
+    class Merged:
+        def collect(self) -> list[Metric]:
+            return [*families.values(), *(extra or [])]
+
+    registry = CollectorRegistry(auto_describe=False)
+    registry.register(Merged())
+    return generate_latest(registry).decode()
 
 
 def create_router(owners: dict[str, int], apis: list[str]) -> Starlette:
@@ -97,7 +102,7 @@ def create_router(owners: dict[str, int], apis: list[str]) -> Starlette:
         replies = await gather(request, list(range(len(apis))))
         if isinstance(replies, Response):
             return replies
-        return Response(_merge_metrics([reply.text for reply in replies]),
+        return Response(merge_metrics([reply.text for reply in replies]),
                         media_type=replies[0].headers.get("content-type", "text/plain"))
 
     async def events(request: Request) -> Response:
@@ -119,7 +124,7 @@ def create_router(owners: dict[str, int], apis: list[str]) -> Starlette:
                 for opened in streams:
                     await opened.aclose()
                 return response_of(reply)
-        return StreamingResponse(_merged_events(streams), media_type="text/event-stream")
+        return StreamingResponse(merged_events(streams), media_type="text/event-stream")
 
     async def state(request: Request) -> Response:
         names = request.query_params.getlist("device")
@@ -136,6 +141,19 @@ def create_router(owners: dict[str, int], apis: list[str]) -> Starlette:
         wanted = {name: position for position, name in enumerate(names)} if names else order
         merged.sort(key=lambda device: wanted.get(device.get("name"), len(wanted)))
         return JSONResponse(merged)
+
+    async def health(request: Request) -> Response:
+        """Every worker's /health; 503 unless every worker answers ok (a worker that does not
+        answer is not ok)."""
+        async def one(api: str) -> dict:
+            try:
+                reply = await client().get(api + "/health", timeout=2.0)
+                return reply.json()
+            except (httpx.HTTPError, ValueError) as error:
+                return {"ok": False, "failure": f"no answer: {error!r}"}
+        workers = await asyncio.gather(*(one(api) for api in apis))
+        ok = all(worker.get("ok") for worker in workers)
+        return JSONResponse({"ok": ok, "workers": workers}, status_code=200 if ok else 503)
 
     async def other(request: Request) -> Response:  # /openapi.json, /docs: every worker has the same
         return await forward(request, 0)
@@ -154,11 +172,12 @@ def create_router(owners: dict[str, int], apis: list[str]) -> Starlette:
         Route("/metrics", metrics, methods=["GET"]),
         Route("/events", events, methods=["GET"]),
         Route("/state", state, methods=["GET"]),
+        Route("/health", health, methods=["GET"]),
         Route("/{rest:path}", other, methods=methods),
     ], lifespan=lifespan)
 
 
-async def _merged_events(streams: list[httpx.Response]) -> AsyncIterator[bytes]:
+async def merged_events(streams: list[httpx.Response]) -> AsyncIterator[bytes]:
     """Server-sent events of several workers as one stream, event by event (blank-line framed)."""
     merged: asyncio.Queue[bytes | None] = asyncio.Queue()
 

@@ -18,6 +18,7 @@ import queue
 import signal
 import sys
 from collections.abc import Callable
+from pathlib import Path
 from typing import Any
 
 import click
@@ -25,7 +26,7 @@ import click
 from enip_farm.config import FarmConfig, parse_config
 from enip_farm.console import Console, configure_logging
 from enip_farm.control.guard import needs_token
-from enip_farm.farm import BindError, Farm, freeze_heap, new_event_loop
+from enip_farm.farm import BindError, Farm, freeze_heap, new_event_loop, until_stopped_or_failed
 from enip_farm.fleet import split
 from enip_farm.fleet_api import RouterServer, create_router, router_port, serving_router
 from enip_farm.table import TABLE_HEADER, device_table
@@ -34,9 +35,11 @@ _START_TIMEOUT = 120.0
 
 
 def _worker(index: int, config_data: dict[str, Any], http: bool, token: str | None,
-            reports: multiprocessing.Queue, log_level: str = "info", quiet: bool = False) -> None:
+            reports: multiprocessing.Queue, log_level: str = "info", quiet: bool = False,
+            heartbeat: str | None = None) -> None:
     configure_logging(log_level, quiet)
-    farm = Farm(parse_config(config_data, f"worker {index}"), http=("127.0.0.1", 0) if http else None, token=token)
+    farm = Farm(parse_config(config_data, f"worker {index}"), http=("127.0.0.1", 0) if http else None, token=token,
+                heartbeat=f"{heartbeat}.{index}" if heartbeat else None)
     loop = new_event_loop()
     asyncio.set_event_loop(loop)
 
@@ -53,9 +56,9 @@ def _worker(index: int, config_data: dict[str, Any], http: bool, token: str | No
         console.start(loop)
         freeze_heap()
         reports.put((index, "ready", (device_table(farm.devices.values(), header=False),
-                                      farm.http.port if farm.http is not None else 0)))
+                                      farm.http.port if farm.http is not None else 0, farm.budget.describe())))
         try:
-            await stop.wait()
+            await until_stopped_or_failed(stop, farm)
         finally:
             console.close()
             await farm.stop()
@@ -64,10 +67,12 @@ def _worker(index: int, config_data: dict[str, Any], http: bool, token: str | No
         loop.run_until_complete(run())
     finally:
         loop.close()
+    if farm.failure is not None:
+        sys.exit(1)  # the parent sees a worker end and stops the others (exit 1)
 
 
 def serve_workers(config: FarmConfig, count: int, http: tuple[str, int] | None, token: str | None,
-                  log_level: str = "info", quiet: bool = False) -> int:
+                  log_level: str = "info", quiet: bool = False, heartbeat: str | Path | None = None) -> int:
     """Run the workers (and the fleet's HTTP API if `http`) until a signal; the exit status for the CLI."""
     if http and needs_token(http[0]) and not token:
         click.echo(f"the HTTP API on {http[0]} needs a token (--token or ENIP_FARM_TOKEN); "
@@ -80,7 +85,8 @@ def serve_workers(config: FarmConfig, count: int, http: tuple[str, int] | None, 
     for index, part in enumerate(parts):
         process = context.Process(target=_worker, name=f"enip-farm-worker-{index}", daemon=False,
                                   args=(index, part.model_dump(mode="json", by_alias=True), http is not None,
-                                        token, reports, log_level, quiet))
+                                        token, reports, log_level, quiet,
+                                        str(heartbeat) if heartbeat else None))
         process.start()
         processes.append(process)
     owners = {device.name: index for index, part in enumerate(parts) for device in part.devices}
@@ -97,6 +103,7 @@ def serve_workers(config: FarmConfig, count: int, http: tuple[str, int] | None, 
     try:
         tables: dict[int, str] = {}
         ports: dict[int, int] = {}
+        budgets: dict[int, str] = {}
         while len(tables) < len(processes) and not stopping:
             try:
                 index, kind, payload = reports.get(timeout=_START_TIMEOUT)
@@ -108,7 +115,7 @@ def serve_workers(config: FarmConfig, count: int, http: tuple[str, int] | None, 
                 click.echo(f"worker {index}: {payload}", err=True)
                 status = 1
                 break
-            tables[index], ports[index] = payload
+            tables[index], ports[index], budgets[index] = payload
         if status == 0 and not stopping:
             apis = [f"http://127.0.0.1:{ports[i]}" for i in range(len(processes))]
             with contextlib.ExitStack() as stack:
@@ -120,17 +127,19 @@ def serve_workers(config: FarmConfig, count: int, http: tuple[str, int] | None, 
                         click.echo(error.strerror or str(error), err=True)
                         status = 1
                 if status == 0:
-                    status = _run(config, processes, tables, http, router, lambda: stopping)
+                    status = _run(config, processes, tables, http, router, lambda: stopping, budgets)
     finally:
         status = _stop(processes, previous, status)
     return status
 
 
 def _run(config: FarmConfig, processes: list, tables: dict[int, str], http: tuple[str, int] | None,
-         router: RouterServer | None, stopping: Callable[[], bool]) -> int:
+         router: RouterServer | None, stopping: Callable[[], bool], budgets: dict[int, str]) -> int:
     """Every worker listens: print the table and wait for a signal or a worker's end."""
     click.echo("\n".join([TABLE_HEADER, *(tables[i] for i in sorted(tables))]))
     click.echo(f"{len(config.devices)} devices in {len(processes)} workers. Ctrl-C to stop.", err=True)
+    for index in sorted(budgets):
+        click.echo(f"worker {index} cyclic I/O budget: {budgets[index]}", err=True)
     if http and router is not None:
         click.echo(f"HTTP API on http://{http[0]}:{router_port(router)} (the devices of all {len(processes)} "
                    "workers)", err=True)

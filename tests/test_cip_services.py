@@ -295,7 +295,7 @@ def test_reset_refusals_both_clients(make_farm, cpppo_plain: None) -> None:
     device = make_farm({"name": "io1", "model": "DSQC1030"}).device("io1")
     address = device.profile.address
     with CIPDriver(address) as driver:
-        assert generic(driver, 0x05, 1, 1, data=b"\x02").error == "Unknown Error (20)"  # pycomm3 names no 0x20
+        assert generic(driver, 0x05, 1, 1, data=b"\x03").error == "Unknown Error (20)"  # pycomm3 names no 0x20
         assert generic(driver, 0x05, 1, 1, data=b"\x00\x00").error == "Too much data"
         assert generic(driver, 0x0E, 1, 1, 1).value == b"\x4b\x00"  # still answering
     assert cpppo_replies(address, cpppo_op(0x05, "@1/1", b"\x07"), cpppo_op(0x05, "@1/1", b"\x00\x00"),

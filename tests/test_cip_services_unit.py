@@ -186,7 +186,7 @@ def test_identity_state_matches_list_identity() -> None:
     assert ask(device, encode_request(0x01, encode_request_path(1, 1))).data.endswith(b"\x08DSQC1030")  # 1-7 only
 
 
-@pytest.mark.parametrize(("data", "status"), [(b"\x02", 0x20), (b"\xff", 0x20), (b"\x00\x00", 0x15)])
+@pytest.mark.parametrize(("data", "status"), [(b"\x03", 0x20), (b"\xff", 0x20), (b"\x00\x00", 0x15)])
 def test_reset_refusals(data: bytes, status: int) -> None:
     device = make_device()
     reply = ask(device, encode_request(0x05, encode_request_path(1, 1), data))
@@ -241,6 +241,19 @@ def test_reset_type_1_restores_the_configured_settings() -> None:
         "0500" "0600 0000 0800" + b"cell-io1".hex() + "0800 0000 01" "0a00 0000 00" "0c00 0000 00" "0d00 0000 3c00")
     assert ask(device, encode_request(0x0E, encode_request_path(0xF6, 1, 6))).data == b"\x01\x00\x00\x00"
     assert device.events.of_kind("reset")[0].text == "type 1 (out-of-box configuration): not answering for 1 s"
+
+
+def test_reset_type_2_keeps_the_communication_parameters() -> None:
+    device = make_device(host_name="cell-io1")
+    assert ask(device, set_list(0xF5, 1, (8, b"\x07"), (6, b"\x02\x00ab"))).general_status == 0
+    assert ask(device, encode_request(0x10, encode_request_path(0xF6, 1, 6), b"\x02\x00\x64\x00")).general_status == 0
+    assert ask(device, encode_request(0x05, encode_request_path(1, 1), b"\x02")).general_status == 0
+    assert device.restarts == 1 and device.identity_state == 1
+    assert ask(device, get_list(0xF5, 1, 6, 8)).data == bytes.fromhex(
+        "0200" "0600 0000 0200" + b"ab".hex() + "0800 0000 07")
+    assert ask(device, encode_request(0x0E, encode_request_path(0xF6, 1, 6))).data == b"\x02\x00\x64\x00"
+    assert device.events.of_kind("reset")[0].text == (
+        "type 2 (out-of-box configuration but the communication parameters): not answering for 1 s")
 
 
 def test_reset_in_a_multiple_service_packet_happens_after_the_whole_packet() -> None:
@@ -309,7 +322,7 @@ def test_tcpip_get_attributes_all_layout() -> None:
     data = ask(make_device(), encode_request(0x01, encode_request_path(0xF5, 1))).data
     expected = bytes.fromhex(
         "01000000"                                  # 1 status: valid configuration
-        "04000000"                                  # 2 capability: DHCP client
+        "00000000"                                  # 2 capability: no BOOTP/DHCP client, not settable
         "00000000"                                  # 3 control: static
         "0200 20f6 2401"                            # 4 physical link: 2 words, Ethernet Link instance 1
         "0100007f 00ffffff 00000000 00000000 00000000 0000"  # 5 127.0.0.1/24, no gateway, name servers, domain
@@ -400,7 +413,8 @@ def test_interface_counters_wrap_as_udints() -> None:
 
 
 @pytest.mark.parametrize(("path", "status"), [((0xF6, 1, 1), 0x2E), ((0xF6, 1, 10), 0x2E), ((0xF6, 1, 12), 0x14),
-                                              ((0xF6, 1, None), 0x14), ((0xF6, 0, 4), 0x14), ((1, 1, 1), 0x08)])
+                                              ((0xF6, 1, None), 0x14), ((0xF6, 0, 4), 0x2E), ((0xF6, 0, 8), 0x14),
+                                                  ((1, 1, 1), 0x08)])
 def test_get_and_clear_elsewhere(path: tuple, status: int) -> None:
     assert ask(make_device(), encode_request(0x4C, encode_request_path(*path))).general_status == status
 

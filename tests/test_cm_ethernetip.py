@@ -15,7 +15,10 @@ from pathlib import Path
 import pytest
 
 from enip_farm.farm import Farm
-from tests.cm_ethernetip import CmOriginator, make_venv, node_address
+from enip_farm.protocol.cip import encode_request
+from enip_farm.protocol.epath import encode_request_path
+from tests.cm_ethernetip import CmOriginator, CmTarget, make_venv, node_address
+from tests.helpers import RawClient
 
 pytestmark = pytest.mark.system
 
@@ -137,3 +140,48 @@ def test_safety_open_refusals_as_cm_ethernetip_reads_them(
     farm = enip_farm(name="s1", model="DSQC1042")
     error = originator(**safety_args(farm, **overrides)).wait("open")
     assert error["event"] == "error" and error["error"] == f"Server Forward Open failed: {status}"
+
+
+def _supervisor_requests(node: int) -> list[tuple[str, int, bytes]]:
+    tunid = bytes.fromhex("0000000000b7") + node.to_bytes(4, "little")
+    return [("Apply_TUNID with no proposal", 0x57, tunid), ("Propose_TUNID", 0x56, tunid),
+            ("Apply_TUNID", 0x57, tunid), ("Propose_TUNID cancel", 0x56, b"\xff" * 10),
+            ("Propose_TUNID short", 0x56, tunid[:9]), ("Safety_Reset without data", 0x54, b""),
+            ("Safety_Reset type 3", 0x54, b"\x03" + bytes(26))]
+
+
+def _ask_supervisor(address: str, node: int) -> list[tuple[int, bytes]]:
+    answers = []
+    with RawClient(address) as client:
+        client.register()
+        for _, service, data in _supervisor_requests(node):
+            reply = client.request(encode_request(service, encode_request_path(0x39, 1), data))
+            answers.append((reply.general_status, reply.data))
+        for attribute in (25, 27, 28):  # CFUNID, TUNID (as applied), output connection point owners
+            reply = client.request(encode_request(0x0E, encode_request_path(0x39, 1, attribute)))
+            answers.append((reply.general_status, reply.data))
+    return answers
+
+
+def test_safety_supervisor_answers_as_cm_ethernetip_target_does(
+        enip_farm: Callable[..., Farm], cm_python: Path, free_address: Callable[[], str]) -> None:
+    """The same Propose/Apply_TUNID, Safety_Reset and attribute requests to the farm's DSQC1042 and
+    to cm-ethernetip's own safety target (same SNN, each its own node address): the same statuses
+    and values. Where they differ on purpose (README, *CIP Safety*): an Apply_TUNID of another
+    TUNID than the proposed one (cm 0x20, the farm 0x0C), a Safety_Reset with a wrong password (cm
+    takes it, the farm 0x0F), and attributes 1-6, which cm numbers its own way."""
+    farm = enip_farm(name="s1", model="DSQC1042")
+    target_address = free_address()
+    target = CmTarget(cm_python, target_address, "000000000001")
+    try:
+        theirs = _ask_supervisor(target_address, node_address(target_address))
+    finally:
+        target.close()
+    ours = _ask_supervisor(farm["s1"].address, node_address(farm["s1"].address))
+    names = [name for name, _, _ in _supervisor_requests(0)] + ["CFUNID", "TUNID", "owners"]
+    expected_statuses = [0x0C, 0, 0, 0, 0x13, 0x13, 0x20, 0, 0, 0]
+    assert [status for status, _ in ours] == expected_statuses, list(zip(names, ours, strict=True))
+    assert [status for status, _ in theirs] == expected_statuses, list(zip(names, theirs, strict=True))
+    assert ours[7][1] == theirs[7][1] == bytes(10) and ours[9][1] == theirs[9][1] == b"\x00\x00"
+    for answers, address in ((ours, farm["s1"].address), (theirs, target_address)):
+        assert answers[8][1] == bytes.fromhex("0000000000b7") + node_address(address).to_bytes(4, "little")

@@ -323,14 +323,17 @@ def test_serve_talks(free_address: AddressPool, tmp_path: Path) -> None:
     log = tmp_path / "serve.log"
     with log.open("w") as stderr, serving(["serve", "--config", str(config), "--http", "0"], table_rows=1,
                                           stderr=stderr) as (server, _):
-        assert wait_for(lambda: "dashboard on" in log.read_text(), timeout=STARTUP_S)
+        assert wait_for(lambda: "cyclic I/O budget" in log.read_text(), timeout=STARTUP_S)
         banner = log.read_text().splitlines()
         api = banner[1].split()[-1]
-        assert banner == [
+        assert banner[:3] == [
             f"1 devices listening on TCP and UDP 44818, from {config}. Ctrl-C to stop.",
             f"HTTP API on {api}",
             f"dashboard on {api}/ and API docs on {api}/docs; `enip-farm io` and `enip-farm fault` use this API "
             f"with --api {api}"]
+        assert len(banner) == 4 and re.fullmatch(
+            r"cyclic I/O budget: [\d ]+ datagrams/s per worker \([\d ]+ connections at RPI 10 ms; measured at start: "
+            r"[\d.]+ us of CPU per O->T/T->O pair, for 60% of a core\)", banner[3]), banner[3]
         with RawClient(address) as client:
             client.register()
             client.request(forward_open(rpi=1_000)[0])

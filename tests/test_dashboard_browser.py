@@ -164,6 +164,19 @@ def test_a_fault_is_injected_and_cleared_from_the_card(enip_farm, browser) -> No
     assert [error for error in page_errors(browser) if "422 (Unprocessable" not in error] == []
 
 
+def test_the_power_cycle_button_resets_the_device(enip_farm, browser) -> None:
+    farm = enip_farm(name="io", model="DSQC1030", http=True, reset_time_s=0.5)
+    io = farm["io"]
+    open_page(browser, f"http://127.0.0.1:{farm.http.port}/", "io")
+    card = browser.find_element("css selector", ".card[data-device='io']")
+    card.find_element("css selector", ".power-cycle").click()
+    until(lambda: [e.kind for e in io.events() if e.kind.startswith("reset")] == ["reset", "reset done"],
+          "the device reset and answering again")
+    assert io.events("reset")[0].detail.startswith("type 0 (power cycle)")
+    until(lambda: "io: power cycled" in browser.find_element("id", "message").text, "the reset said")
+    assert page_errors(browser) == []
+
+
 def test_the_filter_shows_the_matching_devices(enip_farm, browser) -> None:
     farm = enip_farm({"devices": [
         {"name": "press1", "model": "DSQC1030"}, {"name": "press2", "model": "DSQC1030", "addons": ["DSQC1032"]},

@@ -36,6 +36,7 @@ SEQUENCE_COUNT_SIZE = 2
 RUN_IDLE_HEADER_SIZE = 4
 _SELF = PortSegment(1, b"\x00")  # a route to this device itself: backplane port 1, slot 0
 _CLASS_1, _CLASS_3 = 0x01, 0x03
+_MAX_TIMEOUT_MULTIPLIER = 7  # x512; 8-255 are reserved (Vol. 1, 3-5.4.1.4)
 _ASSEMBLY, _MESSAGE_ROUTER = 0x04, 0x02
 
 
@@ -54,6 +55,8 @@ class ConnectionPolicy:
     listen_only_point: int | None
     multicast_group: str
     safety: SafetyPolicy | None = None  # a CIP Safety target: SafetyOpens admitted, class-1 refused
+    class3_rpi_min_us: int = 1_000  # class-3 RPIs accepted (the connection timeout's base)
+    class3_rpi_max_us: int = 60_000_000
 
 
 class KeyIdentity(NamedTuple):
@@ -161,6 +164,8 @@ class Admission:
                connections: Collection[Connection], taken_ids: Callable[[int], bool]) -> Connection:
         if any(c.triad == request.triad for c in connections):
             raise _refuse(X.CONNECTION_IN_USE)
+        if request.timeout_multiplier > _MAX_TIMEOUT_MULTIPLIER:  # reserved: no timeout can be computed
+            raise _refuse(X.PARAMETER_ERROR)
         o_t_type = request.o_t_parameters.connection_type
         t_o_type = request.t_o_parameters.connection_type
         if o_t_type == ConnectionType.NULL and t_o_type == ConnectionType.NULL:
@@ -303,7 +308,11 @@ class Admission:
         if (request.o_t_parameters.connection_type != ConnectionType.POINT_TO_POINT
                 or request.t_o_parameters.connection_type != ConnectionType.POINT_TO_POINT):
             raise _refuse(X.INVALID_CONNECTION_TYPE)
-        if sum(not c.is_io for c in connections) >= self.policy.max_class3_connections:
+        policy = self.policy
+        for rpi in (request.o_t_rpi, request.t_o_rpi):  # RPI 0 included: the timeout would be 0
+            if not policy.class3_rpi_min_us <= rpi <= policy.class3_rpi_max_us:
+                raise _refuse(X.RPI_NOT_SUPPORTED)
+        if sum(not c.is_io for c in connections) >= policy.max_class3_connections:
             raise _refuse(X.OUT_OF_CONNECTIONS)
         return Connection(
             kind=ConnectionKind.EXPLICIT, triad=request.triad, o_t_id=self._new_connection_id(taken_ids),

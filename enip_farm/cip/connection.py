@@ -8,9 +8,10 @@ Times are integers in nanoseconds of a monotonic clock that the caller passes in
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from enum import Enum
 
+from enip_farm.cip.budget import Reservation
 from enip_farm.cip.safety.segment import Unid
 from enip_farm.cip.safety.validator import SafetyConsumer, SafetyProducer
 from enip_farm.protocol.connection import ConnectionTriad
@@ -57,10 +58,12 @@ class Connection:
     instance: int = 0  # CIP Safety: the Safety Validator instance id
     ounid: Unid | None = None  # CIP Safety: the originator's UNID
     t_o_sequence: int = 0  # CIP Safety server: the sequence of its time coordination messages
-    @property
-    def timeout_ns(self) -> int:
-        """Connection timeout: O->T RPI x 2^(2 + multiplier) (Vol. 1, 3-4.4.9)."""
-        return self.o_t_rpi * 1000 << (2 + min(self.timeout_multiplier, 7))
+    reservation: Reservation | None = None  # what it holds of the I/O thread's budget (cip/budget.py)
+    #: Connection timeout: O->T RPI x 2^(2 + multiplier) (Vol. 1, 3-4.4.9), ns; both are fixed at the Forward Open.
+    timeout_ns: int = field(init=False)
+
+    def __post_init__(self) -> None:
+        self.timeout_ns = self.o_t_rpi * 1000 << (2 + min(self.timeout_multiplier, 7))
 
     @property
     def timeout(self) -> float:

@@ -1,8 +1,9 @@
 """The connection table of one device, sans-IO (CIP Networks Library Vol. 1, 3-4 and 3-5.5;
 Vol. 2, 3-2 and 3-3), in the style of aioquic's `QuicConnection`:
 
-- Forward Open (admitted or refused by cip/admission.py), Forward Close, and the close cascade
-  of listen-only connections;
+- Forward Open (admitted or refused by cip/admission.py, then within the I/O thread's budget,
+  cip/budget.py: past it 0x01/0x0113), Forward Close, and the close cascade of listen-only
+  connections;
 - consumption of O->T packets (`receive_datagram`): originator, sequence window, run/idle, size;
 - production of T->O packets on absolute deadlines (`datagrams_to_send`);
 - supervision (`get_timer`, `handle_timer`): the first watchdog, then exactly the last valid
@@ -34,18 +35,20 @@ from enip_farm.cip.admission import (
     Refusal,
 )
 from enip_farm.cip.assembly import AssemblyInstance
+from enip_farm.cip.budget import CyclicBudget
 from enip_farm.cip.connection import Connection, ConnectionKind, Production
 from enip_farm.cip.safety.admission import SafetyOpen
 from enip_farm.cip.safety.validator import SafetyConsumer, SafetyProducer
 from enip_farm.protocol.commands import SocketAddress, encode_sockaddr
 from enip_farm.protocol.connection import (
+    IO_HEADER_SIZE,
     ConnectionTriad,
     ForwardOpenRequest,
     IoPacket,
     class0_data,
-    decode_io_packet,
     encode_class0_packet,
     encode_io_packet,
+    unpack_io_header,
 )
 from enip_farm.protocol.cpf import ItemType
 from enip_farm.protocol.session import ReplyItems
@@ -91,8 +94,9 @@ class ConnectionTable:
 
     def __init__(self, assemblies: Mapping[str, AssemblyInstance], policy: ConnectionPolicy,
                  identity: Callable[[], KeyIdentity], counters: Counter[str] | None = None,
-                 rng: random.Random | None = None) -> None:
+                 rng: random.Random | None = None, budget: CyclicBudget | None = None) -> None:
         self.assemblies = assemblies
+        self.budget = budget
         self.policy = policy
         self.admission = Admission(assemblies, policy, identity, rng)
         self.counters: Counter[str] = counters if counters is not None else Counter()
@@ -150,7 +154,10 @@ class ConnectionTable:
 
     def supervision_due(self, now: int) -> bool:
         """Whether `handle_timer(now)` would close a connection."""
-        return any(connection.deadline <= now for connection in self.connections.values())
+        for connection in self.connections.values():
+            if connection.deadline <= now:
+                return True
+        return False
 
     # -- Forward Open, Forward Close -------------------------------------------------------------
 
@@ -161,7 +168,12 @@ class ConnectionTable:
                                                                                           connection), now))
             return connection
         if type(connection) is SafetyOpen:
-            return self._safety_opened(connection, now)
+            refusal = self._reserve(connection.connection, request, originator, now)
+            return refusal if refusal is not None else self._safety_opened(connection, now)
+        if connection.is_io:
+            refusal = self._reserve(connection, request, originator, now)
+            if refusal is not None:
+                return refusal
         self.connections[connection.o_t_id] = connection
         self._by_triad[connection.triad] = connection
         items: ReplyItems = ()
@@ -179,6 +191,24 @@ class ConnectionTable:
                 items = ((ItemType.SOCKADDR_T_O, encode_sockaddr(SocketAddress(*connection.t_o_address))),)  # type: ignore[misc]
         self._events.append(ConnectionEvent("connection opened", connection, "", now))
         return Opened(connection, items)
+
+    def _reserve(self, connection: Connection, request: ForwardOpenRequest, originator: Originator,
+                 now: int) -> Refusal | None:
+        """Take the connection's datagrams per second from the I/O thread's budget, or refuse it
+        (0x01/0x0113, Vol. 1 table 3-5.33) with the figures."""
+        budget = self.budget
+        if budget is None:
+            return None
+        shares = (connection.t_o_id, connection.t_o_address) in self.productions
+        rate = budget.rate(connection.o_t_rpi, None if shares else connection.t_o_rpi)
+        connection.reservation = budget.reserve(rate)
+        if connection.reservation is not None:
+            return None
+        refusal = Refusal(X.OUT_OF_CONNECTIONS)
+        self._events.append(ConnectionEvent("connection refused", None, _refused_open(request, originator, refusal) + (
+            f": the farm's cyclic I/O budget is {budget.datagrams_per_s:.0f} datagrams/s per worker, "
+            f"{budget.reserved:.0f} taken, this connection needs {rate:.0f}"), now))
+        return refusal
 
     def _safety_opened(self, opened: SafetyOpen, now: int) -> Opened:
         connection = opened.connection
@@ -227,6 +257,9 @@ class ConnectionTable:
         if connection.closed:
             return
         connection.closed = True
+        if connection.reservation is not None and self.budget is not None:
+            self.budget.release(connection.reservation)
+            connection.reservation = None
         if connection.safety is not None:
             self._safety_connections -= 1
         self.connections.pop(connection.o_t_id, None)
@@ -285,22 +318,24 @@ class ConnectionTable:
         and, once a first valid packet came, only from that packet's port (a forger on another port
         of the same host cannot advance the sequence). Every other datagram is counted by why it
         was not taken."""
-        packet = decode_io_packet(data)
-        if packet is None:
+        fields = unpack_io_header(data)
+        if fields is None:
             return self._drop("malformed")
-        connection = self.connections.get(packet.connection_id)
-        if connection is None or not connection.is_io:
+        connection_id, sequence, sequence_count = fields
+        connection = self.connections.get(connection_id)
+        if connection is None or connection.kind is ConnectionKind.EXPLICIT:
             return self._drop("unknown_connection")
         if host != connection.originator_host:
             return self._drop("wrong_originator")
         if port is not None and connection.o_t_port is not None and port != connection.o_t_port:
             return self._drop("wrong_port")
         last = connection.last_sequence
-        if last is not None and not 0 < (packet.sequence - last) & 0xFFFFFFFF < _HALF:
+        if last is not None and not 0 < (sequence - last) & 0xFFFFFFFF < _HALF:
             return self._drop("stale")  # a duplicate or older than what was consumed (Vol. 2, 3-2.1)
         if connection.safety is not None:
-            return self._receive_safety(connection, packet, now, port)
-        payload = packet.data
+            return self._receive_safety(connection, IoPacket(connection_id, sequence, sequence_count,
+                                                             data[IO_HEADER_SIZE:]), now, port)
+        payload = data[IO_HEADER_SIZE:]
         if connection.o_t_run_idle_header:
             if len(payload) < RUN_IDLE_HEADER_SIZE:
                 return self._drop("wrong_size")
@@ -314,7 +349,7 @@ class ConnectionTable:
         else:
             run = not payload or bool(payload[0] & 1)
             image = None
-        connection.last_sequence = packet.sequence
+        connection.last_sequence = sequence
         if connection.o_t_port is None:
             connection.o_t_port = port
         connection.last_received = now
@@ -384,30 +419,47 @@ class ConnectionTable:
     def datagrams_to_send(self, now: int) -> list[tuple[bytes, tuple[str, int]]]:
         """The T->O packets due by `now`, one per stream; a stream that fell a whole period behind
         skips the missed periods rather than bursting."""
-        due = [p for p in self.productions.values() if p.due <= now]
+        return self.produce(now)[0]
+
+    def produce(self, now: int) -> tuple[list[tuple[bytes, tuple[str, int]]], int | None]:
+        """`datagrams_to_send(now)` and then `get_timer()`, in one pass over the streams (the cyclic
+        I/O thread's call, once per stream and period)."""
         out = self._pending_time_coordination(now) if self._safety_connections and self._safety_pending else []
-        if not due:
+        data = None
+        earliest = None
+        for production in self.productions.values():
+            due = production.start + production.count * production.period_ns
+            if due <= now:
+                if data is None:
+                    data = bytes(self.assemblies["input"].data)
+                production.sequence += 1
+                if production.safety is None:
+                    out.append((encode_io_packet(production.connection_id, production.sequence, production.sequence,
+                                                 data), production.address))
+                else:
+                    message = production.safety.produce(data, now)
+                    out.append((encode_class0_packet(production.connection_id, production.sequence, message),
+                                production.address))
+                    self.counters["safety_packets_produced"] += 1
+                production.count += 1
+                behind = now - due - production.period_ns
+                if behind >= 0:  # the next one is already due: skip to the first deadline after now
+                    skipped = behind // production.period_ns + 1
+                    production.count += skipped
+                    production.late += skipped
+                due = production.start + production.count * production.period_ns
+            if earliest is None or due < earliest:
+                earliest = due
+        if out:
             self.counters["t_o_packets"] += len(out)
-            return out
-        data = bytes(self.assemblies["input"].data)
-        for production in due:
-            production.sequence += 1
-            if production.safety is None:
-                out.append((encode_io_packet(production.connection_id, production.sequence, production.sequence,
-                                             data), production.address))
-            else:
-                message = production.safety.produce(data, now)
-                out.append((encode_class0_packet(production.connection_id, production.sequence, message),
-                            production.address))
-                self.counters["safety_packets_produced"] += 1
-            production.count += 1
-            behind = now - production.due
-            if behind >= 0:  # the next one is already due: skip to the first deadline after now
-                skipped = behind // production.period_ns + 1
-                production.count += skipped
-                production.late += skipped
-        self.counters["t_o_packets"] += len(out)
-        return out
+        for connection in self.connections.values():
+            deadline = connection.deadline
+            if earliest is None or deadline < earliest:
+                earliest = deadline
+            safety = connection.safety
+            if type(safety) is SafetyConsumer and safety.tcoo_due is not None and safety.tcoo_due < earliest:
+                earliest = safety.tcoo_due
+        return out, earliest
 
     @property
     def _safety_pending(self) -> bool:

@@ -104,6 +104,8 @@ class InterfaceCounters:
 class EthernetLinkObject(CipClass):
     class_id = 0xF6
     revision = 4
+    optional_attributes = tuple(range(4, 12))
+    optional_services = (Service.GET_AND_CLEAR,)
 
     def __init__(self, *, mac: bytes, speed_mbps: int = 100) -> None:
         super().__init__()

@@ -3,9 +3,10 @@ code, revision, status, serial number, product name and state (attributes 1-8), 
 service (0x05, 5-2.4.1).
 
 Reset's request data is an optional USINT, the reset type: 0 (the default, no data) emulates a
-power cycle; 1 returns to the out-of-box configuration, then emulates a power cycle. Other types
-(2, "all but the communication link parameters", is optional) get 0x20 (invalid parameter); more
-than one byte gets 0x15. The object only takes the request: it calls `reset(type)` and answers
+power cycle; 1 returns to the out-of-box configuration, then emulates a power cycle; 2 returns to
+the out-of-box configuration except the communication link parameters (TCP/IP Interface and
+Ethernet Link settings), then emulates a power cycle. Other types get 0x20 (invalid parameter);
+more than one byte gets 0x15. The object only takes the request: it calls `reset(type)` and answers
 success; the device performs the reset once the reply is built, and the server sends that reply
 before it ends the device's sessions (device/device.py, farm.py)."""
 
@@ -35,14 +36,17 @@ STATUS_NO_IO_CONNECTIONS = 0x0030
 #: Attribute 8, state (Vol. 1, 5-2.3): 1 device self testing, 3 operational.
 STATE_SELF_TESTING = 1
 STATE_OPERATIONAL = 3
-#: Reset types (Vol. 1, 5-2.4.1): 0 power cycle, 1 out-of-box configuration and power cycle.
+#: Reset types (Vol. 1, 5-2.4.1): 0 power cycle, 1 out-of-box configuration and power cycle, 2 the
+#: same except the communication link parameters.
 RESET_POWER_CYCLE = 0
 RESET_OUT_OF_BOX = 1
+RESET_KEEP_COMMUNICATION = 2
 
 
 class IdentityObject(CipClass):
     class_id = 0x01
     revision = 1
+    optional_attributes = (8,)
 
     def __init__(self, *, vendor_id: int, device_type: int, product_code: Callable[[], int], revision: tuple[int, int],
                  serial_number: int, product_name: str, status: Callable[[], int],
@@ -72,7 +76,7 @@ class IdentityObject(CipClass):
         if len(data) > 1:
             return ServiceResult(GeneralStatus.TOO_MUCH_DATA)
         kind = data[0] if data else RESET_POWER_CYCLE
-        if kind not in (RESET_POWER_CYCLE, RESET_OUT_OF_BOX):
+        if kind not in (RESET_POWER_CYCLE, RESET_OUT_OF_BOX, RESET_KEEP_COMMUNICATION):
             return ServiceResult(GeneralStatus.INVALID_PARAMETER)
         self._reset(kind)
         return ServiceResult(GeneralStatus.SUCCESS)

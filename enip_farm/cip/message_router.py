@@ -1,14 +1,27 @@
 """Message Router, class 0x02 (CIP Networks Library Vol. 1, 5-3 and 2-4): decodes each explicit
 request, dispatches it by class id, and answers Multiple Service Packet (0x0A) unless the device's
-profile says it does not (a non-routing adapter such as OpENer answers 0x08)."""
+profile says it does not (a non-routing adapter such as OpENer answers 0x08).
+
+Instance 1 attributes (Vol. 1, 5-3): 1 object list (UINT count, class ids), 2 number available
+(UINT: the maximum number of connections supported), 3 number active (UINT: connections open now)."""
 
 from __future__ import annotations
 
 import logging
-import struct
 from collections import Counter
+from collections.abc import Callable
 
-from enip_farm.cip.object import UINT, Attribute, CipClass, CipInstance, Reply, ReplyItems, ServiceResult, constant
+from enip_farm.cip.object import (
+    UINT,
+    Attribute,
+    CipClass,
+    CipInstance,
+    Reply,
+    ReplyItems,
+    ServiceResult,
+    uint_list,
+    uint_list_size,
+)
 from enip_farm.protocol.cip import (
     REPLY_BIT,
     CipDecodeError,
@@ -41,7 +54,8 @@ class MessageRouter(CipClass):
     class_id = 0x02
     revision = 1
 
-    def __init__(self, multiple_service_packet: bool = True) -> None:
+    def __init__(self, multiple_service_packet: bool = True, max_connections: int = 0,
+                 active_connections: Callable[[], int] = lambda: 0) -> None:
         super().__init__()
         self.objects: dict[int, CipClass] = {self.class_id: self}
         self.forced_status: dict[int, int] = {}  # fault injection: service -> general status
@@ -53,17 +67,14 @@ class MessageRouter(CipClass):
             self.handlers[Service.MULTIPLE_SERVICE_PACKET] = self.multiple_service_packet
         self.instances[1] = CipInstance(
             {
-                1: constant(b""),  # replaced once every object is registered
-                2: constant(UINT.pack(len(self.objects))),
+                1: Attribute(lambda: uint_list(tuple(sorted(self.objects))), size=uint_list_size),
+                2: Attribute(lambda: UINT.pack(max_connections)),
+                3: Attribute(lambda: UINT.pack(active_connections())),
             }
         )
 
     def register(self, obj: CipClass) -> None:
         self.objects[obj.class_id] = obj
-        ids = sorted(self.objects)
-        object_list = struct.pack(f"<H{len(ids)}H", len(ids), *ids)
-        self.instances[1].attributes[1] = Attribute(lambda: object_list, size=_object_list_size)
-        self.instances[1].attributes[2] = constant(UINT.pack(len(ids)))
 
     def handle(self, message: bytes, context: MessageContext) -> bytes:
         """A whole request in, a whole reply out (the items beside it, if any, are left out)."""
@@ -146,7 +157,3 @@ class MessageRouter(CipClass):
         status = GeneralStatus.EMBEDDED_SERVICE_ERROR if failed else GeneralStatus.SUCCESS
         return ServiceResult(status, encode_multiple_service(replies))
 
-
-def _object_list_size(data: bytes) -> int | None:
-    """Attribute 1: a UINT count and that many UINT class ids."""
-    return UINT.size * (1 + UINT.unpack_from(data)[0]) if len(data) >= UINT.size else None

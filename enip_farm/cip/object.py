@@ -121,11 +121,28 @@ def cip_string(text: str) -> bytes:
     return UINT.pack(len(raw)) + raw + (b"\x00" if len(raw) % 2 else b"")
 
 
+def uint_list(values: tuple[int, ...]) -> bytes:
+    """A UINT count and that many UINTs (class attributes 4 and 5)."""
+    return struct.pack(f"<H{len(values)}H", len(values), *values)
+
+
+def uint_list_size(data: bytes) -> int | None:
+    return UINT.size * (1 + UINT.unpack_from(data)[0]) if len(data) >= UINT.size else None
+
+
 class CipClass:
-    """A CIP object class. Subclasses set `class_id`, `revision`, add instances and services."""
+    """A CIP object class. Subclasses set `class_id`, `revision`, add instances and services.
+
+    The class attributes (Vol. 1, 4-4.1): 1 revision, 2 max instance, 3 number of instances, 4 the
+    optional instance attributes implemented and 5 the optional services implemented (each a UINT
+    count and that many UINTs; subclasses list them in `optional_attributes`/`optional_services`),
+    6 the highest class attribute id, 7 the highest instance attribute id. Get Attributes All of
+    instance 0 answers 1-7 in that order, as Wireshark's CIP dissector decodes them."""
 
     class_id: int = 0
     revision: int = 1
+    optional_attributes: tuple[int, ...] = ()
+    optional_services: tuple[int, ...] = ()
 
     def __init__(self) -> None:
         self.instances: dict[int, CipInstance] = {}
@@ -134,10 +151,13 @@ class CipClass:
                 1: Attribute(lambda: UINT.pack(self.revision)),
                 2: Attribute(lambda: UINT.pack(max(self.instances, default=0))),
                 3: Attribute(lambda: UINT.pack(len(self.instances))),
-                6: Attribute(lambda: UINT.pack(7)),
+                4: Attribute(lambda: uint_list(self.optional_attributes), size=uint_list_size),
+                5: Attribute(lambda: uint_list(self.optional_services), size=uint_list_size),
+                6: Attribute(lambda: UINT.pack(max(self.class_instance.attributes))),
                 7: Attribute(lambda: UINT.pack(max((max(i.attributes, default=0)
                                                      for i in self.instances.values()), default=0))),
-            }
+            },
+            all_ids=(1, 2, 3, 4, 5, 6, 7),
         )
         self.handlers: dict[int, Handler] = {
             Service.GET_ATTRIBUTE_SINGLE: self.get_attribute_single,

@@ -3,7 +3,7 @@ attributes 1-13 from the device's own address and configuration.
 
 | # | attribute | here |
 |---|---|---|
-| 1-3 | status, configuration capability, configuration control | valid configuration, DHCP-capable, static; read-only |
+| 1-3 | status, capability, control | valid configuration; 0: no BOOTP/DHCP, not settable; static; read-only |
 | 4 | physical link object | path to Ethernet Link instance 1 |
 | 5 | interface configuration | address, mask, gateway of the device; no name servers or domain; read-only |
 | 6 | host name (STRING) | settable: up to 64 letters, digits and inner hyphens (RFC 1123 label) |
@@ -42,9 +42,10 @@ from enip_farm.protocol.status import GeneralStatus
 
 #: Attribute 1: interface configuration status 1 = "valid configuration obtained".
 _STATUS_VALID = 1
-#: Attribute 2: configuration capability: bit 2 DHCP client, bit 4 configuration settable
-#: is left clear because the farm's configuration is read-only.
-_CAPABILITY = 0x04
+#: Attribute 2: configuration capability (Vol. 2, 5-4): no bit set. Bits 0 BOOTP client and 2
+#: DHCP client stay clear because no BOOTP or DHCP runs, bit 4 configuration settable because the
+#: address is the device's configured one (attribute 3 is then read-only, as the spec ties it to bit 4).
+_CAPABILITY = 0x00
 #: Attribute 3: configuration control 0 = static configuration.
 _CONTROL_STATIC = 0
 #: Attribute 13: the largest encapsulation inactivity timeout, seconds.
@@ -135,6 +136,7 @@ class TcpIpInterfaceObject(CipClass):
         )
         if safety_network_number is not None:
             self.instances[1].attributes[7] = constant(safety_network_number)
+        self.optional_attributes = tuple(i for i in sorted(self.instances[1].attributes) if i > 5)
 
     @property
     def inactivity_timeout_s(self) -> int:

@@ -7,7 +7,8 @@
 - **Token**: when one is set, every path needs it (the OpenAPI schema and /docs too), as
   `Authorization: Bearer <token>` with the scheme in any case (RFC 9110 11.1); 401 otherwise.
   Only GET and HEAD of the dashboard's static page and assets (`PUBLIC_PAGE` and what is under
-  `PUBLIC_PREFIX`: no farm data in them) pass without it, since a browser cannot send the header
+  `PUBLIC_PREFIX`: no farm data in them) and of the health check (`PUBLIC_HEALTH`: whether the farm
+  serves, counts only, for orchestrators' probes) pass without it, since a browser cannot send the header
   when it opens a page; the page sends it on every request it makes (control/dashboard.py).
 - **Body size**: at most `MAX_BODY` bytes (413, and the connection is closed). A larger
   Content-Length is refused before any of the body is read; a chunked body is read up to the limit
@@ -29,12 +30,14 @@ WILDCARDS = frozenset({"", "0.0.0.0", "::"})
 #: The dashboard's page and its static assets (control/dashboard.py): served without the token.
 PUBLIC_PAGE = "/"
 PUBLIC_PREFIX = "/dashboard/"
+#: Whether the farm serves (control/http.py): served without the token, for health probes.
+PUBLIC_HEALTH = "/health"
 
 
 def public(scope: Scope) -> bool:
-    """A request for the dashboard's static page or assets, which hold no farm data."""
+    """A request for the dashboard's static page or assets, or the health check: no farm data."""
     path = scope.get("path", "")
-    return scope.get("method") in ("GET", "HEAD") and (path == PUBLIC_PAGE or (
+    return scope.get("method") in ("GET", "HEAD") and (path in (PUBLIC_PAGE, PUBLIC_HEALTH) or (
         path.startswith(PUBLIC_PREFIX) and ".." not in path))
 
 

@@ -43,6 +43,10 @@ class FarmControl(Protocol):
 
     async def clear_faults(self, name: str, kind: FaultKind | None = None) -> list[FaultKind]: ...
 
+    def health(self) -> dict[str, Any]: ...
+
+    def cyclic_io_load(self) -> dict[str, Any]: ...
+
 
 class DeviceHandle:
     def __init__(self, farm: FarmControl, device: Device) -> None:
@@ -161,6 +165,15 @@ class DeviceHandle:
             if event.kind == "image changed" and event.detail.role == "output":
                 callback(self, event.detail.old, event.detail.new)
         self.device.observe(listener)
+
+    # -- reset ----------------------------------------------------------------------------------------
+
+    def reset(self, kind: int = 0) -> bool:
+        """Reset the device as an Identity Reset of type `kind` does (0: power cycle, 1: out-of-box
+        configuration, 2: out-of-box but the communication parameters): its TCP connections drop,
+        its CIP connections close, it answers nothing for its `reset_time_s`, Identity attribute 8
+        says self-testing meanwhile. False if it is resetting already."""
+        return self.device.reset(kind, time.monotonic_ns())
 
     # -- faults -------------------------------------------------------------------------------------
 

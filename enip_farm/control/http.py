@@ -27,7 +27,7 @@ from typing import Annotated, Any
 import uvicorn
 from fastapi import FastAPI, HTTPException, Query
 from fastapi.exceptions import RequestValidationError
-from fastapi.responses import PlainTextResponse
+from fastapi.responses import JSONResponse, PlainTextResponse
 from fastapi_offline import FastAPIOffline
 from prometheus_client import CollectorRegistry, generate_latest
 from prometheus_client.exposition import CONTENT_TYPE_LATEST
@@ -73,6 +73,11 @@ class FaultRequest(BaseModel):
     duration_s: float | None = Field(None, description="end the fault by itself after this long (> 0)")
 
 
+class ResetRequest(BaseModel):
+    type: int = Field(0, ge=0, le=2, description="0 power cycle, 1 out-of-box configuration, "
+                      "2 out-of-box configuration but the communication parameters (Identity Reset types)")
+
+
 def _io(farm: FarmControl, name: str) -> dict[str, Any]:
     handle = farm[name]
     signals = {}
@@ -116,7 +121,8 @@ def _device(farm: FarmControl, name: str, detail: bool = False) -> dict[str, Any
         "name": p.name, "address": p.address, "model": p.model, "addons": list(p.addons),
         "identity": {"vendor_id": p.vendor_id, "device_type": p.device_type, "product_code": device.product_code,
                      "revision": list(p.revision), "serial_number": p.serial_number, "product_name": p.product_name,
-                     "status": device.status},
+                     "status": device.status, "state": device.identity_state},
+        "restarts": device.restarts,  # resets begun (Identity Reset, the reset API); state 1 while resetting
         "input_size": p.input_size, "output_size": p.output_size,
         "connections": _connections(device),
         "faults": farm[name].faults,
@@ -133,7 +139,7 @@ def create_app(farm: FarmControl, hub: EventHub | None = None) -> FastAPI:
     app = FastAPIOffline(title="enip-farm", description="Drive and observe a farm of virtual EtherNet/IP devices. "
                          "The dashboard is at /.")
     registry = CollectorRegistry()
-    registry.register(FarmCollector(farm.devices.values()))
+    registry.register(FarmCollector(farm.devices.values(), farm.health, farm.cyclic_io_load))
     hub = hub if hub is not None else EventHub(farm.devices.values())
 
     def known(name: str) -> str:
@@ -190,6 +196,14 @@ def create_app(farm: FarmControl, hub: EventHub | None = None) -> FastAPI:
         cleared = await farm.clear_faults(known(name), kind)
         return {"cleared": [k.value for k in cleared]}
 
+    @app.post("/devices/{name}/reset")
+    def reset(name: str, body: ResetRequest) -> dict[str, Any]:
+        """Power-cycle (type 0) or reset (type 1: out-of-box, 2: out-of-box but the communication
+        parameters) a device, as its Identity Reset does; 409 while it is resetting already."""
+        if not farm[known(name)].reset(body.type):
+            raise HTTPException(409, f"device {name!r} is resetting already")
+        return {"device": name, "type": body.type, "reset_time_s": farm.devices[name].profile.reset_time_s}
+
     @app.get("/state")
     def state(device: Annotated[list[str], Query()] = []) -> list[dict[str, Any]]:  # noqa: B006
         """What the dashboard shows of each device (all, or those named by `device`): every signal
@@ -208,6 +222,13 @@ def create_app(farm: FarmControl, hub: EventHub | None = None) -> FastAPI:
         for name in device:
             known(name)
         return EventStream(hub, device, kind, exclude_kind)
+
+    @app.get("/health", responses={503: {"description": "class-1 I/O is not running, or the farm failed"}})
+    def health() -> JSONResponse:
+        """Whether the farm serves: `ok`, and whether its cyclic I/O thread runs (`cyclic_io.running`)
+        with the errors it met and went on from; 503 while it does not serve as it should."""
+        answer = farm.health()
+        return JSONResponse(answer, status_code=200 if answer["ok"] else 503)
 
     @app.get("/metrics", response_class=PlainTextResponse)
     def metrics() -> PlainTextResponse:

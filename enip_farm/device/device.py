@@ -27,16 +27,18 @@ from types import MappingProxyType
 
 from enip_farm.cip.admission import ConnectionPolicy, KeyIdentity
 from enip_farm.cip.assembly import AssemblyInstance, AssemblyObject
+from enip_farm.cip.budget import CyclicBudget
 from enip_farm.cip.connection import Connection
 from enip_farm.cip.connection_manager import ConnectionManager
 from enip_farm.cip.connection_table import TABLE_COUNTERS, ConnectionEvent, ConnectionTable
 from enip_farm.cip.ethernet_link import EthernetLinkObject, InterfaceCounters
 from enip_farm.cip.identity import RESET_OUT_OF_BOX, STATE_OPERATIONAL, STATE_SELF_TESTING, IdentityObject
 from enip_farm.cip.message_router import Handled, MessageRouter
-from enip_farm.cip.object import ReplyItems
+from enip_farm.cip.object import Attribute, ReplyItems
 from enip_farm.cip.safety.admission import SafetyPolicy
-from enip_farm.cip.safety.objects import SafetySupervisor, SafetyValidatorObject
+from enip_farm.cip.safety.objects import SafetyValidatorObject
 from enip_farm.cip.safety.segment import Unid
+from enip_farm.cip.safety.supervisor import SafetySupervisor
 from enip_farm.cip.tcpip_interface import TcpIpInterfaceObject
 from enip_farm.device.events import Event, EventLog, ImageChange
 from enip_farm.device.faults import DeviceFaults
@@ -59,7 +61,8 @@ from enip_farm.protocol.cpf import ItemType, encode_items
 from enip_farm.protocol.session import MessageContext, ReplyWithItems
 
 ENIP_PORT = 44818
-_RESET_KINDS: Mapping[int, str] = MappingProxyType({0: "power cycle", 1: "out-of-box configuration"})
+_RESET_KINDS: Mapping[int, str] = MappingProxyType({0: "power cycle", 1: "out-of-box configuration",
+                                                    2: "out-of-box configuration but the communication parameters"})
 
 #: Every counter of a device, present (at 0) from the start: TCP, sessions, replies, class 1 (the table's).
 COUNTERS = ("tcp_connections", "tcp_refused", "tcp_write_paused", "tcp_inactivity_closed", "sessions",
@@ -94,13 +97,16 @@ def _policy(profile: DeviceProfile) -> ConnectionPolicy:
         first_watchdog_ns=round(implicit.first_watchdog_s * 1e9),
         input_only_point=profile.input_only_point, listen_only_point=profile.listen_only_point,
         multicast_group=profile.multicast_group, safety=_safety_policy(profile),
+        class3_rpi_min_us=implicit.class3_rpi_min_us, class3_rpi_max_us=implicit.class3_rpi_max_us,
     )
 
 
 class Device:
     """Implements the encapsulation `Target` protocol for one configured device."""
 
-    def __init__(self, profile: DeviceProfile) -> None:
+    def __init__(self, profile: DeviceProfile, budget: CyclicBudget | None = None) -> None:
+        """`budget`: the cyclic I/O budget this device's connections share with the other devices of
+        its I/O thread (None: no limit but each device's connection counts)."""
         self.profile = profile
         writable = profile.implicit.explicit_output_writes_while_owned
         self.assemblies: dict[str, AssemblyInstance] = {
@@ -116,7 +122,8 @@ class Device:
         self.events = EventLog(profile.name)
         self._observers: list[Observer] = []
         self.lock = threading.Lock()
-        self.table = ConnectionTable(self.assemblies, _policy(profile), self._key_identity, self.counters)
+        self.table = ConnectionTable(self.assemblies, _policy(profile), self._key_identity, self.counters,
+                                     budget=budget)
         self.reset_window = ResetWindow(round(profile.reset_time_s * 1e9))
         self._reset_requested: int | None = None  # the type of an Identity Reset being answered
         self._tcpip = TcpIpInterfaceObject(address=profile.address, netmask=profile.netmask, gateway=profile.gateway,
@@ -130,7 +137,12 @@ class Device:
         #: 44818) count into `traffic`, the cyclic I/O thread's (UDP 2222) into `io_traffic`.
         self.traffic: InterfaceCounters = self.link.new_counters()
         self.io_traffic: InterfaceCounters = self.link.new_counters()
-        self.router = MessageRouter(multiple_service_packet=profile.routing.multiple_service_packet)
+        implicit, safety_profile = profile.implicit, profile.safety
+        self.router = MessageRouter(
+            multiple_service_packet=profile.routing.multiple_service_packet,
+            max_connections=implicit.max_class1_connections + implicit.max_class3_connections + (
+                safety_profile.max_connections if safety_profile else 0),
+            active_connections=lambda: len(self.table.connections))
         self.router.forced_status = self.faults.forced_status
         self.router.replay = {(service, path, data): reply for service, path, data, reply in profile.replay}
         for obj in (
@@ -155,7 +167,14 @@ class Device:
         if safety is not None:
             def open_connections() -> list[Connection]:
                 return list(self.table.connections.values())
-            self.router.register(SafetySupervisor(safety, open_connections))
+            def close_safety_connections(reason: str, now: int) -> None:
+                for connection in [c for c in self.table.connections.values() if c.safety is not None]:
+                    self.table.close(connection, reason, now)
+
+            self.router.register(SafetySupervisor(safety, open_connections, close_safety_connections,
+                                                  lambda: self.reset_window.active))
+            state = safety.state
+            self._tcpip.instances[1].attributes[7] = Attribute(lambda: state.tunid.snn)  # follows Apply_TUNID
             self.router.register(SafetyValidatorObject(open_connections, lambda: self.counters["safety_faulted"]))
         service = ServiceItem(PROTOCOL_VERSION, CAPABILITY_TCP | CAPABILITY_UDP_CLASS_0_1, "Communications")
         self._list_services = encode_items([(ItemType.LIST_SERVICES, encode_service_item(service))])
@@ -382,9 +401,29 @@ class Device:
         if kind == RESET_OUT_OF_BOX:
             self._tcpip.restore_defaults()
             self.link.restore_defaults()
+        if table.policy.safety is not None:
+            table.policy.safety.state.identity_reset(kind)
         self.link.clear_counters()
         self._next_session_handle = 1
         self.reset_window.start(now)
+
+    def reset(self, kind: int, now: int) -> bool:
+        """A reset from outside CIP (the API, the CLI, the dashboard: a test engineer's power switch
+        or reset button): as an Identity Reset of type `kind` (0 power cycle, 1 out-of-box, 2 out-of-box
+        but the communication parameters), without a request to answer. False if the device is in
+        its reset window already (nothing happens); ValueError for an unknown type."""
+        if kind not in _RESET_KINDS:
+            raise ValueError(f"reset type {kind}: one of {', '.join(map(str, _RESET_KINDS))}")
+        with self.lock:
+            if self.reset_window.active:
+                return False
+            before = self._snapshot()
+            self._reset(kind, now)
+            connections = self.table.pop_events()
+            after = self._snapshot()
+        self._publish(before, after, (), connections)
+        self._record_reset(kind)
+        return True
 
     def _record_reset(self, kind: int) -> None:
         self.record("reset", f"type {kind} ({_RESET_KINDS[kind]}): not answering for "
@@ -444,14 +483,13 @@ class Device:
             if expiring:  # a timeout may change the outputs: look before and after
                 before = self._snapshot()
                 table.handle_timer(now)
-            due = table.datagrams_to_send(now)
+            due, timer = table.produce(now)
             if due and not self.faults.io_stopped:
                 for packet, address in due:
                     send(packet, address)
             if expiring:
                 connections = table.pop_events()
                 after = self._snapshot()
-            timer = table.get_timer()
         if expiring and connections:
             self._publish(before, after, (), connections)
         return timer

@@ -1,6 +1,7 @@
 """`enip-farm eds export MODEL -o FILE.eds`: the EDS of a catalogue model as the farm serves it
 (CIP Networks Library Vol. 1 chapter 7: [File], [Device], [Device Classification], [Params], [Assembly],
-[Connection Manager], [Capacity]).
+[Connection Manager], [Capacity]). A CIP Safety target (the DSQC1042) gets its safe assemblies and
+its two safety connections (class 0, Vol. 5) instead of class-1 ones: `_safety_sections`.
 
 Every value is the farm's: the identity, assembly instances and sizes of the resolved profile, the
 channel layout of its modules (each module's digital bytes, then its analog INTs, in slot order),
@@ -28,7 +29,7 @@ from types import MappingProxyType
 from enip_farm.config import parse_config
 from enip_farm.device.build import build_profiles
 from enip_farm.device.catalogue import Catalogue
-from enip_farm.device.profile import DeviceProfile
+from enip_farm.device.profile import AssemblySpec, DeviceProfile
 from enip_farm.protocol.epath import LogicalType, encode_logical
 
 #: Trigger and transport: class 1, cyclic, and the connection type bit.
@@ -179,9 +180,7 @@ def write_eds(profile: DeviceProfile, created: datetime.datetime) -> str:
         lines += ["", "$ No assemblies: identity and explicit messaging only (no I/O connections)."]
         return "\n".join(lines) + "\n"
     if profile.safety is not None:
-        lines += ["", "$ A CIP Safety target: its safe I/O travels over CIP Safety connections only (no class-1",
-                  "$ I/O connections); this file does not describe them."]
-        return "\n".join(lines) + "\n"
+        return "\n".join(lines + _safety_sections(profile, output, inputs, configuration)) + "\n"
 
     params = _Params()
     default_rpi = min(max(10_000, implicit.rpi_min_us), implicit.rpi_max_us)
@@ -224,6 +223,62 @@ def write_eds(profile: DeviceProfile, created: datetime.datetime) -> str:
               f"{_INDENT}MaxIOConnections = {implicit.max_class1_connections};",
               f"{_INDENT}MaxMsgConnections = {implicit.max_class3_connections};"]
     return "\n".join(lines) + "\n"
+
+
+#: CIP Safety connections (Vol. 5, 3-5.4 and the EDS keywords of chapter 7 of Vol. 1): transport
+#: class 0, application-object trigger (bit 18); the safety output connection is a server (bit 31)
+#: that owns the outputs (bit 26), the safety input connection a client (bit 31 clear) producing
+#: the inputs (bit 25, input only). Parameters: fixed sizes both ways (bits 0, 2), modeless (the
+#: safety message carries its own mode byte), point to point both ways (bits 18, 22), high or
+#: scheduled priority (bits 25-26, 29-30), as cip/safety/admission.py admits them.
+SAFETY_OUTPUT, SAFETY_INPUT, SAFETY_PARAMETERS = 0x84040001, 0x02040001, 0x66440005
+_SAFETY_RPI_MIN_US, _SAFETY_RPI_MAX_US = 1_000, 100_000  # base format data RPI (the admission's limits)
+
+
+def _safety_sections(profile: DeviceProfile, output: AssemblySpec, inputs: AssemblySpec,
+                     configuration: AssemblySpec | None) -> list[str]:
+    """The safety assemblies and the two safety connections
+    of a CIP Safety target as the farm admits them (the SafetyOpen's path: configuration point,
+    consumed point, produced point; the null point where a direction carries no safe data)."""
+    assert profile.safety is not None
+    null = profile.safety.null_point
+    params = _Params()
+    params.add("Safety RPI", _UDINT, 4, "microsecond", "Requested packet interval of safety data (base format; "
+               "the farm's limits, unverified)", (str(_SAFETY_RPI_MIN_US), str(_SAFETY_RPI_MAX_US), "10000"))
+    output_members, input_members = _members(profile, params, "output"), _members(profile, params, "input")
+    config = configuration.instance_id if configuration is not None else null
+
+    def connection(number: int, kind: int, o_t: tuple[int, str], t_o: tuple[int, str], name: str,
+                   consumed: int, produced: int) -> str:
+        path = _path((LogicalType.CLASS_ID, 4), (LogicalType.INSTANCE_ID, config),
+                     (LogicalType.CONNECTION_POINT, consumed), (LogicalType.CONNECTION_POINT, produced))
+        return _entry(f"Connection{number}", [
+            (f"0x{kind:08X}", "trigger and transport: class 0, application object, "
+             + ("server, exclusive owner" if kind == SAFETY_OUTPUT else "client, input only")),
+            (f"0x{SAFETY_PARAMETERS:08X}", "connection parameters"),
+            (f"Param1,{o_t[0]},{o_t[1]}", "O->T RPI, size, format"),
+            (f"Param1,{t_o[0]},{t_o[1]}", "T->O RPI, size, format"),
+            (",", "proxy configuration size, format"), ("0,", "target configuration size, format"),
+            (_quote(name), "connection name"),
+            (_quote("CIP Safety (Vol. 5); the other direction carries time coordination"), "help string"),
+            (_quote(path), "path")])
+
+    return [
+        f"{_INDENT}$ No Class2 = Safety: eds-pie's checker takes no classification after a public one (Class1).",
+        "", "$ A CIP Safety target: its safe I/O travels over CIP Safety connections only, no class-1 I/O.",
+        "", "[Params]", *params.entries,
+        "", "[Assembly]", f"{_INDENT}Object_Name = {_quote('Assembly Object')};", f"{_INDENT}Object_Class_Code = 0x04;",
+        _assembly(output.instance_id, "Safe Outputs", output.size, output_members),
+        _assembly(inputs.instance_id, "Safe Inputs", inputs.size, input_members),
+        "", "[Connection Manager]", f"{_INDENT}Object_Name = {_quote('Connection Manager Object')};",
+        f"{_INDENT}Object_Class_Code = 0x06;",
+        connection(1, SAFETY_OUTPUT, (output.size, f"Assem{output.instance_id}"), (0, ""), "Safety Output",
+                   output.instance_id, null),
+        connection(2, SAFETY_INPUT, (0, ""), (inputs.size, f"Assem{inputs.instance_id}"), "Safety Input",
+                   null, inputs.instance_id),
+        "", "[Capacity]", f"{_INDENT}$ The farm's limit of safety connections per device (unverified).",
+        f"{_INDENT}MaxIOConnections = {profile.safety.max_connections};",
+    ]
 
 
 def model_profile(model: str, addons: Sequence[str], catalogue: Catalogue, base_dir: str | Path = ".") -> DeviceProfile:

@@ -178,15 +178,18 @@ class IoPacket(NamedTuple):
     data: bytes  # after the sequence count: run/idle header (if any) and application data
 
 
+_SEQUENCED_ADDRESS, _CONNECTED_DATA = int(ItemType.SEQUENCED_ADDRESS), int(ItemType.CONNECTED_DATA)  # plain ints: fast
+
+
 def encode_io_packet(connection_id: int, sequence: int, sequence_count: int, data: bytes) -> bytes:
-    return _IO_HEADER.pack(2, ItemType.SEQUENCED_ADDRESS, 8, connection_id, sequence & 0xFFFFFFFF,
-                           ItemType.CONNECTED_DATA, 2 + len(data), sequence_count & 0xFFFF) + data
+    return _IO_HEADER.pack(2, _SEQUENCED_ADDRESS, 8, connection_id, sequence & 0xFFFFFFFF,
+                           _CONNECTED_DATA, 2 + len(data), sequence_count & 0xFFFF) + data
 
 
 def encode_class0_packet(connection_id: int, sequence: int, data: bytes) -> bytes:
     """A class-0 packet (CIP Safety connections): no 16-bit sequence count before the data."""
-    return _CLASS_0_HEADER.pack(2, ItemType.SEQUENCED_ADDRESS, 8, connection_id, sequence & 0xFFFFFFFF,
-                                ItemType.CONNECTED_DATA, len(data)) + data
+    return _CLASS_0_HEADER.pack(2, _SEQUENCED_ADDRESS, 8, connection_id, sequence & 0xFFFFFFFF,
+                                _CONNECTED_DATA, len(data)) + data
 
 
 def class0_data(packet: IoPacket) -> bytes:
@@ -196,11 +199,25 @@ def class0_data(packet: IoPacket) -> bytes:
 
 def decode_io_packet(datagram: bytes) -> IoPacket | None:
     """None for anything that is not a two-item sequenced-address + connected-data packet."""
-    if len(datagram) < _IO_HEADER.size:
+    fields = unpack_io_header(datagram)
+    if fields is None:
+        return None
+    return IoPacket(fields[0], fields[1], fields[2], datagram[_IO_HEADER.size :])
+
+
+def unpack_io_header(datagram: bytes) -> tuple[int, int, int] | None:
+    """(connection id, sequence, sequence count) of a class-1 packet, its data from byte
+    `IO_HEADER_SIZE` on; None for anything that is not a two-item sequenced-address + connected-data
+    packet (the hot path's decoder: no object made)."""
+    if len(datagram) < 20:  # _IO_HEADER.size
         return None
     count, address_type, address_length, connection_id, sequence, data_type, data_length, sequence_count = (
         _IO_HEADER.unpack_from(datagram, 0))
-    if (count != 2 or address_type != ItemType.SEQUENCED_ADDRESS or address_length != 8
-            or data_type != ItemType.CONNECTED_DATA or data_length != len(datagram) - 18 or data_length < 2):
+    if (count != 2 or address_type != _SEQUENCED_ADDRESS or address_length != 8
+            or data_type != _CONNECTED_DATA or data_length != len(datagram) - 18 or data_length < 2):
         return None
-    return IoPacket(connection_id, sequence, sequence_count, datagram[_IO_HEADER.size :])
+    return connection_id, sequence, sequence_count
+
+
+#: Where a class-1 packet's data begins (after the item count, both item headers and the sequence count).
+IO_HEADER_SIZE = _IO_HEADER.size

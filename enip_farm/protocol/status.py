@@ -18,6 +18,7 @@ class GeneralStatus(IntEnum):
     ATTRIBUTE_LIST_ERROR = 0x0A
     OBJECT_STATE_CONFLICT = 0x0C
     ATTRIBUTE_NOT_SETTABLE = 0x0E
+    PRIVILEGE_VIOLATION = 0x0F
     DEVICE_STATE_CONFLICT = 0x10
     NOT_ENOUGH_DATA = 0x13
     ATTRIBUTE_NOT_SUPPORTED = 0x14
@@ -35,6 +36,7 @@ class ExtendedStatus(IntEnum):
 
     CONNECTION_IN_USE = 0x0100
     TRANSPORT_TRIGGER_NOT_SUPPORTED = 0x0103
+    CONFIGURATION_OWNED = 0x0105  # configuration already owned by another originator
     OWNERSHIP_CONFLICT = 0x0106
     CONNECTION_NOT_FOUND = 0x0107
     INVALID_CONNECTION_TYPE = 0x0108
@@ -52,7 +54,8 @@ class ExtendedStatus(IntEnum):
     NULL_FORWARD_OPEN_NOT_SUPPORTED = 0x0132
     CONNECTION_TIMED_OUT = 0x0203
     PARAMETER_ERROR = 0x0205  # parameter error in unconnected request service (Vol. 1); the farm's
-    # choice for a SafetyOpen whose server initial timestamp / rollover is not "not used"
+    # choice for a SafetyOpen whose server initial timestamp / rollover is not "not used", and for a
+    # Forward Open whose timeout multiplier is reserved (8-255)
     INVALID_PORT = 0x0311
     INVALID_LINK_ADDRESS = 0x0312
     INVALID_SEGMENT = 0x0315
@@ -72,6 +75,7 @@ class ExtendedStatus(IntEnum):
     SCID_MISMATCH = 0x080C
     TUNID_NOT_SET = 0x080D
     TUNID_MISMATCH = 0x080E
+    CONFIGURATION_OPERATION_NOT_ALLOWED = 0x080F
 
 
 #: General status in words (Vol. 1, appendix B-1), for logs and messages.

@@ -2,22 +2,31 @@
 the one thread that moves the datagrams. The connections themselves (consumption, production
 schedule, supervision) are the devices' sans-IO connection tables (cip/connection_table.py).
 
-All cyclic traffic of a farm runs in one I/O thread, apart from the event loop, so that neither
-delays the other, and it is the only place that sleeps:
+All cyclic traffic of a farm (of a worker) runs in one I/O thread, apart from the event loop, so
+that neither delays the other, and it is the only place that sleeps. Its cost is per packet, not
+per device:
 - every device address has a UDP 2222 socket (SO_REUSEADDR, so a scanner on the same host can
-  still bind 0.0.0.0:2222); the thread reads O->T datagrams from all of them through epoll and
-  hands them to their device with the time they were read;
+  still bind 0.0.0.0:2222); epoll says which have datagrams, and those are read in one call
+  (server/batch.py: recvmmsg per socket) and handed to their device with the time they were read;
+- one heap of wake-ups, one entry per device at the time its table asks for (`get_timer`); at a
+  wake-up the thread first reads what is waiting (a packet that came in time counts, however late
+  the thread is), then lets every device that is due supervise its connections and produce its
+  T->O packets (`Device.service_io`), and sends them all in one call (sendmmsg from one socket
+  with each device's source address); a Forward Open on the event loop wakes the thread through a
+  pipe. epoll waits in whole milliseconds, so the thread stops waiting on it a millisecond early
+  and sleeps the rest with time.sleep (which wakes within a few hundred microseconds here);
 - every datagram in and out is counted in the device's interface counters (Ethernet Link
   attribute 4), by this thread alone (`Device.io_traffic`);
-- it keeps one timer per device, the one its table asks for (`get_timer`): at that time it lets
-  the device supervise its connections and send the T->O packets due (`Device.service_io`). A
-  Forward Open on the event loop wakes the thread through a pipe. epoll waits in whole
-  milliseconds, so the thread stops waiting on it a millisecond early and sleeps the rest with
-  time.sleep (which wakes within a few hundred microseconds here; a Condition.wait with a timeout
-  was measured 2.6 ms late at p99).
+- how late it runs is watched (`lag`): a wake-up later than `OVERLOAD_LAG_NS` is an overload of
+  the farm (the CPU, or more connections than its budget), counted, shown in /metrics and as a
+  console warning with the lag, never blamed on an originator;
 - one device's bug does not stop the others: an exception while it takes a datagram or services
   its connections is counted (`io_errors`) and logged with its traceback (rate-limited per device,
-  `RateLimitedLog`), and its timer is tried again `_RETRY_NS` later.
+  `RateLimitedLog`), and its timer is tried again `_RETRY_NS` later;
+- nothing stops the thread itself: an unexpected exception of the loop is counted (`loop_errors`),
+  logged once per 10 s with its traceback, and the loop goes on; every wait it hands epoll or sleep
+  is bounded (server/waits.py); `running` says whether the loop turned within `_STALL_NS`, which the
+  farm's health (the API's /health, the container's health check) reports.
 """
 
 from __future__ import annotations
@@ -36,13 +45,16 @@ import time
 
 from enip_farm.device.device import Device
 from enip_farm.device.events import Event
+from enip_farm.server.batch import Datagrams, Message, sockaddr
 from enip_farm.server.limits import RateLimitedLog
 from enip_farm.server.udp import udp_socket
+from enip_farm.server.waits import os_wait_ns
 
 log = logging.getLogger(__name__)
 IO_PORT = 2222
-_READS_PER_WAKE = 64  # datagrams read from one socket before looking at the schedule again
 _RETRY_NS = 10_000_000  # a device whose service raised is serviced again this much later
+#: A wake-up this late is an overload of the farm, not a slow originator.
+OVERLOAD_LAG_NS = 5_000_000
 
 
 def io_socket(host: str, port: int = IO_PORT) -> socket.socket:
@@ -54,14 +66,39 @@ def io_socket(host: str, port: int = IO_PORT) -> socket.socket:
     return sock
 
 
+class Lag:
+    """How late the thread's wake-ups run behind their schedule: the worst of the current second
+    (`worst_ns`, shown in /metrics) and the wake-ups later than OVERLOAD_LAG_NS (`overloads`)."""
+
+    def __init__(self) -> None:
+        self.worst_ns = 0  # the worst lag of the last whole second
+        self.overloads = 0  # wake-ups later than OVERLOAD_LAG_NS
+        self._second = 0
+        self._worst_now = 0
+
+    def observe(self, lag_ns: int, now: int) -> bool:
+        """One wake-up `lag_ns` late at `now`: True when it is an overload."""
+        second = now // 1_000_000_000
+        if second != self._second:
+            self._second, self.worst_ns, self._worst_now = second, self._worst_now, 0
+        if lag_ns > self._worst_now:
+            self._worst_now = lag_ns
+        if lag_ns > OVERLOAD_LAG_NS:
+            self.overloads += 1
+            return True
+        return False
+
+
 class CyclicIoThread(threading.Thread):
     """Reads O->T from every device socket and runs each device's connection timer."""
 
     _IDLE_WAIT = 0.5  # with no timer: O->T is read at once (epoll), a new timer wakes the thread
     _EPOLL_MARGIN_NS = 1_000_000  # epoll rounds its timeout up to whole milliseconds
+    _STALL_NS = 5_000_000_000  # a loop that has not turned for this long is not running
 
-    def __init__(self) -> None:
+    def __init__(self, datagrams: Datagrams | None = None) -> None:
         super().__init__(name="enip-farm-cyclic-io", daemon=True)
+        self.datagrams = datagrams if datagrams is not None else Datagrams()
         self._heap: list[tuple[int, int, DeviceIo]] = []
         self._order = itertools.count()
         self._requests: collections.deque[DeviceIo] = collections.deque()  # timers that may have moved
@@ -72,10 +109,17 @@ class CyclicIoThread(threading.Thread):
         os.set_blocking(self._wake_write, False)
         self._epoll.register(self._wake_read, select.EPOLLIN)
         self._stopping = False
+        self.outbox: list[Message] = []  # T->O due this wake-up, sent in one call
+        self.outbox_from: list[tuple[DeviceIo, tuple[str, int]]] = []  # who sent each, and where to
         self.errors = RateLimitedLog(log)  # one line per device and 10 s with the traceback, the rest counted
+        self.overload_log = RateLimitedLog(log)
+        self.loop_errors = 0  # unexpected exceptions of the loop itself (it goes on)
+        self.lag = Lag()
+        self.turned_at = time.monotonic_ns()  # when the loop last went round
 
     def register(self, endpoint: DeviceIo) -> None:
         self._readers[endpoint.sock.fileno()] = endpoint
+        self.datagrams.add(endpoint.sock)
         self._epoll.register(endpoint.sock.fileno(), select.EPOLLIN)
 
     def reschedule(self, endpoint: DeviceIo) -> None:
@@ -104,41 +148,88 @@ class CyclicIoThread(threading.Thread):
         endpoint.scheduled = timer
         heapq.heappush(self._heap, (timer, next(self._order), endpoint))
 
+    def running(self, now: int) -> bool:
+        """Whether the loop is alive and went round within `_STALL_NS` of `now` (ns)."""
+        return self.is_alive() and not self._stopping and now - self.turned_at < self._STALL_NS
+
     def run(self) -> None:
+        while not self._stopping:
+            try:
+                self._loop()
+            except Exception:  # supervised: count, log once per 10 s with the traceback, go on
+                self.loop_errors += 1
+                self.outbox.clear()
+                self.outbox_from.clear()
+                now = time.monotonic_ns()
+                self.errors.log(logging.ERROR, "cyclic io loop", now / 1e9,
+                                "cyclic I/O thread: unexpected error (%d so far); the thread goes on",
+                                self.loop_errors, exc_info=True)
+                time.sleep(0.001)  # a fault that repeats at once cannot spin the core
+
+    def _loop(self) -> None:
         heap, requests, readers = self._heap, self._requests, self._readers
         monotonic_ns, sleep, poll = time.monotonic_ns, time.sleep, self._epoll.poll
-        wake_read = self._wake_read
+        receive, wake_read, outbox, lag = self.datagrams.receive, self._wake_read, self.outbox, self.lag
         while not self._stopping:
             while requests:
                 endpoint = requests.popleft()
                 self._schedule(endpoint, endpoint.timer())
-            now = monotonic_ns()
-            while heap and heap[0][0] <= now:
-                when, _, endpoint = heapq.heappop(heap)
-                if when != endpoint.scheduled:
-                    continue  # superseded by an earlier wake-up
-                endpoint.scheduled = None
-                self._schedule(endpoint, endpoint.service(now))
-                now = monotonic_ns()
             delay = (heap[0][0] - monotonic_ns()) if heap else None
-            if delay is None:
-                events = poll(self._IDLE_WAIT)
+            if delay is None or delay > self._EPOLL_MARGIN_NS + self._IDLE_WAIT * 1e9:
+                events = poll(self._IDLE_WAIT)  # nothing due soon: look again after the idle wait at most
             elif delay > self._EPOLL_MARGIN_NS:
-                events = poll((delay - self._EPOLL_MARGIN_NS) / 1e9)
+                events = poll(os_wait_ns(delay - self._EPOLL_MARGIN_NS))
             else:
                 events = poll(0)
                 if not events and delay > 0:
-                    sleep(delay / 1e9)
-            for fd, _ in events:
-                if fd == wake_read:
-                    try:
-                        os.read(wake_read, 4096)
-                    except BlockingIOError:
-                        pass
-                    continue
-                endpoint = readers.get(fd)
-                if endpoint is not None:
-                    endpoint.read()
+                    sleep(os_wait_ns(delay))
+            now = self.turned_at = monotonic_ns()
+            if events:  # first what came in: a packet that came in time counts, however late the thread is
+                fds = []
+                for fd, _ in events:
+                    if fd == wake_read:
+                        try:
+                            os.read(wake_read, 4096)
+                        except BlockingIOError:
+                            pass
+                    else:
+                        fds.append(fd)
+                if fds:
+                    for fd, data, host, port in receive(fds):
+                        endpoint = readers.get(fd)
+                        if endpoint is not None:
+                            endpoint.take(data, host, port, now)
+            if heap and heap[0][0] <= now:
+                if lag.observe(now - heap[0][0], now):
+                    self._overloaded(now - heap[0][0], now)
+                while heap and heap[0][0] <= now:
+                    when, _, endpoint = heapq.heappop(heap)
+                    if when != endpoint.scheduled:
+                        continue  # superseded by an earlier wake-up
+                    endpoint.scheduled = None
+                    self._schedule(endpoint, endpoint.service(now))
+            if outbox:
+                self._flush()
+
+    def _flush(self) -> None:
+        """Send every T->O of this wake-up in one call; count each in its device's interface counters."""
+        outbox, senders = self.outbox, self.outbox_from
+        try:
+            failures = self.datagrams.send(outbox)
+            failed = {index for index, _ in failures}
+            for index, ((packet, _, _), (endpoint, destination)) in enumerate(zip(outbox, senders, strict=True)):
+                if index in failed:
+                    endpoint.send_failed(destination)
+                else:
+                    endpoint.sent(packet, destination)
+        finally:
+            outbox.clear()
+            senders.clear()
+
+    def _overloaded(self, lag_ns: int, now: int) -> None:
+        self.overload_log.log(logging.WARNING, "overload", now / 1e9,
+                              "cyclic I/O runs %.1f ms behind its schedule: the farm is overloaded (CPU, or more "
+                              "connections than its budget), not the originators late", lag_ns / 1e6)
 
 
 class DeviceIo:
@@ -149,38 +240,30 @@ class DeviceIo:
         self.sock = sock
         self.thread = thread
         self.scheduled: int | None = None  # the wake-up the thread holds for this device (ns)
-        self._multicast: dict[str, bool] = {}  # T->O destination host -> whether it is a multicast group
+        self.source = socket.inet_aton(device.profile.address)
+        self._address = (device.profile.address, IO_PORT)
+        self._destinations: dict[tuple[str, int], tuple[bytes, bool]] = {}  # -> (sockaddr, unicast)
         self._unsubscribe = device.observe(self._observe)
 
     def _observe(self, event: Event) -> None:
         if event.kind == "connection opened":  # a new stream and a new watchdog: the timer moved
             self.thread.reschedule(self)
 
-    def read(self) -> None:
-        """In the I/O thread: hand the datagrams waiting on this device's socket to the device."""
-        recvfrom, receive, send = self.sock.recvfrom, self.device.receive_io, self.send
-        traffic = self.device.io_traffic
-        address = (self.device.profile.address, IO_PORT)
-        for _ in range(_READS_PER_WAKE):
-            try:
-                data, addr = recvfrom(2048)
-            except (BlockingIOError, InterruptedError):
-                return
-            except OSError as error:
-                log.debug("%s: UDP 2222 error %s", self.device.name, error)
-                return
-            now = time.monotonic_ns()
-            traffic.received(len(data))
-            recorder = self.device.recorder
-            if recorder is not None:
-                recorder.udp(addr, address, data)
-            try:
-                taken = receive(data, addr, now, send)
-            except Exception:  # last resort: the other devices' cyclic I/O goes on
-                self._failed("taking an O->T datagram", now)
-                taken = False
-            if not taken:
-                traffic.discarded()
+    def take(self, data: bytes, host: str, port: int, now: int) -> None:
+        """In the I/O thread: one O->T datagram from host:port, read at `now`, to the device."""
+        device = self.device
+        traffic = device.io_traffic
+        traffic.received(len(data))
+        recorder = device.recorder
+        if recorder is not None:
+            recorder.udp((host, port), self._address, data)
+        try:
+            taken = device.receive_io(data, (host, port), now, self.send)
+        except Exception:  # last resort: the other devices' cyclic I/O goes on
+            self._failed("taking an O->T datagram", now)
+            taken = False
+        if not taken:
+            traffic.discarded()
 
     def service(self, now: int) -> int | None:
         """In the I/O thread: the device's timer has come; the next one."""
@@ -206,20 +289,24 @@ class DeviceIo:
                                "%s: cyclic I/O error %s", self.device.name, what, exc_info=True)
 
     def send(self, packet: bytes, destination: tuple[str, int]) -> None:
-        try:
-            self.sock.sendto(packet, destination)
-        except OSError as error:
-            self.device.counters["t_o_send_errors"] += 1
-            self.device.io_traffic.send_failed()
-            log.debug("%s: T->O send failed: %s", self.device.name, error)
-            return
-        multicast = self._multicast.get(destination[0])
-        if multicast is None:
-            multicast = self._multicast[destination[0]] = ipaddress.IPv4Address(destination[0]).is_multicast
-        self.device.io_traffic.sent(len(packet), unicast=not multicast)
+        """Queue a T->O packet: the thread sends this wake-up's packets together."""
+        known = self._destinations.get(destination)
+        if known is None:
+            known = self._destinations[destination] = (
+                sockaddr(*destination), not ipaddress.IPv4Address(destination[0]).is_multicast)
+        self.thread.outbox.append((packet, known[0], self.source))
+        self.thread.outbox_from.append((self, destination))
+
+    def sent(self, packet: bytes, destination: tuple[str, int]) -> None:
+        self.device.io_traffic.sent(len(packet), unicast=self._destinations[destination][1])
         recorder = self.device.recorder
         if recorder is not None:
-            recorder.udp((self.device.profile.address, IO_PORT), destination, packet)
+            recorder.udp(self._address, destination, packet)
+
+    def send_failed(self, destination: tuple[str, int]) -> None:
+        self.device.counters["t_o_send_errors"] += 1
+        self.device.io_traffic.send_failed()
+        log.debug("%s: T->O to %s:%d failed", self.device.name, *destination)
 
     def close(self) -> None:
         self._unsubscribe()
@@ -245,6 +332,18 @@ class ImplicitIo:
 
     def start(self) -> None:
         self.thread.start()
+
+    def running(self, now: int) -> bool:
+        """Whether class-1 I/O runs: the cyclic I/O thread is alive and its loop turns."""
+        return self.thread.running(now)
+
+    @property
+    def loop_errors(self) -> int:
+        return self.thread.loop_errors
+
+    @property
+    def lag(self) -> Lag:
+        return self.thread.lag
 
     def close(self) -> None:
         self.thread.stop()

@@ -28,9 +28,11 @@ class RateLimitedLog:
         self._held: dict[str, tuple[int, int, str, tuple]] = {}  # key -> (count, level, message, args) of the last
         self._lock = threading.Lock()
 
-    def log(self, level: int, key: str, now: float, message: str, *args: object, exc_info: bool = False) -> bool:
+    def log(self, level: int, key: str, now: float, message: str, *args: object,
+            exc_info: bool | BaseException = False) -> bool:
         """Log the line unless its key has had `burst` lines in this window; True if it was shown.
-        `exc_info`: a line shown carries the exception being handled (one held back does not)."""
+        `exc_info`: a line shown carries the exception being handled, or the one given (a line held
+        back does not)."""
         with self._lock:
             window = self._windows.get(key)
             held = None

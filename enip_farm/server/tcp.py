@@ -28,6 +28,7 @@ from enip_farm.device.faults import FaultKind
 from enip_farm.protocol.encapsulation import command_name, describe_encapsulation_status
 from enip_farm.protocol.session import EncapsulationSession
 from enip_farm.server.limits import TcpLimits
+from enip_farm.server.waits import os_wait_s
 
 log = logging.getLogger(__name__)
 _LINGER_RESET = struct.pack("ii", 1, 0)  # SO_LINGER on, 0 s: close sends RST
@@ -144,7 +145,7 @@ class EncapsulationProtocol(asyncio.Protocol):
                 self.device.latency.observe(time.perf_counter() - started)
             elif fault.kind is FaultKind.DELAY:
                 loop = asyncio.get_running_loop()
-                when = max(loop.time() + fault.reply_delay(), self._not_before)
+                when = max(loop.time() + os_wait_s(fault.reply_delay()), self._not_before)
                 self._not_before = when
                 loop.call_at(when, self._write_late, out, closing)
                 closing = False  # closed after the late write
@@ -211,7 +212,7 @@ class EncapsulationProtocol(asyncio.Protocol):
     # -- encapsulation inactivity timeout (TCP/IP Interface attribute 13) ---------------------------
 
     def _arm_inactivity(self, delay_s: float) -> None:
-        self._inactivity = asyncio.get_running_loop().call_later(max(delay_s, 0.001), self._check_inactivity)
+        self._inactivity = asyncio.get_running_loop().call_later(max(os_wait_s(delay_s), 0.001), self._check_inactivity)
 
     def _check_inactivity(self) -> None:
         self._inactivity = None

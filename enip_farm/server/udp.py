@@ -15,6 +15,7 @@ import struct
 
 from enip_farm.device.device import ENIP_PORT, Device
 from enip_farm.protocol.session import handle_datagram
+from enip_farm.server.waits import os_wait_s
 
 log = logging.getLogger(__name__)
 
@@ -138,7 +139,7 @@ class DiscoveryResponder:
             self._pending.discard(handle)
             endpoint.answer(data, addr)
 
-        handle = self.loop.call_later(response_delay_s(data, self._rng), answer)
+        handle = self.loop.call_later(os_wait_s(response_delay_s(data, self._rng)), answer)
         self._pending.add(handle)
 
     def close(self) -> None:

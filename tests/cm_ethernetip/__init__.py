@@ -14,6 +14,7 @@ from pathlib import Path
 from tests.helpers import read_lines
 
 DRIVER = Path(__file__).with_name("originator.py")
+TARGET = Path(__file__).with_name("target.py")
 VERSION = "0.1.0"  # the workarounds in originator.py are for this version's quirks
 
 
@@ -70,5 +71,32 @@ class CmOriginator:
                 self.process.kill()
                 self.process.wait(10)
         for stream in (self.process.stdin, self.process.stdout, self.process.stderr):
+            if stream is not None:
+                stream.close()
+
+
+class CmTarget:
+    """cm-ethernetip's own safety target (target.py) listening on `address`, until closed."""
+
+    def __init__(self, python: Path, address: str, snn: str) -> None:
+        env = {k: v for k, v in os.environ.items() if k != "PYTHONPATH"}
+        self.process = subprocess.Popen([str(python), str(TARGET), json.dumps({"address": address, "snn": snn})],
+                                        stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                                        text=True, env=env)
+        assert self.process.stdout is not None
+        lines = read_lines(self.process.stdout, 1, 30.0)
+        if not lines or json.loads(lines[0]).get("event") != "ready":
+            self.close()
+            raise AssertionError(f"cm-ethernetip's target did not start: {lines}")
+
+    def close(self) -> None:
+        if self.process.stdin is not None and not self.process.stdin.closed:
+            self.process.stdin.close()
+        try:
+            self.process.wait(10)
+        except subprocess.TimeoutExpired:
+            self.process.kill()
+            self.process.wait(10)
+        for stream in (self.process.stdout, self.process.stderr):
             if stream is not None:
                 stream.close()

@@ -4,6 +4,14 @@ statuses are those of table 3-5.33 of Vol. 1 extended by Vol. 5, as the HMS CIP 
 stack applies them): CPCRC, TUNID, duplicate, electronic key, connection parameters (transport,
 network parameters, sizes, RPIs, safety parameters), application paths, SCID, ownership, limits.
 
+Type 1 and Type 2 SafetyOpen (Vol. 5, chapter 3): a Type 1 carries the safety configuration in a data
+segment before the safety segment and configures the target: its SCID must be non-zero with an
+SCCRC equal to CRC-S4 over the configuration data (else 0x080C), the target must not be owned by
+another originator (CFUNID other than the OUNID: 0x0105), and a configuration other than the one
+held cannot be applied while other safety connections are open (0x080F). Admitted, the OUNID becomes
+the configuration owner (CFUNID) and the SCID and data are stored. A Type 2 (no data) configures
+nothing: a non-zero SCID must equal the one held (0x080C); a zero SCID asks for no check.
+
 Two single-cast connection types (transport type/trigger, class 0, application triggered):
 0xA0 "server": the target consumes safe outputs O->T and answers with time coordination T->O;
 0x20 "client": the target produces safe inputs T->O and consumes time coordination O->T.
@@ -12,11 +20,11 @@ Two single-cast connection types (transport type/trigger, class 0, application t
 from __future__ import annotations
 
 from collections.abc import Callable, Collection
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import NamedTuple
 
 from enip_farm.cip.connection import Connection, ConnectionKind
-from enip_farm.cip.safety.crc import Seeds
+from enip_farm.cip.safety.crc import Seeds, crc_s4
 from enip_farm.cip.safety.messages import TCOO_SIZE, data_length, wire_size
 from enip_farm.cip.safety.segment import (
     NOT_USED,
@@ -27,9 +35,10 @@ from enip_farm.cip.safety.segment import (
     compute_cpcrc,
     decode_segment,
 )
+from enip_farm.cip.safety.state import SafetyState
 from enip_farm.cip.safety.validator import SafetyConsumer, SafetyProducer
 from enip_farm.protocol.connection import ConnectionType, ForwardOpenRequest, NetworkParameters, encode_forward_open
-from enip_farm.protocol.epath import ElectronicKey, LogicalSegment, LogicalType, SafetyNetworkSegment
+from enip_farm.protocol.epath import DataSegment, ElectronicKey, LogicalSegment, LogicalType, SafetyNetworkSegment
 from enip_farm.protocol.status import ExtendedStatus as X
 
 SERVER, CLIENT = 0xA0, 0x20  # transport type/trigger of a safety connection (Vol. 5, 3-5.4)
@@ -59,10 +68,17 @@ class SafetyPolicy:
     configuration_point: int
     null_point: int  # the connection point a server does not produce / a client does not consume
     max_connections: int = 8
+    #: the TUNID, SCID and configuration owner as they stand (the Safety Supervisor changes them);
+    #: `tunid` and `scid` above are the configured, initial values
+    state: SafetyState = field(default=None, compare=False)  # type: ignore[assignment]
+
+    def __post_init__(self) -> None:
+        if self.state is None:
+            object.__setattr__(self, "state", SafetyState(self.tunid, self.scid))
 
     @property
     def tunid_set(self) -> bool:
-        return self.tunid.snn != b"\xff" * 6 and self.tunid.node_address != 0xFFFFFFFF
+        return self.state.tunid_set
 
 
 class SafetyRefusal(NamedTuple):
@@ -90,6 +106,9 @@ def admit_safety(request: ForwardOpenRequest, segments: list, route_size: int, p
     raw = safety_segment_of(segments)
     assert raw is not None
     application = segments[:segments.index(raw)]
+    configuration_data = None
+    if application and isinstance(application[-1], DataSegment):  # a Type 1 SafetyOpen
+        configuration_data = application.pop().data
     try:
         segment = decode_segment(raw.raw)
     except SegmentError as error:
@@ -103,7 +122,8 @@ def admit_safety(request: ForwardOpenRequest, segments: list, route_size: int, p
         return SafetyRefusal(X.INVALID_CPCRC)
     if not policy.tunid_set:
         return SafetyRefusal(X.TUNID_NOT_SET)
-    if segment.tunid != policy.tunid:
+    state = policy.state
+    if segment.tunid != state.tunid:
         return SafetyRefusal(X.TUNID_MISMATCH)
     if any(c.triad == request.triad for c in connections):
         return SafetyRefusal(X.CONNECTION_IN_USE)
@@ -129,13 +149,24 @@ def admit_safety(request: ForwardOpenRequest, segments: list, route_size: int, p
             return SafetyRefusal(X.INVALID_CONSUMING_PATH)
         if producing != policy.input_point:
             return SafetyRefusal(X.INVALID_PRODUCING_PATH)
-    if any(segment.scid) and segment.scid != policy.scid:
-        return SafetyRefusal(X.SCID_MISMATCH)
     safety = [c for c in connections if c.safety is not None]
+    if configuration_data is not None:
+        if configuration != policy.configuration_point:
+            return SafetyRefusal(X.INVALID_CONFIGURATION_PATH)
+        if state.cfunid is not None and state.cfunid != segment.ounid:
+            return SafetyRefusal(X.CONFIGURATION_OWNED)
+        if not any(segment.scid) or crc_s4(configuration_data) != segment.sccrc:
+            return SafetyRefusal(X.SCID_MISMATCH)
+        if segment.scid != state.scid and safety:
+            return SafetyRefusal(X.CONFIGURATION_OPERATION_NOT_ALLOWED)
+    elif any(segment.scid) and segment.scid != state.scid:
+        return SafetyRefusal(X.SCID_MISMATCH)
     if server and any(c.kind is ConnectionKind.SAFETY_OUTPUT for c in safety):
         return SafetyRefusal(X.OWNERSHIP_CONFLICT)  # one owner of the safe outputs
     if len(safety) >= policy.max_connections:
         return SafetyRefusal(X.OUT_OF_CONNECTIONS)
+    if configuration_data is not None:  # admitted: the originator owns the configuration
+        state.configure(segment.ounid, segment.scid, configuration_data)
 
     instance = instance_id()
     target = Seeds.of(policy.vendor_id, policy.serial_number, instance)

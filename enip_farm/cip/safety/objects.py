@@ -1,8 +1,7 @@
-"""The Safety Supervisor (class 0x39) and Safety Validator (class 0x3A) objects of a safety target
-(CIP Networks Library Vol. 5, chapter 5; attribute numbers as Wireshark's CIP Safety dissector
-names them). The supervisor holds the device's TUNID and SCID and the configuration owner's UNID
-(the OUNID of the safety connections open); each open safety connection is one validator instance
-(its instance id is the target connection serial number of the SafetyOpen reply)."""
+"""The Safety Validator object (class 0x3A) of a safety target (CIP Networks Library Vol. 5,
+chapter 5; attribute numbers as Wireshark's CIP Safety dissector names them): each open safety
+connection is one validator instance (its instance id is the target connection serial number of
+the SafetyOpen reply). The Safety Supervisor (class 0x39) is in supervisor.py."""
 
 from __future__ import annotations
 
@@ -11,33 +10,12 @@ from collections.abc import Callable, Iterable
 
 from enip_farm.cip.connection import Connection
 from enip_farm.cip.object import Attribute, CipClass, CipInstance, constant
-from enip_farm.cip.safety.admission import SafetyPolicy
-from enip_farm.cip.safety.segment import Unid
 from enip_farm.cip.safety.validator import SafetyConsumer
 
-_NO_UNID = bytes(10)
 #: Safety Validator state (attribute 1): 0 unallocated, 1 initializing, 2 established, 3 failed.
 _INITIALIZING, _ESTABLISHED = 1, 2
 #: Safety Validator type (attribute 2): bit 7 consumer (1) / producer (0), bits 0-6 1 = single-cast.
 _CONSUMER, _SINGLE_CAST = 0x80, 0x01
-
-
-class SafetySupervisor(CipClass):
-    class_id = 0x39
-    revision = 1
-
-    def __init__(self, policy: SafetyPolicy, connections: Callable[[], Iterable[Connection]]) -> None:
-        super().__init__()
-
-        def owner() -> bytes:
-            ounid: Unid | None = next((c.ounid for c in connections() if c.ounid is not None), None)
-            return ounid.encode() if ounid is not None else _NO_UNID
-
-        self.instances[1] = CipInstance({
-            25: Attribute(owner),  # Configuration UNID (CFUNID)
-            26: constant(policy.scid),  # Safety Configuration Identifier (SCID): SCCRC + SCTS
-            27: constant(policy.tunid.encode()),  # Target UNID (TUNID): SNN + node address
-        })
 
 
 class SafetyValidatorObject(CipClass):

@@ -301,7 +301,8 @@
     card.dataset.device = device.name;
     $('.name', card).textContent = device.name;
     $('.address', card).textContent = info.address;
-    $('.model', card).textContent = [info.model, ...info.addons].join(' + ');
+    $('.model', card).textContent = [info.model, ...info.addons].join(' + ')
+      + (info.shard_up === false ? ` \u00b7 shard ${info.shard} down` : '');  // the fleet API over shards
     fillIdentity($('.identity', card), info);
     const kinds = $('.fault-kind', card);
     for (const kind of FAULT_KINDS) kinds.appendChild(el('option', '', kind));
@@ -613,6 +614,13 @@
     if (clear) {
       api(`${devicePath(device.name)}/faults?kind=${encodeURIComponent(clear.dataset.kind)}`, { method: 'DELETE' })
         .then(() => requestState([device]), error => say(`${device.name}: ${error.message}`));
+      return;
+    }
+    if (event.target.closest('button.power-cycle')) {
+      api(devicePath(device.name) + '/reset', { method: 'POST', json: { type: 0 } }).then(done => {
+        say(`${device.name}: power cycled, answering again in ${done.reset_time_s} s`, true);
+        requestState([device]);
+      }, error => say(`${device.name}: ${error.message}`));
       return;
     }
     const target = event.target.closest('[data-signal]');

@@ -1,0 +1,82 @@
+"""Batched UDP for the cyclic I/O thread (server/implicit.py): the datagrams waiting on the device
+sockets that epoll reported ready, read in one call (recvmmsg per socket), and every T->O packet
+due in one tick sent in one call (sendmmsg from one socket, each packet with its device's source
+address as IP_PKTINFO's ipi_spec_dst, so it leaves from DEVICE:2222 as if its own socket sent it).
+
+The system calls are made by the small extension `_mmsg` (enip_farm/server/_mmsg.c, built by pip
+where a compiler exists); without it `Datagrams` reads one datagram per ready socket (epoll is
+level-triggered: the rest are reported again) and sends each packet from its device's own socket.
+"""
+
+from __future__ import annotations
+
+import errno
+import socket
+from collections.abc import Mapping
+
+try:
+    from enip_farm.server import _mmsg
+except ImportError:  # no compiler where the package was built: the pure-Python path
+    _mmsg = None
+
+#: Whether the native batch calls are there.
+NATIVE = _mmsg is not None
+#: Datagrams read from one socket per call. One: a wake-up reads one datagram from every socket that
+#: has some and then services what is due; a socket with more is reported again at the next turn
+#: (epoll is level-triggered), so a backlog on some sockets cannot hold back every device's T->O.
+RECEIVE_LIMIT = 1
+#: A message to send: payload, destination (4-byte IPv4 address + 2-byte port, network order), source address.
+Message = tuple[bytes, bytes, bytes]
+
+
+def sockaddr(host: str, port: int) -> bytes:
+    """A destination as `Message` carries it."""
+    return socket.inet_aton(host) + port.to_bytes(2, "big")
+
+
+class Datagrams:
+    """Receives from and sends through the device sockets of one I/O thread."""
+
+    def __init__(self, native: bool = NATIVE) -> None:
+        self.native = native and _mmsg is not None
+        self.sockets: dict[int, socket.socket] = {}  # by file descriptor
+        self._by_source: dict[bytes, socket.socket] = {}  # by the 4-byte address each is bound to
+        self._sender: int | None = None  # the socket the native path sends every packet from
+
+    def add(self, sock: socket.socket) -> None:
+        self.sockets[sock.fileno()] = sock
+        self._by_source[socket.inet_aton(sock.getsockname()[0])] = sock
+        if self._sender is None:
+            self._sender = sock.fileno()
+
+    def receive(self, fds: list[int]) -> list[tuple[int, bytes, str, int]]:
+        """The datagrams waiting on these sockets: (fd, payload, source host, source port)."""
+        if self.native:
+            return _mmsg.recv_batch(fds, RECEIVE_LIMIT)  # type: ignore[union-attr]
+        out = []
+        sockets: Mapping[int, socket.socket] = self.sockets
+        for fd in fds:
+            try:
+                data, (host, port) = sockets[fd].recvfrom(2048)
+            except (BlockingIOError, InterruptedError, KeyError):
+                continue
+            except OSError:  # an ICMP error reported on the socket: nothing to read
+                continue
+            out.append((fd, data, host, port))
+        return out
+
+    def send(self, messages: list[Message]) -> list[tuple[int, int]]:
+        """Send every message; the (index, errno) of those that failed."""
+        if self.native and self._sender is not None:
+            return _mmsg.send_batch(self._sender, messages)  # type: ignore[union-attr]
+        failures = []
+        for index, (payload, destination, source) in enumerate(messages):
+            sock = self._by_source.get(source)
+            if sock is None:
+                failures.append((index, errno.EADDRNOTAVAIL))
+                continue
+            try:
+                sock.sendto(payload, (socket.inet_ntoa(destination[:4]), int.from_bytes(destination[4:], "big")))
+            except OSError as error:
+                failures.append((index, error.errno or errno.EIO))
+        return failures

@@ -1,0 +1,148 @@
+"""The cyclic I/O budget (cip/budget.py), its admission in the connection table (0x01/0x0113 past
+it, the figures in the refusal, released on every kind of close), the lag watch of the I/O thread,
+and the budget measured at start. Unit tests with an injected clock, then one farm on loopback."""
+
+from __future__ import annotations
+
+import random
+
+import httpx
+import pytest
+
+from enip_farm.cip.admission import ConnectionPolicy, KeyIdentity, Originator, Refusal
+from enip_farm.cip.assembly import AssemblyInstance
+from enip_farm.cip.budget import CyclicBudget
+from enip_farm.cip.connection_table import ConnectionTable, Opened
+from enip_farm.server.calibrate import UTILISATION, measure_budget
+from enip_farm.server.implicit import OVERLOAD_LAG_NS, Lag
+from tests.fuzzing import dsqc1030_profile
+from tests.helpers import RawClient
+from tests.test_connection_table import INPUT_ONLY_PATH, LISTEN_ONLY_PATH, MULTICAST, T0, request
+from tests.test_implicit import forward_close, forward_open
+
+MS = 1_000_000
+ORIGINATOR = Originator("127.0.0.9")
+
+
+def table_with(budget: CyclicBudget) -> ConnectionTable:
+    assemblies = {"output": AssemblyInstance(100, 2, True), "input": AssemblyInstance(101, 2, False),
+                  "configuration": AssemblyInstance(1, 0, True)}
+    policy = ConnectionPolicy(
+        rpi_min_us=2_000, rpi_max_us=10_000_000, max_class1_connections=8, max_class3_connections=6,
+        outputs_off_on_idle=True, outputs_off_on_fault=True, first_watchdog_ns=0,
+        input_only_point=198, listen_only_point=199, multicast_group="239.192.1.0")
+    return ConnectionTable(assemblies, policy, lambda: KeyIdentity(75, 7, 1030, (1, 1)), rng=random.Random(1),
+                           budget=budget)
+
+
+@pytest.mark.parametrize(("o_t", "t_o", "rate"), [(10_000, 10_000, 200.0), (2_000, 10_000, 600.0),
+                                                   (10_000, None, 100.0), (1_000_000, 1_000_000, 2.0)])
+def test_a_connection_needs_its_o_t_and_the_t_o_it_starts(o_t: int, t_o: int | None, rate: float) -> None:
+    assert CyclicBudget.rate(o_t, t_o) == rate
+
+
+def test_past_the_budget_a_forward_open_is_refused_0x0113_with_the_figures() -> None:
+    budget = CyclicBudget(450)
+    first, second = table_with(budget), table_with(budget)  # two devices of one I/O thread share it
+    opened = first.forward_open(request(rpi_us=10_000), ORIGINATOR, T0)
+    assert type(opened) is Opened and budget.reserved == 200
+    assert type(second.forward_open(request(rpi_us=10_000), ORIGINATOR, T0)) is Opened
+    assert budget.reserved == 400
+    third = table_with(budget)
+    refused = third.forward_open(request(rpi_us=10_000, o_t_size=8), ORIGINATOR, T0)
+    assert refused == Refusal(0x0113)
+    assert budget.reserved == 400 and budget.refused == 1 and not third.connections
+    (event,) = [e for e in third.pop_events() if e.kind == "connection refused"]
+    assert event.reason.endswith("0x01/0x0113 connection failure: out of connections (class 1, O->T RPI 10000 us "
+                                 "8 bytes, T->O RPI 10000 us 4 bytes, path 20 04 24 01 2c 64 2c 65): the farm's "
+                                 "cyclic I/O budget is 450 datagrams/s per worker, 400 taken, this connection "
+                                 "needs 200")
+    # a connection that needs less still fits: 25 + 25 at RPI 80 ms
+    assert type(third.forward_open(request(rpi_us=80_000), ORIGINATOR, T0)) is Opened
+    assert budget.reserved == 425
+
+
+def test_every_close_gives_the_budget_back() -> None:
+    budget = CyclicBudget(1_000)
+    table = table_with(budget)
+    closed = table.forward_open(request(rpi_us=10_000), ORIGINATOR, T0)
+    timed_out = table.forward_open(request(path=INPUT_ONLY_PATH, o_t_size=2, rpi_us=20_000, multiplier=0),
+                                   Originator("127.0.0.10"), T0)
+    assert budget.reserved == 300
+    table.forward_close(closed.connection.triad, T0 + MS)
+    assert budget.reserved == 100
+    table.handle_timer(timed_out.connection.deadline - 1)
+    assert budget.reserved == 100  # not a tick early
+    table.handle_timer(timed_out.connection.deadline)
+    assert budget.reserved == 0 and not table.connections
+
+
+def test_a_listener_sharing_a_multicast_stream_needs_its_o_t_only() -> None:
+    budget = CyclicBudget(1_000)
+    table = table_with(budget)
+    owner = table.forward_open(request(rpi_us=10_000, t_o_type=MULTICAST), ORIGINATOR, T0)
+    assert type(owner) is Opened and budget.reserved == 200
+    listener = table.forward_open(request(path=LISTEN_ONLY_PATH, o_t_size=2, rpi_us=10_000, t_o_type=MULTICAST),
+                                  Originator("127.0.0.10"), T0)
+    assert type(listener) is Opened and budget.reserved == 300
+
+
+def test_lag_is_an_overload_past_its_limit_and_the_worst_is_kept_per_second() -> None:
+    lag = Lag()
+    second = 7_000_000_000
+    assert lag.observe(OVERLOAD_LAG_NS, second) is False and lag.overloads == 0
+    assert lag.observe(OVERLOAD_LAG_NS + 1, second + 1) is True and lag.overloads == 1
+    assert lag.worst_ns == 0  # the second is not over yet
+    lag.observe(10, second + 1_000_000_000)
+    assert lag.worst_ns == OVERLOAD_LAG_NS + 1
+    lag.observe(10, second + 2_000_000_000)
+    assert lag.worst_ns == 10
+
+
+@pytest.mark.integration  # loopback sockets: the cost of a datagram sent and read
+def test_the_budget_measured_at_start_is_the_cost_of_a_pair_on_this_machine() -> None:
+    budget = measure_budget([dsqc1030_profile()])
+    pair_us = float(budget.source.split(": ")[1].split(" us")[0])
+    assert 0.5 < pair_us < 500  # a real measurement, not a constant
+    assert budget.datagrams_per_s == pytest.approx(UTILISATION * 2e6 / pair_us, rel=0.01)
+
+
+@pytest.mark.integration
+def test_a_farm_past_its_budget_refuses_0x0113_and_keeps_the_others(enip_farm) -> None:
+    farm = enip_farm({"cyclic_io": {"budget_datagrams_per_s": 450},
+                      "devices": [{"name": n, "model": "DSQC1030"} for n in ("a", "b", "c")]}, http=True)
+    a, b, c = farm.device("a"), farm.device("b"), farm.device("c")
+    assert farm.budget.datagrams_per_s == 450 and farm.budget.source == "configured"
+    with RawClient(a.profile.address) as ca, RawClient(b.profile.address) as cb, \
+            RawClient(c.profile.address) as cc:
+        for client in (ca, cb, cc):
+            client.register()
+        message, triad = forward_open(rpi=10_000, multiplier=7)
+        assert ca.request(message).general_status == 0
+        assert cb.request(forward_open(rpi=10_000, multiplier=7)[0]).general_status == 0
+        refused = cc.request(forward_open(rpi=10_000, multiplier=7)[0])
+        assert (refused.general_status, list(refused.additional_status)) == (0x01, [0x0113])
+        metrics = httpx.get(f"http://127.0.0.1:{farm.http.port}/metrics").text.splitlines()
+        assert "enip_farm_cyclic_io_budget_datagrams_per_second 450.0" in metrics
+        assert "enip_farm_cyclic_io_reserved_datagrams_per_second 400.0" in metrics
+        assert "enip_farm_cyclic_io_budget_refusals_total 1.0" in metrics
+        assert ca.request(forward_close(triad)).general_status == 0
+        assert farm.budget.reserved == 200
+        assert cc.request(forward_open(rpi=10_000, multiplier=7)[0]).general_status == 0
+
+
+def test_kernel_drops_are_read_per_address_from_the_udp_table(tmp_path) -> None:
+    from enip_farm.control.metrics import udp_drops
+
+    table = tmp_path / "udp"
+    table.write_text(
+        "   sl  local_address rem_address   st tx_queue rx_queue tr tm->when retrnsmt   uid  timeout inode ref "
+        "pointer drops\n"
+        "  1: 010A007F:08AE 00000000:0000 07 00000000:00000000 00:00000000 00000000     0        0 1 2 "
+        "0000000000000000 17\n"
+        "  2: 020A007F:08AE 00000000:0000 07 00000000:00000000 00:00000000 00000000     0        0 2 2 "
+        "0000000000000000 0\n"
+        "  3: 010A007F:AF12 00000000:0000 07 00000000:00000000 00:00000000 00000000     0        0 3 2 "
+        "0000000000000000 5\n")
+    assert udp_drops(2222, table) == {"127.0.10.1": 17, "127.0.10.2": 0}
+    assert udp_drops(2222, tmp_path / "missing") == {}

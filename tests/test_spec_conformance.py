@@ -1,0 +1,119 @@
+"""The last differences from the spec (issue 22, item 5): class-level Get Attributes All answers
+class attributes 1-7 in order, 4 and 5 as counted lists (Vol. 1, 4-4.1); Message Router instance
+attribute 2 is the maximum number of connections supported and 3 the number active (Vol. 1,
+5-3); the TCP/IP Interface no longer claims a DHCP client it does not run (Vol. 2, 5-4);
+and Wireshark's dissectors find no error and no warning in any reply of the objects the farm
+serves (a recording of the farm, decoded by tshark)."""
+
+from __future__ import annotations
+
+import shutil
+import struct
+import subprocess
+from pathlib import Path
+
+import pytest
+
+from enip_farm.config import parse_config
+from enip_farm.farm import Farm
+from enip_farm.protocol.cip import encode_request
+from enip_farm.protocol.epath import encode_request_path
+from tests.helpers import RawClient
+from tests.test_cip_services_unit import ask, make_device
+
+
+def _gaa(device: object, class_id: int, instance: int = 0) -> bytes:
+    reply = ask(device, encode_request(0x01, encode_request_path(class_id, instance)))  # type: ignore[arg-type]
+    assert reply.general_status == 0
+    return reply.data
+
+
+@pytest.mark.parametrize(("class_id", "revision", "optional_attributes", "optional_services", "max_instance_attribute"),
+                         [
+    (0x01, 1, (8,), (), 8),
+    (0xF5, 4, (6, 8, 9, 10, 11, 12, 13), (), 13),
+    (0xF6, 4, (4, 5, 6, 7, 8, 9, 10, 11), (0x4C,), 11),
+])
+def test_class_get_attributes_all_answers_attributes_1_to_7(class_id: int, revision: int, optional_attributes: tuple,
+                                                            optional_services: tuple,
+                                                            max_instance_attribute: int) -> None:
+    expected = (struct.pack("<HHH", revision, 1, 1)
+                + struct.pack(f"<H{len(optional_attributes)}H", len(optional_attributes), *optional_attributes)
+                + struct.pack(f"<H{len(optional_services)}H", len(optional_services), *optional_services)
+                + struct.pack("<HH", 7, max_instance_attribute))
+    device = make_device()
+    assert _gaa(device, class_id) == expected
+    for attribute, value in ((4, expected[6:8 + 2 * len(optional_attributes)]), (6, b"\x07\x00")):
+        reply = ask(device, encode_request(0x0E, encode_request_path(class_id, 0, attribute)))
+        assert (reply.general_status, reply.data) == (0, value)
+
+
+def test_message_router_attribute_2_is_the_maximum_number_of_connections() -> None:
+    device = make_device(implicit={"max_class1_connections": 5, "max_class3_connections": 3})
+    attribute = {a: ask(device, encode_request(0x0E, encode_request_path(2, 1, a))) for a in (2, 3)}
+    assert attribute[2].data == struct.pack("<H", 8) and attribute[3].data == struct.pack("<H", 0)
+    data = _gaa(device, 2, 1)
+    assert data[-4:] == struct.pack("<HH", 8, 0)
+    (count,) = struct.unpack_from("<H", data)
+    assert len(data) == 2 + 2 * count + 4 and count == 6  # object list: 1, 2, 4, 6, 0xF5, 0xF6
+
+
+def test_tcpip_claims_no_dhcp_and_configuration_control_stays_static() -> None:
+    device = make_device()
+    capability = ask(device, encode_request(0x0E, encode_request_path(0xF5, 1, 2)))
+    assert capability.data == bytes(4)  # no BOOTP, no DHCP client, configuration not settable
+    for control in (0, 2):  # static, DHCP: not settable since bit 4 of attribute 2 is clear
+        reply = ask(device, encode_request(0x10, encode_request_path(0xF5, 1, 3), struct.pack("<I", control)))
+        assert reply.general_status == 0x0E
+    assert ask(device, encode_request(0x0E, encode_request_path(0xF5, 1, 3))).data == bytes(4)
+
+
+_CLASSES = (0x01, 0x02, 0x04, 0x06, 0xF5, 0xF6, 0x39, 0x3A)
+
+
+def _requests(model: str, address: str) -> list[bytes]:
+    requests = []
+    for class_id in _CLASSES:
+        for instance in (0, 1):
+            requests.append(encode_request(0x01, encode_request_path(class_id, instance)))
+            requests.extend(encode_request(0x0E, encode_request_path(class_id, instance, attribute))
+                            for attribute in range(1, 14 if instance == 0 else 30))
+    requests += [encode_request(0x01, encode_request_path(0x04, instance)) for instance in (100, 101)]
+    requests += [encode_request(0x10, encode_request_path(0xF5, 1, 3), bytes(4)),
+                 encode_request(0x10, encode_request_path(0xF5, 1, 8), b"\x05"),
+                 encode_request(0x4C, encode_request_path(0xF6, 1, 4))]
+    if model == "DSQC1042":  # the Safety Supervisor's services, accepted and refused
+        node = struct.pack("<I", int.from_bytes(bytes(map(int, address.split("."))), "big"))
+        tunid = bytes.fromhex("0000000000b7") + node
+        supervisor = encode_request_path(0x39, 1)
+        requests += [encode_request(0x57, supervisor, tunid), encode_request(0x56, supervisor, tunid),
+                     encode_request(0x57, supervisor, tunid), encode_request(0x56, supervisor, b"\xff" * 10),
+                     encode_request(0x54, supervisor, b"\x00" + bytes(16) + b"\xff" * 10),
+                     encode_request(0x54, supervisor, b"\x02" + bytes(16) + tunid + b"\x04"),
+                     encode_request(0x54, supervisor, b"\x01" + bytes(16) + tunid),
+                     encode_request(0x01, supervisor), encode_request(0x0E, encode_request_path(0x39, 1, 28))]
+    return requests
+
+
+@pytest.mark.system
+@pytest.mark.skipif(shutil.which("tshark") is None, reason="tshark (Debian) is not installed; .ci/run installs it")
+@pytest.mark.parametrize("model", ["DSQC1030", "DSQC1042"])
+def test_tshark_finds_no_error_in_any_reply_of_the_farm_objects(free_address, tmp_path: Path, model: str) -> None:
+    address = free_address()
+    recording = tmp_path / "objects.pcap"
+    farm = Farm(parse_config({"devices": [{"name": "d", "address": address, "model": model}], "discovery": False}),
+                record=recording)
+    requests = _requests(model, address)
+    with farm.running_in_thread(), RawClient(address) as client:
+        client.register()
+        statuses = [client.request(request).general_status for request in requests]
+    assert statuses.count(0) > len(requests) // 4  # a real mix of answers and refusals
+    expert = subprocess.run(["tshark", "-r", str(recording), "-q", "-z", "expert"], capture_output=True, text=True,
+                            timeout=120)
+    assert expert.returncode == 0, expert.stderr
+    assert "Errors (" not in expert.stdout and "Warnings (" not in expert.stdout, expert.stdout
+    listing = subprocess.run(["tshark", "-r", str(recording), "-Y", "cip"], capture_output=True, text=True,
+                             timeout=120).stdout
+    assert "Malformed" not in listing
+    assert listing.count("Success: TCP/IP Interface - Get Attributes All") == 2
+    assert listing.count("Success: Ethernet Link - Get Attributes All") == 2
