@@ -467,7 +467,7 @@ COLUMNS = [
      f"{r['farm']['err_p50_ms']:.2f} / {r['farm']['err_p99_ms']:.2f} / {r['farm']['err_max_ms']:.1f}"),
     ("farm CPU %", lambda r: f"{r['farm']['peer_cpu_percent']:.0f}"),
     ("originator CPU %", lambda r: f"{r['farm']['originator_cpu_percent']:.0f}"),
-    ("other CPU %", lambda r: f"{r['farm']['other_cpu_percent']:.0f}"),
+    ("other CPU %", lambda r: f"{max(0.0, r['farm']['other_cpu_percent']):.0f}"),  # tick accounting can dip below 0
     ("kernel drops", lambda r: f"{r['farm']['peer_socket_drops'] + r['farm']['originator_socket_drops']:,} "
                                f"({r['farm']['host_udp_errors']:,})"),
     ("C responder: T->O received, p99 ms, CPU %", lambda r: "-" if not r.get("c") else
