@@ -19,6 +19,7 @@ from enip_farm.console import Console, configure_logging
 from enip_farm.device.build import build_profiles
 from enip_farm.device.catalogue import shipped_catalogue
 from enip_farm.device.faults import Fault, FaultError, FaultKind
+from enip_farm.eds.reader import eds_catalogue
 from enip_farm.farm import BindError, Farm, freeze_heap, new_event_loop, until_stopped_or_failed
 from enip_farm.fleet import shard
 from enip_farm.table import device_table
@@ -33,7 +34,7 @@ def _load(path: Path | None, build: bool = True) -> FarmConfig:
     try:
         config = load_config(path or default_config_path())
         if build:
-            build_profiles(config, shipped_catalogue())
+            build_profiles(config, eds_catalogue())
     except ConfigError as error:
         click.echo(str(error), err=True)
         sys.exit(2)
@@ -536,33 +537,50 @@ def eds_export(model: str, addons: tuple[str, ...], output: Path) -> None:
 
 
 @eds.command("import")
-@click.argument("source", type=click.Path(dir_okay=False, path_type=Path))
-@click.option("-o", "--output", type=click.Path(dir_okay=False, path_type=Path), required=True,
-              help="the profile file to write (name it as a device's model: `model: PROFILE.yaml`)")
+@click.argument("source", type=click.Path(path_type=Path))
+@click.option("-o", "--output", type=click.Path(path_type=Path), required=True,
+              help="the profile file to write (name it as a device's model: `model: PROFILE.yaml`); for a "
+                   "folder of EDS files, the folder to write one profile per file into")
 @click.option("--name", default=None,
               help="the model's name (default: the EDS's product name); never a model of the catalogue")
 def eds_import(source: Path, output: Path, name: str | None) -> None:
-    """Make a catalogue profile (identity, assemblies and sizes) from a vendor's EDS file."""
+    """Make a catalogue profile (identity, assemblies, every class-1 connection) from a vendor's EDS
+    file, or from each EDS file of a folder."""
+    if source.is_dir():
+        sources = sorted(p for p in source.iterdir() if p.suffix.lower() == ".eds")
+        output.mkdir(parents=True, exist_ok=True)
+        failed = sum(not _import_one(path, output / f"{path.stem}.yaml", None) for path in sources)
+        click.echo(f"{len(sources) - failed} of {len(sources)} EDS files imported into {output}")
+        sys.exit(2 if failed else 0)
+    if not _import_one(source, output, name):
+        sys.exit(2)
+
+
+def _import_one(source: Path, output: Path, name: str | None) -> bool:
     import yaml
 
+    from enip_farm.eds.grammar import decode_eds_bytes
     from enip_farm.eds.reader import eds_profile, read_eds
 
     try:
-        device = read_eds(source.read_text(encoding="latin-1"), str(source))
+        device = read_eds(decode_eds_bytes(source.read_bytes()), str(source))
         model_name, document, notes = eds_profile(device, source.name, name)
     except OSError as error:
         click.echo(f"{source}: {error.strerror}", err=True)
-        sys.exit(2)
-    except ValueError as error:  # EdsError
+        return False
+    except ValueError as error:  # EdsError: one line per defect
         click.echo(str(error), err=True)
-        sys.exit(2)
+        return False
     comments = "".join(f"# {note}\n" for note in notes)
     output.write_text(f"# enip-farm profile made from {source.name} by `enip-farm eds import`.\n{comments}"
                       + yaml.safe_dump(document, sort_keys=False))
     model = document["models"][model_name]
-    click.echo(f"{output}: model {model_name}, assemblies {model['assemblies']}, sizes {model['sizes']}")
+    served = f"{len(model['connections'])} class-1 connections" if model["connections"] else "explicit only"
+    click.echo(f"{output}: model {model_name}, assemblies {model.get('assemblies', {})}, sizes "
+               f"{model.get('sizes', {})}, {served}")
     for note in notes:
         click.echo(f"  {note}")
+    return True
 
 
 # -- captures ------------------------------------------------------------------------------------

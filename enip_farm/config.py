@@ -339,8 +339,9 @@ def as_config(source: FarmConfig | Mapping[str, Any] | str | Path) -> FarmConfig
 
 
 def is_profile_path(model: str) -> bool:
-    """A device's model names a profile file (the catalogue's format) rather than a catalogue model."""
-    return model.endswith((".yaml", ".yml"))
+    """A device's model names a profile file (the catalogue's format, or a vendor's EDS file read
+    as `enip-farm eds import` reads it) rather than a catalogue model."""
+    return model.endswith((".yaml", ".yml", ".eds", ".EDS"))
 
 
 def device_location(index: int, name: str | None = None) -> str:

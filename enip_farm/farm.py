@@ -34,11 +34,12 @@ from enip_farm.control.handle import DeviceHandle
 from enip_farm.control.http import HttpApi, bind_problem
 from enip_farm.control.wiring import Wiring
 from enip_farm.device.build import build_profiles
-from enip_farm.device.catalogue import Catalogue, shipped_catalogue
+from enip_farm.device.catalogue import Catalogue
 from enip_farm.device.device import ENIP_PORT, Device
 from enip_farm.device.events import Event
 from enip_farm.device.faults import Fault, FaultKind
 from enip_farm.device.nonvolatile import load_state, save_state
+from enip_farm.eds.reader import eds_catalogue
 from enip_farm.server.calibrate import DEFAULT_DATAGRAMS_PER_S, measure_budget
 from enip_farm.server.implicit import IO_PORT, ImplicitIo
 from enip_farm.server.limits import RateLimitedLog, TcpLimits
@@ -118,7 +119,7 @@ class Farm:
         exists and written at `stop` (device/nonvolatile.py). Raises ConfigError if the configuration
         is invalid or its devices cannot be built, or the state file is not one."""
         self.config = config = as_config(config)
-        profiles = build_profiles(config, shipped_catalogue() if catalogue is None else catalogue)
+        profiles = build_profiles(config, eds_catalogue(catalogue))
         self.recorder = Recorder(record) if record else None
         self._http_address = http
         self._http_token = token

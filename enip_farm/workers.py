@@ -138,11 +138,11 @@ def _run(config: FarmConfig, processes: list, tables: dict[int, str], http: tupl
     """Every worker listens: print the table and wait for a signal or a worker's end."""
     click.echo("\n".join([TABLE_HEADER, *(tables[i] for i in sorted(tables))]))
     click.echo(f"{len(config.devices)} devices in {len(processes)} workers. Ctrl-C to stop.", err=True)
-    for index in sorted(budgets):
-        click.echo(f"worker {index} cyclic I/O budget: {budgets[index]}", err=True)
     if http and router is not None:
         click.echo(f"HTTP API on http://{http[0]}:{router_port(router)} (the devices of all {len(processes)} "
                    "workers)", err=True)
+    for index in sorted(budgets):
+        click.echo(f"worker {index} cyclic I/O budget: {budgets[index]}", err=True)
     while not stopping() and all(p.is_alive() for p in processes):
         for process in processes:
             process.join(0.2)

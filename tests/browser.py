@@ -66,6 +66,33 @@ requestAnimationFrame(() => requestAnimationFrame(() => done({
   count: document.getElementById('count').textContent})));
 """
 
+# Page.addScriptToEvaluateOnNewDocument(OVERVIEW_COMPLETE % count): `window.overviewComplete` becomes
+# the page's time (ms since navigation began) at which the overview first shows `count` tiles, each
+# coloured by a state, and counts on top that add up to `count`.
+OVERVIEW_COMPLETE = """
+window.overviewComplete = null;
+new MutationObserver((records, observer) => {
+  const tiles = document.getElementById('tiles'), counts = document.querySelectorAll('#counts b');
+  if (!tiles || tiles.childElementCount !== %d) return;
+  if ([...tiles.children].some(tile => !/\\bs-/.test(tile.className))) return;
+  if ([...counts].reduce((sum, b) => sum + (Number(b.textContent) || 0), 0) !== tiles.childElementCount) return;
+  window.overviewComplete = performance.now();
+  observer.disconnect();
+}).observe(document, {subtree: true, childList: true, characterData: true, attributes: true});
+"""
+
+# Installs the page's own clock on every change of a tile's class: `window.tileChanges` holds
+# [device, class, wall-clock ms] per change.
+RECORD_TILES = """
+window.tileChanges = [];
+new MutationObserver(records => {
+  const now = performance.timeOrigin + performance.now();
+  for (const record of records) {
+    window.tileChanges.push([record.target.dataset.device, record.target.className, now]);
+  }
+}).observe(document.getElementById('tiles'), {subtree: true, attributes: true, attributeFilter: ['class']});
+"""
+
 
 def installed() -> bool:
     return Path(CHROMIUM).exists() and Path(CHROMEDRIVER).exists()

@@ -343,7 +343,7 @@ def test_serve_talks(free_address: AddressPool, tmp_path: Path) -> None:
         assert wait_for(lambda: "fault injected" in log.read_text(), timeout=STARTUP_S)
         server.send_signal(signal.SIGINT)
         assert server.wait(timeout=STARTUP_S) == 0
-    said = [re.sub(r"^\S+ \S+ ", "", line) for line in log.read_text().splitlines()[3:]]  # without the time
+    said = [re.sub(r"^\S+ \S+ ", "", line) for line in log.read_text().splitlines()[4:]]  # without the time
     assert said == [
         f"INFO io1 {address}: tcp connected: {said[0].split()[-1]}",
         f"INFO io1 {address}: session registered: handle 1 from 127.0.0.1",

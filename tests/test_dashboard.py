@@ -106,8 +106,9 @@ def _references(html: str) -> list[str]:
 
 def test_the_page_is_package_data_and_names_no_other_host() -> None:
     urls = _references((WEB / "index.html").read_text())
-    assert sorted(urls) == ["dashboard/dashboard.css", "dashboard/dashboard.js", "data:,", "docs"]
-    for name in ("dashboard.js", "dashboard.css"):
+    assert sorted(urls) == ["dashboard/dashboard.css", "dashboard/dashboard.js", "dashboard/overview.js", "data:,",
+                            "docs"]
+    for name in ("dashboard.js", "overview.js", "dashboard.css"):
         assert not re.search(r"https?://", (WEB / name).read_text()), name
     assert '"control/web/*"' in (ROOT / "pyproject.toml").read_text()
 
@@ -245,12 +246,14 @@ def test_the_page_passes_the_guard_without_a_token_and_nothing_else_does(free_ad
         page = httpx.get(base + "/")
         assert page.status_code == 200 and page.headers["content-type"].startswith("text/html")
         assert page.text == (WEB / "index.html").read_text()
-        for name, kind in (("dashboard.js", "javascript"), ("dashboard.css", "text/css")):
+        for name, kind in (("dashboard.js", "javascript"), ("overview.js", "javascript"),
+                           ("dashboard.css", "text/css")):
             asset = httpx.get(f"{base}/dashboard/{name}")
             assert asset.status_code == 200 and kind in asset.headers["content-type"], name
             assert asset.text == (WEB / name).read_text()
         assert httpx.get(base + "/dashboard/nothing.js").status_code == 404
-        for path in ("/devices", "/state", "/events", "/docs", "/openapi.json", "/static-offline-docs/swagger-ui.css"):
+        for path in ("/devices", "/state", "/overview", "/events", "/docs", "/openapi.json",
+                     "/static-offline-docs/swagger-ui.css"):
             assert httpx.get(base + path).status_code == 401, path
         assert httpx.post(base + "/").status_code == 401
         # the Host check holds for the page too (a rebinding page cannot load it)

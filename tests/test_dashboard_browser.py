@@ -14,14 +14,19 @@ import random
 import statistics
 import time
 from collections.abc import Iterator
+from contextlib import contextmanager
 
+import ethernetip
+import httpx
 import pytest
 from pycomm3 import CIPDriver, Services
 
 from tests.browser import (
     FILTER_ROUND_TRIP,
     MEASURE_FRAMES,
+    OVERVIEW_COMPLETE,
     RECORD_CHANGES,
+    RECORD_TILES,
     WAIT_S,
     chromium,
     installed,
@@ -294,3 +299,164 @@ def test_a_thousand_devices_load_filter_and_scroll_without_freezing(enip_farm, b
     assert filtered["ms"] <= 2000 and cleared["ms"] <= 2000  # "a few seconds" at most; tens of ms measured
     assert worst_frame <= 2000  # the page never stops drawing for long
     assert page_errors(browser) == []
+
+
+# -- the plant's overview ----------------------------------------------------------------------------------
+
+
+class Scanner:
+    """A real scanner (`ethernetip`) with a session to `address`, ready to open a class-1
+    exclusive-owner connection. The package waits on its sockets with select(), which takes file
+    descriptors below 1024 only: beside a 1000-device farm, make it where `low_descriptors` freed some."""
+
+    def __init__(self, address: str) -> None:
+        self.enip = ethernetip.EtherNetIP(address)
+        self.conn = self.enip.explicit_conn(address)
+        assert self.conn.registerSession() == 0
+        self.enip.registerAssembly(ethernetip.EtherNetIP.ENIP_IO_TYPE_INPUT, 2, 101, self.conn)
+        self.enip.registerAssembly(ethernetip.EtherNetIP.ENIP_IO_TYPE_OUTPUT, 2, 100, self.conn)
+        self.enip.startIO(udp_port=0)  # its own port: the farm's device sockets hold 2222 on their addresses
+
+    def open(self, rpi_ms: int = 50) -> None:
+        """Forward Open (timeout multiplier 3: 32 RPI, 1.6 s, so that a busy machine's pause of the
+        scanner's thread is not taken for silence) and produce O->T every RPI."""
+        assert self.conn.sendFwdOpenReq(101, 100, 1, torpi=rpi_ms, otrpi=rpi_ms, multiplier=3,
+                                        originator_udp_port=self.enip.originator_udp_port) == 0
+        self.conn.produce()
+
+    def close(self) -> None:
+        self.conn.stopProduce()
+        self.enip.stopIO()
+
+
+@contextmanager
+def low_descriptors(count: int = 48) -> Iterator[None]:
+    """Hold `count` low file descriptors while the body runs (a farm opens its thousands of sockets
+    above them), and free them at the end, for sockets made right after."""
+    held = [os.open(os.devnull, os.O_RDONLY) for _ in range(count)]
+    try:
+        yield
+    finally:
+        for descriptor in held:
+            os.close(descriptor)
+
+
+def _tiles(driver) -> dict[str, str]:
+    """device -> its tile's state."""
+    return dict(driver.execute_script(
+        "return [...document.querySelectorAll('#tiles .tile')].map(t => [t.dataset.device,"
+        " /\\bs-(\\w+)/.exec(t.className)[1]])"))
+
+
+def _recoloured(driver, device: str, state: str, since: float) -> float:
+    """The page's time (s, wall clock) at which `device`'s tile took `state`'s colour, after `since`."""
+    return until(lambda: driver.execute_script(
+        "const hit = window.tileChanges.find(c => c[0] === arguments[0]"
+        " && c[1].split(' ').includes('s-' + arguments[1]) && c[2] >= arguments[2]);"
+        " return hit ? hit[2] / 1000 : null;", device, state, since * 1000),
+        lambda: f"{device}'s tile {state}: {_tiles(driver).get(device)}")
+
+
+def test_the_overview_of_a_thousand_devices_is_complete_within_2_s_and_follows_their_states(
+        enip_farm, browser) -> None:
+    """1000 tiles and their counts within 2 s of navigation (the page's own clock, and not before
+    the overview's answer arrived); states set before the page opened (a fault, a real scanner's
+    class-1 connection running, another's timed out) are shown, and so are their events; a click
+    on a tile opens that device's card; a fault injected and a connection opened and timed out
+    afterwards recolour the right tile, and only it."""
+    devices = 1000
+    with low_descriptors():
+        farm = enip_farm({"devices": [{"name": "io{n}", "address": "127.0.0.1", "count": devices,
+                                       "model": "DSQC1030"}]}, http=True)
+    scanners = [Scanner(farm[name].address) for name in ("io7", "io8", "io9")]
+    running, silent, later = scanners
+    base = f"http://127.0.0.1:{farm.http.port}"
+    farm["io500"].inject("drop")
+    try:
+        running.open()
+        silent.open()
+        silent.conn.stopProduce()  # the farm times io8's connection out after 32 RPI
+        until(lambda: farm.devices["io8"].counters["connection_timeouts"] == 1, "io8's connection timed out")
+        browser.execute_cdp_cmd("Page.addScriptToEvaluateOnNewDocument", {"source": OVERVIEW_COMPLETE % devices})
+        browser.get("about:blank")
+        browser.get_log("browser")
+        browser.get(base + "/")
+        complete = until(lambda: browser.execute_script("return window.overviewComplete"), "the overview complete")
+        answered = browser.execute_script(
+            "return performance.getEntriesByType('resource').filter(e => /\\/overview(\\?|$)/.test(e.name))"
+            ".map(e => e.responseEnd)")
+        print(f"\n{devices} devices: overview complete {complete:.0f} ms after navigation "
+              f"(its first answer at {answered[0]:.0f} ms)")
+        assert 0 < answered[0] <= complete <= 2000
+        tiles = _tiles(browser)
+        expected = {f"io{n}": "idle" for n in range(1, devices + 1)}
+        expected.update(io7="running", io8="timed_out", io500="faulted")
+        assert tiles == expected
+        assert browser.find_element("id", "counts").text.split() == [
+            "idle", "997", "class-1", "running", "1", "timed", "out", "1", "faulted", "1"]
+        # recent events from before the page opened are in the events panel
+        logged = until(lambda: [line.text for line in browser.find_elements("css selector", "#log li")
+                                if " io500 " in line.text or " io8 " in line.text], "the recent events")
+        assert any(line.endswith("io500 fault injected kind=drop") for line in logged), logged
+        assert any(" io8 connection timed out exclusive owner from 127.0.0.1" in line for line in logged), logged
+        # a click on a tile opens that device's card, alone
+        browser.find_element("css selector", "#tiles [data-device='io500']").click()
+        until(lambda: browser.execute_script("return [...document.querySelectorAll('.card')].map(c => c.dataset.device)"
+                                             ) == ["io500"], "io500's card alone")
+        chip = until(lambda: browser.find_elements("css selector", ".card[data-device='io500'] .chip"), "its fault")
+        assert chip[0].text.startswith("drop")
+        # states that change now recolour their tile, and only it
+        browser.execute_script(RECORD_TILES)
+        before = time.time()
+        assert httpx.post(f"{base}/devices/io300/faults", json={"kind": "stop-io"}).status_code == 201
+        faulted = _recoloured(browser, "io300", "faulted", before) - before
+        before = time.time()
+        later.open()
+        opened = _recoloured(browser, "io9", "running", before) - before
+        before = time.time()
+        running.conn.stopProduce()  # the last O->T went at most an RPI ago: the timeout is 1.6 s from it
+        timed_out = _recoloured(browser, "io7", "timed_out", before) - before
+        print(f"tile recoloured after: a fault {faulted * 1000:.0f} ms, a Forward Open {opened * 1000:.0f} ms, "
+              f"the scanner's silence {timed_out * 1000:.0f} ms (timeout 1600 ms)")
+        assert faulted <= 2 and opened <= 2  # the event, 250 ms for more, a read of the overview, a frame
+        assert 1.6 - 0.05 <= timed_out <= 1.6 + 2
+        changed = {change[0] for change in browser.execute_script("return window.tileChanges")}
+        assert changed == {"io300", "io9", "io7"}, changed
+        expected.update(io300="faulted", io9="running", io7="timed_out")
+        assert _tiles(browser) == expected
+        assert _counts(browser) == {
+            "idle": 995, "running": 1, "timed_out": 2, "faulted": 2}
+        # the overview's own filter and a count as a state filter
+        browser.find_element("css selector", "#counts [data-state='faulted']").click()
+        assert _shown(browser) == ["io300", "io500"]
+        browser.find_element("id", "tile-filter").send_keys("io30")
+        assert _shown(browser) == ["io300"]
+    finally:
+        for scanner in scanners:
+            scanner.close()
+    assert page_errors(browser) == []
+
+
+def _counts(driver) -> dict[str, int]:
+    return dict(driver.execute_script(
+        "return [...document.querySelectorAll('#counts [data-state]')].map(b => [b.dataset.state,"
+        " Number(b.querySelector('b').textContent)])"))
+
+
+def _shown(driver) -> list[str]:
+    return sorted(driver.execute_script(
+        "return [...document.querySelectorAll('#tiles .tile')].filter(t => !t.hidden).map(t => t.dataset.device)"))
+
+
+def test_a_banner_says_when_class1_io_is_not_running(enip_farm, browser) -> None:
+    farm = enip_farm(name="io", model="DSQC1030", http=True)
+    open_page(browser, f"http://127.0.0.1:{farm.http.port}/", "io")
+    banner = browser.find_element("id", "io-banner")
+    assert not banner.is_displayed()
+    thread = farm._implicit.thread
+    thread._stopping = True  # the cyclic I/O thread ends, as if an error had escaped it
+    thread._wake()
+    thread.join(5)
+    until(banner.is_displayed, "the banner")
+    assert banner.text.startswith("Class-1 I/O is not running (0 errors)")
+    assert [error for error in page_errors(browser) if "/health" not in error] == []

@@ -118,36 +118,52 @@ EXAMPLE_MODEL = {
                  "product_name": "EX-IO 8DI/8DO/2AI"},
     "assemblies": {"output": 150, "input": 100, "configuration": 151, "input_only": 152, "listen_only": 153},
     "sizes": {"output": 6, "input": 8, "configuration": 10},
+    "configuration_data": "03000000000000000000",  # Assem151's members: Param2 (default 3), Param3, Param4
+    "rpi_us": [1000, 750000],
     "io": {},
+    "points": {100: 8, 101: 2, 150: 6, 151: 10, 152: 0, 153: 0},
     "unverified": ["io layout"],
 }
+#: (entry, kind, configuration, O->T, T->O, O->T size, T->O size, O->T format, T->O multicast, point to point)
+EXAMPLE_CONNECTIONS = [
+    ("Connection1", "exclusive owner", 151, 150, 100, 6, 8, "run/idle", True, True),
+    ("Connection2", "input only", 151, 152, 100, 0, 8, "heartbeat", True, True),
+    ("Connection3", "listen only", 151, 153, 100, 0, 8, "heartbeat", True, False),
+    ("Connection4", "input only", 151, 152, 101, 0, 2, "heartbeat", True, True),
+]
 
 
 @pytest.mark.parametrize("newline", ["\n", "\r\n"])
 def test_import_a_vendors_eds(newline: str) -> None:
     text = VENDOR_EDS.read_text().replace("\n", newline)
     name, document, notes = eds_profile(read_eds(text, "example_adapter.eds"), "example_adapter.eds")
+    model = document["models"][name]
+    connections = model.pop("connections")
+    parameters = model.pop("parameters")
+    assert [(p["instance"], p["name"], p.get("default")) for p in parameters] == [
+        (1, "RPI", 10000), (2, "Digital inputs", 0), (3, "Digital outputs", 0), (4, "Analog input", 0),
+        (5, "T->O size", 8), (6, "Filter time", 3)]
     assert name == "EX-IO_8DI/8DO/2AI" and document == {"models": {name: EXAMPLE_MODEL}}
-    assert notes == [
-        *(f"eds-pie: Unknown Field [Port].Port1.field{n}" for n in range(4)),
-        "Connection4 'Status Only' (input only, path 20 04 24 97 2C 98 2C 65) is not served: the farm serves the "
-        "assemblies of Connection1",
-        "RPI 1000..750000 us in Connection1: set the device's implicit.rpi_min_us and rpi_max_us to match (the "
-        "farm's default is 2000..10000000)"]
+    assert [(c["entry"], c["kind"], c["configuration"], c["o_t"], c["t_o"], c["o_t_size"], c["t_o_size"],
+             c["o_t_format"], c["t_o_multicast"], c["t_o_point_to_point"]) for c in connections] == EXAMPLE_CONNECTIONS
+    assert {c["t_o_format"] for c in connections} == {"modeless"} and {tuple(c["rpi_us"]) for c in connections} == {
+        (1000, 750000)}
+    assert notes == []  # the vendor section [65500_Diagnostics] and [Port] are kept, not warned about
 
 
 def test_import_refuses_what_it_cannot_serve() -> None:
     text = VENDOR_EDS.read_text()
-    with pytest.raises(EdsError, match=r"^x.eds: not an EDS file eds-pie can read \(.*\)$"):
+    with pytest.raises(EdsError, match=r"^x.eds:2: not an EDS file: 'DescText' where an entry or a section was "
+                       "expected$"):
         read_eds("[File\nDescText = 1;\n", "x.eds")
-    with pytest.raises(EdsError, match=r"^x.eds: \[Device\] has no ProdCode$"):
+    with pytest.raises(EdsError, match=r"^x.eds:\d+: \[Device\] has no ProdCode$"):
         read_eds(text.replace("ProdCode = 4711;", ""), "x.eds")
-    no_owner = text.replace("0x04010002,             $ class 1, cyclic, exclusive owner", "0x02010002,")
-    with pytest.raises(EdsError, match="no class-1 exclusive-owner connection"):
-        eds_profile(read_eds(no_owner, "x.eds"), "x.eds")
     too_big = text.replace("Param1,,Assem150,", "Param1,500,Assem150,")
-    with pytest.raises(EdsError, match="output size 500 is beyond the farm's 496 bytes"):
-        eds_profile(read_eds(too_big, "x.eds"), "x.eds")
+    _, document, notes = eds_profile(read_eds(too_big, "x.eds"), "x.eds")
+    assert [c["entry"] for c in document["models"]["EX-IO_8DI/8DO/2AI"]["connections"]] == [
+        "Connection2", "Connection3", "Connection4"]
+    assert notes == ["Connection1 'Exclusive Owner' (exclusive owner, path 20 04 24 97 2C 96 2C 64): o_t_size 500 is "
+                     "beyond the farm's 496 bytes; not served"]
     with pytest.raises(EdsError, match="never replaces"):
         eds_profile(read_eds(text, "x.eds"), "x.eds", name="DSQC1030")
     renamed = text.replace('ProdName = "EX-IO 8DI/8DO/2AI";', 'ProdName = "DSQC1030";')
@@ -178,7 +194,9 @@ def test_imported_vendor_profile_is_served_as_the_eds_says(enip_farm, tmp_path: 
                                              10_000, serial, t_o_multicast=True)
             assert client.request(heartbeat).general_status == 0
         status_only = forward_open_message(bytes.fromhex("20 04 24 97 2C 98 2C 65"), 2, 4, 10_000, 4)
-        refused = client.request(status_only)  # Connection4, reported as not served
+        assert client.request(status_only).general_status == 0  # Connection4: its own T->O point, 2 bytes
+        other = forward_open_message(bytes.fromhex("20 04 24 97 2C 98 2C 66"), 2, 4, 10_000, 5)
+        refused = client.request(other)  # no entry produces 0x66
         assert (refused.general_status, refused.additional_status) == (0x01, (0x012B,))
     assert eds.get_value("Device", "ProdCode") == 4711
 
@@ -197,8 +215,7 @@ def test_export_import_round_trip(enip_farm, tmp_path: Path) -> None:
                                    "listen_only": 199}
     assert model["sizes"] == {"output": built_in.output_size, "input": built_in.input_size, "configuration": 0} \
         == {"output": 12, "input": 12, "configuration": 0}
-    assert notes == ["RPI 2000..10000000 us in Connection1: set the device's implicit.rpi_min_us and rpi_max_us "
-                     "to match (the farm's default is 2000..10000000)"]
+    assert notes == []
     profile = _write_profile(tmp_path / "imported.yaml", document)
     farm = enip_farm({"devices": [{"name": "built_in", "model": "DSQC1030", "addons": list(addons)},
                                   {"name": "imported", "model": str(profile)}]})
@@ -267,12 +284,14 @@ def test_eds_commands(tmp_path: Path) -> None:
     assert result.returncode == 0, result.stderr
     assert result.stdout.splitlines()[0] == (
         f"{profile}: model DSQC1030_eds, assemblies {{'output': 100, 'input': 101, 'configuration': 1, "
-        "'input_only': 198, 'listen_only': 199}, sizes {'output': 12, 'input': 12, 'configuration': 0}")
+        "'input_only': 198, 'listen_only': 199}, sizes {'output': 12, 'input': 12, 'configuration': 0}, "
+        "3 class-1 connections")
     assert list(yaml.safe_load(profile.read_text())["models"]) == ["DSQC1030_eds"]
     for args, message in (
             (["export", "DSQC9", "-o", str(tmp_path / "x.eds")],
              "eds export: device 'eds' (devices[0]), model: unknown base model 'DSQC9'; known: DSQC1030, DSQC1042"),
-            (["import", str(ROOT / "README.md"), "-o", str(tmp_path / "x.yaml")], f"{ROOT / 'README.md'}: not an EDS"),
+            (["import", str(ROOT / "README.md"), "-o", str(tmp_path / "x.yaml")],
+             f"{ROOT / 'README.md'}:1: not an EDS"),
             (["import", str(tmp_path / "missing.eds"), "-o", str(tmp_path / "x.yaml")],
              f"{tmp_path / 'missing.eds'}: No such file or directory")):
         result = subprocess.run([*CLI, "eds", *args], capture_output=True, text=True, timeout=120)

@@ -57,6 +57,38 @@ class ConnectionPolicy:
     safety: SafetyPolicy | None = None  # a CIP Safety target: SafetyOpens admitted, class-1 refused
     class3_rpi_min_us: int = 1_000  # class-3 RPIs accepted (the connection timeout's base)
     class3_rpi_max_us: int = 60_000_000
+    declared: tuple[DeclaredConnection, ...] = ()  # an EDS's connections: only these are admitted
+
+
+@dataclass(frozen=True)
+class DeclaredConnection:
+    """A class-1 connection a device's EDS declares (Vol. 1, 7-3.6.11): its points, its application
+    data sizes (without the sequence count and a run/idle header), real-time formats ("modeless",
+    "zero length", "heartbeat", "run/idle"), the T->O connection types it allows and its RPI range."""
+
+    kind: ConnectionKind
+    configuration: int | None
+    o_t: int
+    t_o: int
+    o_t_size: int
+    t_o_size: int
+    o_t_format: str = "run/idle"
+    t_o_format: str = "modeless"
+    o_t_variable: bool = False
+    t_o_variable: bool = False
+    t_o_multicast: bool = True
+    t_o_point_to_point: bool = True
+    configuration_size: int = 0
+    rpi_us: tuple[int, int] | None = None
+    shared_owner: bool = False  # a redundant owner: several owners may consume the point
+    name: str = ""
+
+    def wire_size(self, direction: str) -> int:
+        """The connection size a Forward Open gives: sequence count, run/idle header, data."""
+        size, form = (self.o_t_size, self.o_t_format) if direction == "o_t" else (self.t_o_size, self.t_o_format)
+        if form == "heartbeat":
+            return SEQUENCE_COUNT_SIZE
+        return SEQUENCE_COUNT_SIZE + (RUN_IDLE_HEADER_SIZE if form == "run/idle" else 0) + size
 
 
 class KeyIdentity(NamedTuple):
@@ -87,6 +119,13 @@ class Refusal(NamedTuple):
     @property
     def additional_status(self) -> tuple[int, ...]:
         return (self.extended,) if self.expected_size is None else (self.extended, self.expected_size)
+
+
+def _data_segments(connection_path: bytes) -> list[DataSegment]:
+    try:
+        return [s for s in decode_epath(connection_path) if isinstance(s, DataSegment)]
+    except PathError:
+        return []
 
 
 class _Refused(Exception):
@@ -223,6 +262,8 @@ class Admission:
 
     def _admit_io(self, request: ForwardOpenRequest, points: tuple[int | None, int, int], originator: Originator,
                   now: int, connections: Collection[Connection], taken_ids: Callable[[int], bool]) -> Connection:
+        if self.policy.declared:
+            return self._admit_declared(request, points, originator, now, connections, taken_ids)
         policy = self.policy
         configuration, consuming, producing = points
         config_assembly = self.assemblies.get("configuration")
@@ -288,6 +329,93 @@ class Admission:
             t_o_address=t_o_address, multicast=multicast, o_t_point=consuming, t_o_point=producing,
             o_t_run_idle_header=kind is ConnectionKind.EXCLUSIVE_OWNER, o_t_variable=o_t.variable,
             o_t_size=o_t.size, t_o_size=t_o.size,
+        )
+
+    def _admit_declared(self, request: ForwardOpenRequest, points: tuple[int | None, int, int],
+                        originator: Originator, now: int, connections: Collection[Connection],
+                        taken_ids: Callable[[int], bool]) -> Connection:
+        """A class-1 Forward Open held against the connections the device's EDS declares: the entry
+        of its points (the configuration point may be left out where the entry has none), then
+        that entry's connection types, RPI range and sizes. Where several entries share the points
+        the first that fits is taken; else the first one's refusal is given."""
+        configuration, consuming, producing = points
+        declared = self.policy.declared
+        same = [d for d in declared if d.o_t == consuming and d.t_o == producing]
+        if not same:
+            if any(d.o_t == consuming for d in declared):
+                raise _refuse(X.INVALID_PRODUCING_PATH)
+            raise _refuse(X.INVALID_CONSUMING_PATH)
+        candidates = ([d for d in same if d.configuration == configuration]
+                      + [d for d in same if d.configuration != configuration
+                         and (d.configuration is None or configuration is None)])
+        if not candidates:
+            raise _refuse(X.INVALID_CONFIGURATION_PATH)
+        first: _Refused | None = None
+        for entry in candidates:
+            try:
+                return self._admit_entry(entry, request, originator, now, connections, taken_ids)
+            except _Refused as refused:
+                first = first or refused
+        raise first  # type: ignore[misc]
+
+    def _admit_entry(self, entry: DeclaredConnection, request: ForwardOpenRequest, originator: Originator,
+                     now: int, connections: Collection[Connection], taken_ids: Callable[[int], bool]) -> Connection:
+        policy = self.policy
+        o_t, t_o = request.o_t_parameters, request.t_o_parameters
+        multicast = t_o.connection_type == ConnectionType.MULTICAST
+        if o_t.connection_type != ConnectionType.POINT_TO_POINT or t_o.connection_type not in (
+                ConnectionType.POINT_TO_POINT, ConnectionType.MULTICAST) or (
+                multicast and not entry.t_o_multicast) or (not multicast and not entry.t_o_point_to_point):
+            raise _refuse(X.INVALID_CONNECTION_TYPE)
+        low, high = entry.rpi_us or (policy.rpi_min_us, policy.rpi_max_us)
+        for rpi in (request.o_t_rpi, request.t_o_rpi):
+            if not low <= rpi <= high:
+                raise _refuse(X.RPI_NOT_SUPPORTED)
+        expected = entry.wire_size("o_t")
+        if entry.o_t_format == "heartbeat":
+            fits = o_t.size in (SEQUENCE_COUNT_SIZE, SEQUENCE_COUNT_SIZE + RUN_IDLE_HEADER_SIZE)
+        else:
+            header = SEQUENCE_COUNT_SIZE + (RUN_IDLE_HEADER_SIZE if entry.o_t_format == "run/idle" else 0)
+            fits = o_t.size == expected or (o_t.variable and header <= o_t.size <= expected)
+        if not fits:
+            raise _refuse(X.INVALID_O_T_SIZE, expected)
+        expected_t_o = entry.wire_size("t_o")
+        if t_o.size != expected_t_o:  # T->O sends whole images: the size must hold one
+            raise _refuse(X.INVALID_T_O_SIZE, expected_t_o)
+        data = [s.data for s in _data_segments(request.connection_path)]
+        configuration_data = data[0] if data else None
+        if configuration_data and len(configuration_data) != entry.configuration_size:
+            raise _refuse(X.INVALID_CONFIGURATION_PATH)  # data for another configuration than the EDS's
+        kind = entry.kind
+        io_connections = [c for c in connections if c.is_io]
+        if kind is ConnectionKind.EXCLUSIVE_OWNER and not entry.shared_owner and any(
+                c.kind is ConnectionKind.EXCLUSIVE_OWNER and c.o_t_point == entry.o_t for c in io_connections):
+            raise _refuse(X.OWNERSHIP_CONFLICT)
+        shared = next((c for c in io_connections if c.multicast and c.t_o_point == entry.t_o
+                       and c.kind is not ConnectionKind.LISTEN_ONLY), None) if multicast else None
+        if kind is ConnectionKind.LISTEN_ONLY and shared is None:
+            raise _refuse(X.NON_LISTEN_ONLY_NOT_OPENED)
+        if shared is not None and (shared.t_o_rpi != request.t_o_rpi or shared.t_o_size != t_o.size):
+            raise _refuse(X.RPI_NOT_SUPPORTED if shared.t_o_rpi != request.t_o_rpi else X.INVALID_T_O_SIZE,
+                          None if shared.t_o_rpi != request.t_o_rpi else shared.t_o_size)
+        if len(io_connections) >= policy.max_class1_connections:
+            raise _refuse(X.OUT_OF_CONNECTIONS)
+        if multicast:
+            t_o_id = shared.t_o_id if shared else self._new_connection_id(taken_ids)
+            t_o_address = (policy.multicast_group, IO_PORT)
+        else:
+            t_o_id = request.t_o_connection_id
+            t_o_address = self._point_to_point_address(originator)
+        return Connection(
+            kind=kind, triad=request.triad, o_t_id=self._new_connection_id(taken_ids), t_o_id=t_o_id,
+            o_t_rpi=request.o_t_rpi, t_o_rpi=request.t_o_rpi, timeout_multiplier=request.timeout_multiplier,
+            originator_host=originator.host, opened_at=now, first_watchdog_ns=policy.first_watchdog_ns,
+            t_o_address=t_o_address, multicast=multicast, o_t_point=entry.o_t, t_o_point=entry.t_o,
+            o_t_run_idle_header=entry.o_t_format == "run/idle",
+            o_t_modeless=entry.o_t_format in ("modeless", "zero length") and entry.o_t_size > 0,
+            t_o_run_idle_header=entry.t_o_format == "run/idle", t_o_heartbeat=entry.t_o_format == "heartbeat",
+            o_t_variable=o_t.variable, o_t_size=o_t.size, t_o_size=t_o.size,
+            configuration_data=configuration_data if entry.configuration is not None else None,
         )
 
     @staticmethod

@@ -43,6 +43,10 @@ class Connection:
     o_t_point: int | None = None
     t_o_point: int | None = None
     o_t_run_idle_header: bool = True
+    o_t_modeless: bool = False  # O->T data without a run/idle header (an EDS's modeless or zero-length format)
+    t_o_run_idle_header: bool = False  # T->O carries the 32-bit run/idle header (an EDS's format 4)
+    t_o_heartbeat: bool = False  # T->O carries no data (an EDS's heartbeat format)
+    configuration_data: bytes | None = None  # the Forward Open's data segment, for the configuration point
     o_t_variable: bool = False  # the originator may send less data than the assembly holds
     o_t_size: int = 0  # connection sizes from the Forward Open, bytes
     t_o_size: int = 0
@@ -99,6 +103,9 @@ class Production:
     users: int = 1
     late: int = 0  # periods skipped because the producer fell a whole period behind
     safety: SafetyProducer | None = None  # CIP Safety client: the SafetyProducer that encodes each packet (class 0)
+    point: int | None = None  # the produced assembly (an EDS's connections); None: the input assembly
+    header: bytes = b""  # the 32-bit run/idle header before the data (an EDS's T->O format 4)
+    heartbeat: bool = False  # no data, the sequence count only (an EDS's heartbeat format)
 
     @property
     def due(self) -> int:

@@ -89,6 +89,9 @@ class ConnectionEvent(NamedTuple):
     at: int  # ns
 
 
+_RUN_HEADER = b"\x01\x00\x00\x00"  # a T->O 32-bit run/idle header: run
+
+
 class ConnectionTable:
     """The CIP connections of one device. Every method takes the time, none reads a clock."""
 
@@ -98,6 +101,8 @@ class ConnectionTable:
         self.assemblies = assemblies
         self.budget = budget
         self.policy = policy
+        # every assembly by instance: an EDS's connections consume and produce their own points
+        self._points = {a.instance_id: a for a in assemblies.values()}
         self.admission = Admission(assemblies, policy, identity, rng)
         self.counters: Counter[str] = counters if counters is not None else Counter()
         self.connections: dict[int, Connection] = {}  # by O->T connection id
@@ -179,14 +184,20 @@ class ConnectionTable:
         items: ReplyItems = ()
         if connection.is_io:
             if connection.kind is ConnectionKind.EXCLUSIVE_OWNER:
-                self.assemblies["output"].owned = True
+                self._consumed(connection).owned = True
+            if connection.configuration_data:  # the Forward Open's configuration data (an EDS's connections)
+                configuration = self.assemblies.get("configuration")
+                if configuration is not None and len(configuration.data) == len(connection.configuration_data):
+                    configuration.data[:] = connection.configuration_data
             key = (connection.t_o_id, connection.t_o_address)
             production = self.productions.get(key)  # type: ignore[arg-type]
             if production is not None:
                 production.users += 1
             else:
                 self.productions[key] = Production(  # type: ignore[index]
-                    connection.t_o_id, connection.t_o_address, connection.t_o_rpi * 1000, now)  # type: ignore[arg-type]
+                    connection.t_o_id, connection.t_o_address, connection.t_o_rpi * 1000, now,  # type: ignore[arg-type]
+                    point=connection.t_o_point if self.policy.declared else None,
+                    header=_RUN_HEADER if connection.t_o_run_idle_header else b"", heartbeat=connection.t_o_heartbeat)
             if connection.multicast:
                 items = ((ItemType.SOCKADDR_T_O, encode_sockaddr(SocketAddress(*connection.t_o_address))),)  # type: ignore[misc]
         self._events.append(ConnectionEvent("connection opened", connection, "", now))
@@ -273,7 +284,7 @@ class ConnectionTable:
                 if production.users <= 0:
                     del self.productions[key]  # type: ignore[arg-type]
         if connection.kind is ConnectionKind.EXCLUSIVE_OWNER:
-            output = self.assemblies["output"]
+            output = self._consumed(connection)
             output.owned = False
             if self.policy.outputs_off_on_fault if timed_out else self.policy.outputs_off_on_idle:
                 output.data[:] = bytes(len(output.data))
@@ -336,13 +347,18 @@ class ConnectionTable:
             return self._receive_safety(connection, IoPacket(connection_id, sequence, sequence_count,
                                                              data[IO_HEADER_SIZE:]), now, port)
         payload = data[IO_HEADER_SIZE:]
+        output = self._consumed(connection)
         if connection.o_t_run_idle_header:
             if len(payload) < RUN_IDLE_HEADER_SIZE:
                 return self._drop("wrong_size")
-            output = self.assemblies["output"]
             run = bool(payload[0] & 1)
             image = payload[RUN_IDLE_HEADER_SIZE:]
             if len(image) != len(output.data) and not (connection.o_t_variable and len(image) < len(output.data)):
+                return self._drop("wrong_size")
+        elif connection.o_t_modeless:  # data without a header; no data: idle (zero-length format)
+            run, image = bool(payload), payload or None
+            if payload and len(payload) != len(output.data) and not (
+                    connection.o_t_variable and len(payload) < len(output.data)):
                 return self._drop("wrong_size")
         elif payload and len(payload) != RUN_IDLE_HEADER_SIZE:  # a heartbeat: nothing, or a run/idle header
             return self._drop("wrong_size")
@@ -357,8 +373,9 @@ class ConnectionTable:
         connection.run = run
         self.counters["o_t_packets"] += 1
         if image is None:
+            if not run and connection.o_t_modeless and self.policy.outputs_off_on_idle:
+                output.data[:] = bytes(len(output.data))
             return True
-        output = self.assemblies["output"]
         if not run:
             if self.policy.outputs_off_on_idle:
                 output.data[:] = bytes(len(output.data))
@@ -412,6 +429,17 @@ class ConnectionTable:
             connection.run = True
         return True
 
+    def _consumed(self, connection: Connection) -> AssemblyInstance:
+        """The assembly a connection's O->T data goes to: its consumed point's, else the output."""
+        return self._points.get(connection.o_t_point, self.assemblies.get("output"))  # type: ignore[arg-type,return-value]
+
+    def _produced(self, production: Production) -> bytes:
+        """The T->O data of a stream of an EDS's connection: its run/idle header and point's bytes."""
+        if production.heartbeat:
+            return b""
+        assembly = self._points.get(production.point)  # type: ignore[arg-type]
+        return production.header + (bytes(assembly.data) if assembly is not None else b"")
+
     def _drop(self, reason: str) -> bool:
         self.counters[f"o_t_dropped_{reason}"] += 1
         return False
@@ -434,8 +462,9 @@ class ConnectionTable:
                     data = bytes(self.assemblies["input"].data)
                 production.sequence += 1
                 if production.safety is None:
+                    payload = data if production.point is None else self._produced(production)
                     out.append((encode_io_packet(production.connection_id, production.sequence, production.sequence,
-                                                 data), production.address))
+                                                 payload), production.address))
                 else:
                     message = production.safety.produce(data, now)
                     out.append((encode_class0_packet(production.connection_id, production.sequence, message),

@@ -2,7 +2,8 @@
 
 GET /devices, GET /devices/{name}, GET and PUT /devices/{name}/io, GET /devices/{name}/io/{signal}
 (one signal by its number or name), POST and DELETE /devices/{name}/faults, GET /state (what the
-dashboard shows of each device: signals, connections, counters, faults), GET /events (server-sent
+dashboard shows of each device: signals, connections, counters, faults), GET /overview (every
+device's state in one answer, and recent events: control/overview.py), GET /events (server-sent
 events, control/stream.py), GET /metrics (Prometheus), the dashboard at / (control/dashboard.py),
 and the OpenAPI schema at /openapi.json with /docs and /redoc served from assets shipped in the
 package (no CDN). Bound to a loopback address (localhost, 127.x.y.z, ::1) the API may run without
@@ -37,6 +38,7 @@ from enip_farm.control.dashboard import mount_dashboard
 from enip_farm.control.guard import Guard, needs_token
 from enip_farm.control.handle import FarmControl
 from enip_farm.control.metrics import FarmCollector
+from enip_farm.control.overview import RECENT, Overview
 from enip_farm.control.stream import EventHub, EventStream
 from enip_farm.device.device import Device
 from enip_farm.device.faults import Fault, FaultError, FaultKind
@@ -134,13 +136,14 @@ def _device(farm: FarmControl, name: str, detail: bool = False) -> dict[str, Any
     return out
 
 
-def create_app(farm: FarmControl, hub: EventHub | None = None) -> FastAPI:
+def create_app(farm: FarmControl, hub: EventHub | None = None, overview: Overview | None = None) -> FastAPI:
     """The API's routes; `HttpApi` serves them behind `Guard` (Host, token, body size)."""
     app = FastAPIOffline(title="enip-farm", description="Drive and observe a farm of virtual EtherNet/IP devices. "
                          "The dashboard is at /.")
     registry = CollectorRegistry()
     registry.register(FarmCollector(farm.devices.values(), farm.health, farm.cyclic_io_load))
     hub = hub if hub is not None else EventHub(farm.devices.values())
+    overview = overview if overview is not None else Overview(farm.devices.values())
 
     def known(name: str) -> str:
         if name not in farm.devices:
@@ -209,6 +212,15 @@ def create_app(farm: FarmControl, hub: EventHub | None = None) -> FastAPI:
         """What the dashboard shows of each device (all, or those named by `device`): every signal
         with its value, the connections and their owners, packet and timeout counters, faults."""
         return [_state(farm, known(name)) for name in device or farm.devices]
+
+    @app.get("/overview")
+    def plant(events: Annotated[int, Query(ge=0, le=RECENT)] = 0) -> dict[str, Any]:
+        """Every device (configuration order) with its state (`idle`, `running`: a class-1 connection
+        open, `timed_out`: its last class-1 connection timed out and none runs, `faulted`: a fault
+        injected; the first that holds, so each device is in one), its class-1 connection count,
+        timeout counter and fault kinds; the count of devices in each state; and the last `events`
+        events other than requests and image changes, oldest first, as GET /events sends them."""
+        return overview.snapshot(events)
 
     @app.get("/events", responses={200: {"content": {"text/event-stream": {}}},
                                     503: {"description": "too many event streams are open"}})
@@ -296,7 +308,8 @@ class HttpApi:
         self.host = host
         self._port = port
         self.hub = EventHub(farm.devices.values())
-        self.app = create_app(farm, self.hub)
+        self.overview = Overview(farm.devices.values())
+        self.app = create_app(farm, self.hub, self.overview)
         self.server = _EmbeddedServer(uvicorn.Config(Guard(self.app, host, token), host=host, port=port,
                                                      log_level="warning",
                                                      lifespan="off", access_log=False))
@@ -324,6 +337,7 @@ class HttpApi:
 
     async def stop(self) -> None:
         self.hub.close()
+        self.overview.close()
         self.server.should_exit = True
         self.server.force_exit = True
         if self.task is not None:

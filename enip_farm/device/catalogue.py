@@ -7,7 +7,7 @@ one). Who needs models is handed a catalogue; there is no process-wide registry.
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from functools import lru_cache
 from importlib import resources
@@ -65,6 +65,46 @@ class AssemblySizes(_Strict):
     configuration: int = Field(0, ge=0, le=MAX_ASSEMBLY_SIZE)
 
 
+RealTimeFormat = Literal["modeless", "zero length", "heartbeat", "run/idle"]
+
+
+class ParameterEntry(_Strict):
+    """A parameter of an EDS's [Params] (ParamN: instance N of the Parameter Object, class 0x0F)."""
+
+    instance: int = Field(ge=1, le=0xFFFF)
+    name: str = ""
+    descriptor: int = Field(0, ge=0, le=0xFFFF, description="bit 4: read only")
+    data_type: int = Field(ge=0, le=0xFF)
+    size: int = Field(ge=1, le=8)
+    minimum: float | None = None
+    maximum: float | None = None
+    default: float | None = None
+    link_path: str = Field("", pattern=r"^([0-9A-Fa-f]{2})*$", description="hex")
+
+
+class ConnectionEntry(_Strict):
+    """A class-1 connection a device serves as its EDS declares it (a ConnectionN of [Connection
+    Manager], Vol. 1 7-3.6.11): its points, its application data sizes (without the sequence count
+    and a run/idle header), real-time formats, connection types and RPI range."""
+
+    entry: str = Field("", description="the EDS keyword, ConnectionN")
+    name: str = ""
+    kind: Literal["exclusive owner", "input only", "listen only", "redundant owner"]
+    configuration: int | None = Field(None, ge=1, description="configuration point; none: the path may omit it")
+    o_t: int = Field(ge=1, description="consumed connection point (O->T)")
+    t_o: int = Field(ge=1, description="produced connection point (T->O)")
+    o_t_size: int = Field(0, ge=0, le=MAX_ASSEMBLY_SIZE)
+    t_o_size: int = Field(0, ge=0, le=MAX_ASSEMBLY_SIZE)
+    o_t_format: RealTimeFormat = "run/idle"
+    t_o_format: RealTimeFormat = "modeless"
+    o_t_variable: bool = False
+    t_o_variable: bool = False
+    t_o_multicast: bool = True
+    t_o_point_to_point: bool = True
+    configuration_size: int = Field(0, ge=0, le=MAX_ASSEMBLY_SIZE)
+    rpi_us: tuple[int, int] | None = Field(None, description="the RPI range the entry allows; none: the device's")
+
+
 class SafetyDefaults(_Strict):
     """A CIP Safety target (Vol. 5): its safety network number and configuration signature, and
     the null connection point of its SafetyOpens. The model's `assemblies` are its safety
@@ -109,6 +149,14 @@ class Model(_Strict):
     unverified: tuple[str, ...] = ()
     replay: tuple[ReplayEntry, ...] = ()
     safety: SafetyDefaults | None = Field(None, description="a CIP Safety target (safety I/O over CIP Safety only)")
+    connections: tuple[ConnectionEntry, ...] = Field((), description="every class-1 connection the device serves "
+                                                     "(from its EDS); none: the assemblies' roles decide")
+    points: dict[int, int] = Field({}, description="every assembly instance the device serves, with its size (EDS)")
+    configuration_data: str = Field("", pattern=r"^([0-9A-Fa-f]{2})*$",
+                                    description="the configuration assembly's default bytes, hex")
+    rpi_us: tuple[int, int] | None = Field(None, description="the RPI range of the device's connection entries")
+    parameters: tuple[ParameterEntry, ...] = Field((), description="the EDS's [Params], served by the Parameter "
+                                                   "Object (class 0x0F)")
 
     @model_validator(mode="before")
     @classmethod
@@ -142,6 +190,9 @@ class Catalogue:
 
     models: Mapping[str, Model]
     origins: Mapping[str, str] = field(default_factory=dict)
+    #: Profile files of another format than YAML, by suffix (".eds"): a function that makes the
+    #: catalogue document of one (the layer that reads the format hands it in).
+    readers: Mapping[str, Callable[[Path], Any]] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
         origins = {name: self.origins.get(name, BUILT_IN) for name in self.models}
@@ -168,12 +219,19 @@ class Catalogue:
                 where = "the built-in model" if self.origins[name] == BUILT_IN else f"the model of {self.origins[name]}"
                 raise ValueError(f"profile {origin} defines model {name!r}, which would replace {where}: "
                                  "give the profile's model another name (enip-farm learn --name)")
-        return Catalogue({**self.models, **models}, {**self.origins, **{name: origin for name in models}})
+        return Catalogue({**self.models, **models}, {**self.origins, **{name: origin for name in models}},
+                         self.readers)
+
+    def with_readers(self, readers: Mapping[str, Callable[[Path], Any]]) -> Catalogue:
+        """A new catalogue that also reads profile files of these suffixes (".eds") with these functions."""
+        return Catalogue(self.models, self.origins, {**self.readers, **readers})
 
     def with_profile(self, path: str | Path) -> tuple[Catalogue, str]:
         """A new catalogue with the models of a profile file, and the name of its base model.
         Raises OSError, yaml.YAMLError, pydantic.ValidationError or ValueError."""
-        profile = Catalogue.from_document(yaml.safe_load(Path(path).read_text()), str(path))
+        reader = self.readers.get(Path(path).suffix.lower())
+        document = reader(Path(path)) if reader is not None else yaml.safe_load(Path(path).read_text())
+        profile = Catalogue.from_document(document, str(path))
         bases = profile.bases()
         if len(bases) != 1:
             raise ValueError(f"profile {path} holds one base model, found {len(bases)}")

@@ -25,21 +25,23 @@ from collections import Counter
 from collections.abc import Callable, Iterable, Mapping
 from types import MappingProxyType
 
-from enip_farm.cip.admission import ConnectionPolicy, KeyIdentity
+from enip_farm.cip.admission import ConnectionPolicy, DeclaredConnection, KeyIdentity
 from enip_farm.cip.assembly import AssemblyInstance, AssemblyObject
 from enip_farm.cip.budget import CyclicBudget
-from enip_farm.cip.connection import Connection
+from enip_farm.cip.connection import Connection, ConnectionKind
 from enip_farm.cip.connection_manager import ConnectionManager
 from enip_farm.cip.connection_table import TABLE_COUNTERS, ConnectionEvent, ConnectionTable
 from enip_farm.cip.ethernet_link import EthernetLinkObject, InterfaceCounters
 from enip_farm.cip.identity import RESET_OUT_OF_BOX, STATE_OPERATIONAL, STATE_SELF_TESTING, IdentityObject
 from enip_farm.cip.message_router import Handled, MessageRouter
 from enip_farm.cip.object import Attribute, ReplyItems
+from enip_farm.cip.parameter import ParameterObject, ParameterSpec
 from enip_farm.cip.safety.admission import SafetyPolicy
 from enip_farm.cip.safety.objects import SafetyValidatorObject
 from enip_farm.cip.safety.segment import Unid
 from enip_farm.cip.safety.supervisor import SafetySupervisor
 from enip_farm.cip.tcpip_interface import TcpIpInterfaceObject
+from enip_farm.device.catalogue import ConnectionEntry
 from enip_farm.device.events import Event, EventLog, ImageChange
 from enip_farm.device.faults import DeviceFaults
 from enip_farm.device.latency import LatencyHistogram
@@ -98,7 +100,23 @@ def _policy(profile: DeviceProfile) -> ConnectionPolicy:
         input_only_point=profile.input_only_point, listen_only_point=profile.listen_only_point,
         multicast_group=profile.multicast_group, safety=_safety_policy(profile),
         class3_rpi_min_us=implicit.class3_rpi_min_us, class3_rpi_max_us=implicit.class3_rpi_max_us,
+        declared=tuple(_declared(entry) for entry in profile.connections),
     )
+
+
+_DECLARED_KINDS: Mapping[str, ConnectionKind] = MappingProxyType({
+    "exclusive owner": ConnectionKind.EXCLUSIVE_OWNER, "redundant owner": ConnectionKind.EXCLUSIVE_OWNER,
+    "input only": ConnectionKind.INPUT_ONLY, "listen only": ConnectionKind.LISTEN_ONLY})
+
+
+def _declared(entry: ConnectionEntry) -> DeclaredConnection:
+    """An EDS's connection entry as admission holds Forward Opens against it."""
+    return DeclaredConnection(
+        kind=_DECLARED_KINDS[entry.kind], configuration=entry.configuration, o_t=entry.o_t, t_o=entry.t_o,
+        o_t_size=entry.o_t_size, t_o_size=entry.t_o_size, o_t_format=entry.o_t_format, t_o_format=entry.t_o_format,
+        o_t_variable=entry.o_t_variable, t_o_variable=entry.t_o_variable, t_o_multicast=entry.t_o_multicast,
+        t_o_point_to_point=entry.t_o_point_to_point, configuration_size=entry.configuration_size,
+        rpi_us=entry.rpi_us, shared_owner=entry.kind == "redundant owner", name=entry.name)
 
 
 class Device:
@@ -113,6 +131,9 @@ class Device:
             spec.role: AssemblyInstance(spec.instance_id, spec.size, spec.settable, writable)
             for spec in profile.assemblies
         }
+        configuration = self.assemblies.get("configuration")
+        if configuration is not None and len(profile.configuration_data) == len(configuration.data):
+            configuration.data[:] = profile.configuration_data
         self.faults = DeviceFaults()
         self.recorder: TrafficTap | None = None  # serve --record
         self.counters: Counter[str] = Counter(dict.fromkeys(COUNTERS, 0))
@@ -158,6 +179,9 @@ class Device:
                 reset=self._request_reset,
             ),
             AssemblyObject(list(self.assemblies.values())),
+            *([ParameterObject([ParameterSpec(p.instance, p.name, p.descriptor, p.data_type, p.size, p.minimum,
+                                              p.maximum, p.default, bytes.fromhex(p.link_path))
+                                for p in profile.parameters])] if profile.parameters else []),
             ConnectionManager(self.router, self.table, unconnected_send=profile.routing.unconnected_send),
             self._tcpip,
             self.link,

@@ -11,7 +11,7 @@ import zlib
 from dataclasses import dataclass
 
 from enip_farm.config import DeviceConfig, ImplicitConfig, LimitsConfig
-from enip_farm.device.catalogue import Catalogue, IoCounts, Routing
+from enip_farm.device.catalogue import Catalogue, ConnectionEntry, IoCounts, ParameterEntry, Routing
 from enip_farm.device.named_signals import NamedSignal, named_signal
 
 
@@ -77,6 +77,9 @@ class DeviceProfile:
     multicast_configured: bool = False  # the multicast group comes from the configuration
     signals: tuple[NamedSignal, ...] = ()  # named signals (EIO_SIGNAL), beside DI1.., DO1..
     safety: SafetyProfile | None = None  # a CIP Safety target: its assemblies are safety assemblies
+    connections: tuple[ConnectionEntry, ...] = ()  # an EDS's class-1 connections: only these are admitted
+    configuration_data: bytes = b""  # the configuration assembly's default bytes (an EDS's)
+    parameters: tuple[ParameterEntry, ...] = ()  # an EDS's [Params]: the Parameter Object's instances
 
     def assembly(self, role: str) -> AssemblySpec | None:
         return next((a for a in self.assemblies if a.role == role), None)
@@ -144,6 +147,13 @@ def resolve(config: DeviceConfig, catalogue: Catalogue) -> DeviceProfile:
             settable = (role != "input" or config.writable_inputs) and not (model.safety and role == "output")
             assemblies.append(AssemblySpec(role, instance_id, sizes[role] if size is None else size, settable))
 
+    taken = {spec.instance_id for spec in assemblies}
+    produced = {entry.t_o for entry in model.connections}
+    for instance_id, size in model.points.items():  # every other assembly an EDS's connections name
+        if instance_id not in taken:
+            assemblies.append(AssemblySpec(f"point {instance_id}", instance_id, size,
+                                           instance_id not in produced or config.writable_inputs))
+
     address = str(config.address)
     raw = _address_bytes(address)
     safety = None
@@ -187,4 +197,7 @@ def resolve(config: DeviceConfig, catalogue: Catalogue) -> DeviceProfile:
         reset_time_s=config.reset_time_s,
         multicast_configured=config.implicit.multicast_group is not None,
         safety=safety,
+        connections=model.connections,
+        configuration_data=bytes.fromhex(model.configuration_data),
+        parameters=model.parameters,
     )

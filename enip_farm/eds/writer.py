@@ -182,6 +182,8 @@ def write_eds(profile: DeviceProfile, created: datetime.datetime) -> str:
     if profile.safety is not None:
         return "\n".join(lines + _safety_sections(profile, output, inputs, configuration)) + "\n"
 
+    if profile.connections:
+        return "\n".join(lines + _declared_sections(profile)) + "\n"
     params = _Params()
     default_rpi = min(max(10_000, implicit.rpi_min_us), implicit.rpi_max_us)
     params.add("RPI", _UDINT, 4, "microsecond", "Requested packet interval (the farm's policy, unverified)",
@@ -279,6 +281,53 @@ def _safety_sections(profile: DeviceProfile, output: AssemblySpec, inputs: Assem
         "", "[Capacity]", f"{_INDENT}$ The farm's limit of safety connections per device (unverified).",
         f"{_INDENT}MaxIOConnections = {profile.safety.max_connections};",
     ]
+#: Real-time formats as connection parameters give them (bits 8-10 O->T, 12-14 T->O).
+_FORMAT_CODES = MappingProxyType({"modeless": 0, "zero length": 1, "heartbeat": 3, "run/idle": 4})
+_KIND_BITS = MappingProxyType({"listen only": 24, "input only": 25, "exclusive owner": 26, "redundant owner": 27})
+
+
+def _declared_sections(profile: DeviceProfile) -> list[str]:
+    """[Params], [Assembly], [Connection Manager] and [Capacity] of a device that serves the class-1
+    connections its EDS declared (an imported profile): every entry as the farm admits it."""
+    implicit = profile.implicit
+    params = _Params()
+    rpi_params: dict[tuple[int, int], int] = {}
+    for entry in profile.connections:
+        if entry.rpi_us is None:
+            continue  # the RPI field left empty: the device's policy applies
+        low, high = entry.rpi_us
+        if (low, high) not in rpi_params:
+            rpi_params[(low, high)] = params.add("RPI", _UDINT, 4, "microsecond", "Requested packet interval",
+                                                 (str(low), str(high), str(min(max(10_000, low), high))))
+    lines = ["", "[Params]", *params.entries] if params.entries else []  # eds-pie refuses an empty section
+    lines += ["", "[Assembly]", f"{_INDENT}Object_Name = {_quote('Assembly Object')};",
+              f"{_INDENT}Object_Class_Code = 0x04;"]
+    named = {entry.configuration for entry in profile.connections}
+    sizes = {spec.instance_id: spec.size for spec in profile.assemblies
+             if spec.role != "configuration" or spec.instance_id in named}
+    lines += [_assembly(instance, f"Assembly {instance}", size, []) for instance, size in sorted(sizes.items())]
+    lines += ["", "[Connection Manager]", f"{_INDENT}Object_Name = {_quote('Connection Manager Object')};",
+              f"{_INDENT}Object_Class_Code = 0x06;"]
+    for number, entry in enumerate(profile.connections, 1):
+        trigger = 0x00010002 | 1 << _KIND_BITS[entry.kind]
+        parameters = (0x77040000 | _FORMAT_CODES[entry.o_t_format] << 8 | _FORMAT_CODES[entry.t_o_format] << 12
+                      | (2 if entry.o_t_variable else 1) | (8 if entry.t_o_variable else 4)
+                      | entry.t_o_multicast << 21 | entry.t_o_point_to_point << 22)
+        rpi = f"Param{rpi_params[entry.rpi_us]}" if entry.rpi_us is not None else ""
+        config_point = [(LogicalType.INSTANCE_ID, entry.configuration)] if entry.configuration is not None else []
+        path = _path((LogicalType.CLASS_ID, 4), *config_point, (LogicalType.CONNECTION_POINT, entry.o_t),
+                     (LogicalType.CONNECTION_POINT, entry.t_o))
+        lines.append(_entry(f"Connection{number}", [
+            (f"0x{trigger:08X}", f"trigger and transport: class 1, cyclic, {entry.kind}"),
+            (f"0x{parameters:08X}", f"connection parameters: O->T {entry.o_t_format}, T->O {entry.t_o_format}"),
+            (f"{rpi},{entry.o_t_size},", "O->T RPI, size, format"),
+            (f"{rpi},{entry.t_o_size},", "T->O RPI, size, format"),
+            (",", "proxy configuration size, format"),
+            (f"{entry.configuration_size},", "target configuration size, format"),
+            (_quote(entry.name or entry.entry), "connection name"), (_quote(""), "help string"),
+            (_quote(path), "path")]))
+    return lines + ["", "[Capacity]", f"{_INDENT}MaxIOConnections = {implicit.max_class1_connections};",
+                    f"{_INDENT}MaxMsgConnections = {implicit.max_class3_connections};"]
 
 
 def model_profile(model: str, addons: Sequence[str], catalogue: Catalogue, base_dir: str | Path = ".") -> DeviceProfile:

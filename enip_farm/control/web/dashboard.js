@@ -9,6 +9,8 @@
 // DOM; all DOM work happens in one requestAnimationFrame callback, whatever the event rate.
 // Token: `/#token=SECRET` (kept in sessionStorage, removed from the address bar), or asked for by
 // a prompt when the API answers 401.
+// The plant's overview (overview.js) uses what `window.enipFarm` gives it: the API, the message
+// line, the stream's events, the events panel's history and the card of one device.
 'use strict';
 (() => {
   const CARD_W = 360, CARD_H = 380, GAP = 10, BUFFER_ROWS = 1;
@@ -77,9 +79,11 @@
         headers['Content-Type'] = 'application/json';
         body = JSON.stringify(options.json);
       }
-      const response = await fetch(path, { method: options.method || 'GET', headers, body, cache: 'no-store' });
+      // timeoutMs: a request the browser holds (e.g. across a network change of the host) fails then
+      const signal = options.timeoutMs ? AbortSignal.timeout(options.timeoutMs) : undefined;
+      const response = await fetch(path, { method: options.method || 'GET', headers, body, cache: 'no-store', signal });
       if (response.status === 401 && attempt < 3 && (token !== used || await askToken())) continue;
-      if (!response.ok) {
+      if (!response.ok && !(options.answers || []).includes(response.status)) {  // answers: statuses with a body
         let detail = response.statusText;
         try {
           const answer = await response.json();
@@ -234,6 +238,10 @@
       }
     }
     if (!logPause.checked && (payload.kind !== 'io' || logIo.checked)) pendingLog.push(payload);
+    if (payload.kind !== 'io') {
+      if (liveKeys && liveKeys.size < 100000) liveKeys.add(eventKey(payload));
+      for (const listener of listeners) listener(payload);
+    }
     schedule();
   }
 
@@ -244,6 +252,7 @@
         setStream('connecting');
         const response = await api('events?exclude_kind=request', { stream: true });
         setStream('live', 'live');
+        for (const listener of listeners) listener({ kind: 'live' });
         for (const device of devices) device.stale = true;  // events may have been missed: re-read
         requestState([...rendered.keys()].map(name => byName.get(name)));
         const reader = response.body.getReader();
@@ -449,14 +458,25 @@
 
   // -- layout: only the cards on screen ---------------------------------------------------------------
 
+  // Words of the filter: each must be in the device's name, address, model, add-ons or product
+  // name; `=name` is that device only (a tile of the overview opens its card so).
+  function filterWords() {
+    return filterInput.value.toLowerCase().split(/\s+/).filter(Boolean);
+  }
+
+  function matches(device, words) {
+    return words.every(word => word[0] === '=' ? device.name.toLowerCase() === word.slice(1)
+      : device.search.includes(word));
+  }
+
   function passes(device) {
     const show = showSelect.value;
     return show === 'all' || (show === 'connected' ? device.connected : device.faulted);
   }
 
   function applyFilter() {
-    const words = filterInput.value.toLowerCase().split(/\s+/).filter(Boolean);
-    filtered = devices.filter(device => passes(device) && words.every(word => device.search.includes(word)));
+    const words = filterWords();
+    filtered = devices.filter(device => passes(device) && matches(device, words));
     countLabel.textContent = `${filtered.length} of ${devices.length} devices`;
     filterDirty = false;
     layoutDirty = true;
@@ -527,17 +547,26 @@
       lostSinceFrame = 0;
     }
     if (!pendingLog.length) return;
-    const words = filterInput.value.toLowerCase().split(/\s+/).filter(Boolean);
-    const batch = pendingLog.filter(event => {
-      const device = byName.get(event.device);
-      return !words.length || !device || words.every(word => device.search.includes(word));
-    });
+    const batch = shownInLog(pendingLog);
     pendingLog.length = 0;
     const skipped = batch.length - LOG_PER_FRAME;
     if (skipped > 0) logLine('t', `… ${skipped} more events not shown`);
+    log.insertBefore(logItems(batch.slice(Math.max(0, skipped))), log.firstChild);
+    while (log.childElementCount > LOG_MAX) log.lastElementChild.remove();
+  }
+
+  function shownInLog(events) {  // those of the devices the filter shows
+    const words = filterWords();
+    return events.filter(event => {
+      const device = byName.get(event.device);
+      return !words.length || !device || matches(device, words);
+    });
+  }
+
+  function logItems(events) {  // oldest first in, newest first out
     const fragment = document.createDocumentFragment();
-    for (let i = batch.length - 1; i >= Math.max(0, skipped); i--) {
-      const event = batch[i];
+    for (let i = events.length - 1; i >= 0; i--) {
+      const event = events[i];
       const item = el('li');
       item.appendChild(el('span', 't', clock(event.time) + ' '));
       const name = el('span', 'd', event.device);
@@ -548,7 +577,21 @@
       item.append(detailText(event.detail));
       fragment.appendChild(item);
     }
-    log.insertBefore(fragment, log.firstChild);
+    return fragment;
+  }
+
+  // Events from before the page opened (GET overview?events=N, read once the stream is live), put
+  // below the live ones; those the stream also brought (the read and the stream overlap) once.
+  const eventKey = event => `${event.monotonic} ${event.device} ${event.kind}`;
+  let liveKeys = new Set();  // the live events logged until the history came
+
+  function addHistory(events) {
+    const seen = liveKeys || new Set();
+    liveKeys = null;
+    const older = events.filter(event => !seen.has(eventKey(event)));
+    const batch = shownInLog(older).slice(-LOG_MAX);
+    if (!batch.length) return;
+    log.appendChild(logItems(batch));
     while (log.childElementCount > LOG_MAX) log.lastElementChild.remove();
   }
 
@@ -674,6 +717,19 @@
   showSelect.addEventListener('change', () => { filterDirty = true; schedule(); });
   cards.addEventListener('scroll', () => { layoutDirty = true; schedule(); }, { passive: true });
   window.addEventListener('resize', () => { layoutDirty = true; schedule(); });
+
+  // -- what overview.js uses ----------------------------------------------------------------------------
+
+  function showDevice(name) {  // that device's card alone, at the top
+    filterInput.value = '=' + name;
+    showSelect.value = 'all';
+    cards.scrollTop = 0;
+    filterDirty = true;
+    schedule();
+  }
+
+  const listeners = [];  // called with every event of the stream but `io`, and {kind: 'live'}
+  window.enipFarm = { api, say, showDevice, addHistory, onEvent: listener => listeners.push(listener) };
 
   // -- start ------------------------------------------------------------------------------------------
 
