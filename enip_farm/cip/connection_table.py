@@ -449,15 +449,18 @@ class ConnectionTable:
         skips the missed periods rather than bursting."""
         return self.produce(now)[0]
 
-    def produce(self, now: int) -> tuple[list[tuple[bytes, tuple[str, int]]], int | None]:
+    def produce(self, now: int, horizon: int | None = None) -> tuple[list[tuple[bytes, tuple[str, int]]], int | None]:
         """`datagrams_to_send(now)` and then `get_timer()`, in one pass over the streams (the cyclic
-        I/O thread's call, once per stream and period)."""
+        I/O thread's call, once per stream and period). With `horizon`, the packets due up to it are
+        produced now (the thread serves what falls due within its next turn: a packet leaves at
+        most `horizon - now` before its deadline; deadlines stay absolute, so no period drifts)."""
         out = self._pending_time_coordination(now) if self._safety_connections and self._safety_pending else []
         data = None
         earliest = None
+        until = now if horizon is None or horizon < now else horizon
         for production in self.productions.values():
             due = production.start + production.count * production.period_ns
-            if due <= now:
+            if due <= until:
                 if data is None:
                     data = bytes(self.assemblies["input"].data)
                 production.sequence += 1

@@ -497,17 +497,17 @@ class Device:
             self._publish((old, b""), (new, b""), (), connections)
         return taken
 
-    def service_io(self, now: int, send: SendDatagram) -> int | None:
-        """Supervise the connections and send the T->O packets due at `now`; the next time
-        something is due. Packets are sent inside the lock, so none leaves after the Forward Close
-        (or timeout) that ends its connection has been handled."""
+    def service_io(self, now: int, send: SendDatagram, horizon: int | None = None) -> int | None:
+        """Supervise the connections at `now` and hand `send` the T->O packets due by `now` (or by
+        `horizon`, the end of the I/O thread's turn); the next time something is due. `send` takes
+        them inside the lock: the I/O thread queues them and sends a turn's packets together."""
         table = self.table
         with self.lock:
             expiring = table.supervision_due(now)
             if expiring:  # a timeout may change the outputs: look before and after
                 before = self._snapshot()
                 table.handle_timer(now)
-            due, timer = table.produce(now)
+            due, timer = table.produce(now, horizon)
             if due and not self.faults.io_stopped:
                 for packet, address in due:
                     send(packet, address)

@@ -23,9 +23,9 @@ from enip_farm.protocol.connection import (
 from enip_farm.protocol.epath import LogicalType, encode_logical
 from enip_farm.server.batch import Datagrams, sockaddr
 
-#: The share of one core the budget is for: the rest is the I/O thread's own wake-ups, the event
+#: The share of one core the budget is for: the rest is the I/O thread's own turns, the event
 #: loop (explicit requests, the API) and headroom for bursts.
-UTILISATION = 0.6
+UTILISATION = 0.5
 #: Used when no device of the farm can carry an exclusive-owner connection to measure with.
 DEFAULT_DATAGRAMS_PER_S = 60_000
 _ROUNDS, _PACKETS = 5, 200

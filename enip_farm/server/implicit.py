@@ -95,6 +95,11 @@ class CyclicIoThread(threading.Thread):
     _IDLE_WAIT = 0.5  # with no timer: O->T is read at once (epoll), a new timer wakes the thread
     _EPOLL_MARGIN_NS = 1_000_000  # epoll rounds its timeout up to whole milliseconds
     _STALL_NS = 5_000_000_000  # a loop that has not turned for this long is not running
+    #: One turn of the thread: it runs at most this often, reading every socket that has datagrams
+    #: and producing every T->O due before its next turn (so a packet leaves up to TURN_NS before
+    #: its deadline, never later for the thread's sake; deadlines stay absolute). Coalescing the
+    #: wake-ups is what makes the cost per packet rather than per wake-up.
+    TURN_NS = 1_000_000
 
     def __init__(self, datagrams: Datagrams | None = None) -> None:
         super().__init__(name="enip-farm-cyclic-io", daemon=True)
@@ -110,7 +115,7 @@ class CyclicIoThread(threading.Thread):
         self._epoll.register(self._wake_read, select.EPOLLIN)
         self._stopping = False
         self.outbox: list[Message] = []  # T->O due this wake-up, sent in one call
-        self.outbox_from: list[tuple[DeviceIo, tuple[str, int]]] = []  # who sent each, and where to
+        self.outbox_from: list[DeviceIo] = []  # the device of each
         self.errors = RateLimitedLog(log)  # one line per device and 10 s with the traceback, the rest counted
         self.overload_log = RateLimitedLog(log)
         self.loop_errors = 0  # unexpected exceptions of the loop itself (it goes on)
@@ -170,20 +175,26 @@ class CyclicIoThread(threading.Thread):
         heap, requests, readers = self._heap, self._requests, self._readers
         monotonic_ns, sleep, poll = time.monotonic_ns, time.sleep, self._epoll.poll
         receive, wake_read, outbox, lag = self.datagrams.receive, self._wake_read, self.outbox, self.lag
+        turn_ns, margin_ns = self.TURN_NS, self._EPOLL_MARGIN_NS
+        last = 0
         while not self._stopping:
             while requests:
                 endpoint = requests.popleft()
                 self._schedule(endpoint, endpoint.timer())
-            delay = (heap[0][0] - monotonic_ns()) if heap else None
-            if delay is None or delay > self._EPOLL_MARGIN_NS + self._IDLE_WAIT * 1e9:
+            gap = last + turn_ns - monotonic_ns()
+            if gap > 0:  # turns at most every TURN_NS: what comes meanwhile waits in the sockets for it
+                sleep(gap / 1e9)
+            wait = (heap[0][0] - turn_ns - monotonic_ns()) if heap else None  # until the next turn that is due
+            if wait is None or wait > margin_ns + self._IDLE_WAIT * 1e9:
                 events = poll(self._IDLE_WAIT)  # nothing due soon: look again after the idle wait at most
-            elif delay > self._EPOLL_MARGIN_NS:
-                events = poll(os_wait_ns(delay - self._EPOLL_MARGIN_NS))
+            elif wait > margin_ns:
+                events = poll(os_wait_ns(wait - margin_ns))
             else:
                 events = poll(0)
-                if not events and delay > 0:
-                    sleep(os_wait_ns(delay))
-            now = self.turned_at = monotonic_ns()
+                if not events and wait > 0:
+                    sleep(os_wait_ns(wait))
+                    events = poll(0)
+            now = last = self.turned_at = monotonic_ns()
             if events:  # first what came in: a packet that came in time counts, however late the thread is
                 fds = []
                 for fd, _ in events:
@@ -199,29 +210,27 @@ class CyclicIoThread(threading.Thread):
                         endpoint = readers.get(fd)
                         if endpoint is not None:
                             endpoint.take(data, host, port, now)
-            if heap and heap[0][0] <= now:
-                if lag.observe(now - heap[0][0], now):
+            horizon = now + turn_ns  # what falls due before the next turn is served in this one
+            if heap and heap[0][0] <= horizon:
+                if heap[0][0] < now and lag.observe(now - heap[0][0], now):
                     self._overloaded(now - heap[0][0], now)
-                while heap and heap[0][0] <= now:
+                while heap and heap[0][0] <= horizon:
                     when, _, endpoint = heapq.heappop(heap)
                     if when != endpoint.scheduled:
                         continue  # superseded by an earlier wake-up
                     endpoint.scheduled = None
-                    self._schedule(endpoint, endpoint.service(now))
+                    self._schedule(endpoint, endpoint.service(now, horizon))
             if outbox:
                 self._flush()
 
     def _flush(self) -> None:
-        """Send every T->O of this wake-up in one call; count each in its device's interface counters."""
+        """Send every T->O of this turn in one call; a packet that could not be sent is counted as
+        an error of its device (each was counted as sent when queued, as ifOutUcastPkts counts what
+        was requested to be sent)."""
         outbox, senders = self.outbox, self.outbox_from
         try:
-            failures = self.datagrams.send(outbox)
-            failed = {index for index, _ in failures}
-            for index, ((packet, _, _), (endpoint, destination)) in enumerate(zip(outbox, senders, strict=True)):
-                if index in failed:
-                    endpoint.send_failed(destination)
-                else:
-                    endpoint.sent(packet, destination)
+            for index, _ in self.datagrams.send(outbox):
+                senders[index].send_failed()
         finally:
             outbox.clear()
             senders.clear()
@@ -265,10 +274,10 @@ class DeviceIo:
         if not taken:
             traffic.discarded()
 
-    def service(self, now: int) -> int | None:
-        """In the I/O thread: the device's timer has come; the next one."""
+    def service(self, now: int, horizon: int | None = None) -> int | None:
+        """In the I/O thread: the device's timer has come (by `horizon`); the next one."""
         try:
-            return self.device.service_io(now, self.send)
+            return self.device.service_io(now, self.send, horizon)
         except Exception:  # last resort: the other devices' cyclic I/O goes on
             self._failed("servicing its connections", now)
             return now + _RETRY_NS
@@ -289,24 +298,23 @@ class DeviceIo:
                                "%s: cyclic I/O error %s", self.device.name, what, exc_info=True)
 
     def send(self, packet: bytes, destination: tuple[str, int]) -> None:
-        """Queue a T->O packet: the thread sends this wake-up's packets together."""
+        """Queue a T->O packet (counted and recorded now): the thread sends a turn's packets together."""
         known = self._destinations.get(destination)
         if known is None:
             known = self._destinations[destination] = (
                 sockaddr(*destination), not ipaddress.IPv4Address(destination[0]).is_multicast)
-        self.thread.outbox.append((packet, known[0], self.source))
-        self.thread.outbox_from.append((self, destination))
+        device = self.device
+        device.io_traffic.sent(len(packet), known[1])
+        if device.recorder is not None:
+            device.recorder.udp(self._address, destination, packet)
+        thread = self.thread
+        thread.outbox.append((packet, known[0], self.source))
+        thread.outbox_from.append(self)
 
-    def sent(self, packet: bytes, destination: tuple[str, int]) -> None:
-        self.device.io_traffic.sent(len(packet), unicast=self._destinations[destination][1])
-        recorder = self.device.recorder
-        if recorder is not None:
-            recorder.udp(self._address, destination, packet)
-
-    def send_failed(self, destination: tuple[str, int]) -> None:
+    def send_failed(self) -> None:
         self.device.counters["t_o_send_errors"] += 1
         self.device.io_traffic.send_failed()
-        log.debug("%s: T->O to %s:%d failed", self.device.name, *destination)
+        log.debug("%s: a T->O packet could not be sent", self.device.name)
 
     def close(self) -> None:
         self._unsubscribe()
