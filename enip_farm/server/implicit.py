@@ -8,13 +8,14 @@ per device:
 - every device address has a UDP 2222 socket (SO_REUSEADDR, so a scanner on the same host can
   still bind 0.0.0.0:2222); epoll says which have datagrams, and those are read in one call
   (server/batch.py: recvmmsg per socket) and handed to their device with the time they were read;
-- one heap of wake-ups, one entry per device at the time its table asks for (`get_timer`); at a
-  wake-up the thread first reads what is waiting (a packet that came in time counts, however late
-  the thread is), then lets every device that is due supervise its connections and produce its
-  T->O packets (`Device.service_io`), and sends them all in one call (sendmmsg from one socket
-  with each device's source address); a Forward Open on the event loop wakes the thread through a
-  pipe. epoll waits in whole milliseconds, so the thread stops waiting on it a millisecond early
-  and sleeps the rest with time.sleep (which wakes within a few hundred microseconds here);
+- one heap of wake-ups, one entry per device at the time its table asks for (`get_timer`); the
+  thread runs in turns at most `TURN_NS` apart: a turn first reads what is waiting (a packet that
+  came in time counts, however late the thread is), then lets every device whose timer falls
+  before the next turn supervise its connections at the turn's time and produce the T->O packets
+  due by the next turn (`Device.service_io`), and sends them all in one call (sendmmsg from one
+  socket with each device's source address); a Forward Open on the event loop wakes the thread
+  through a pipe. epoll waits in whole milliseconds, so the thread stops waiting on it a
+  millisecond early and sleeps the rest with time.sleep;
 - every datagram in and out is counted in the device's interface counters (Ethernet Link
   attribute 4), by this thread alone (`Device.io_traffic`);
 - how late it runs is watched (`lag`): a wake-up later than `OVERLOAD_LAG_NS` is an overload of
@@ -214,11 +215,13 @@ class CyclicIoThread(threading.Thread):
             if heap and heap[0][0] <= horizon:
                 if heap[0][0] < now and lag.observe(now - heap[0][0], now):
                     self._overloaded(now - heap[0][0], now)
+                due = []
                 while heap and heap[0][0] <= horizon:
                     when, _, endpoint = heapq.heappop(heap)
-                    if when != endpoint.scheduled:
-                        continue  # superseded by an earlier wake-up
-                    endpoint.scheduled = None
+                    if when == endpoint.scheduled:  # else superseded by an earlier wake-up
+                        endpoint.scheduled = None
+                        due.append(endpoint)
+                for endpoint in due:  # a timer they ask for within this turn (a deadline after now) is the next turn's
                     self._schedule(endpoint, endpoint.service(now, horizon))
             if outbox:
                 self._flush()
