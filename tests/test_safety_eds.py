@@ -6,10 +6,8 @@ from __future__ import annotations
 
 import datetime
 
-import pytest
-
 from enip_farm.device.catalogue import shipped_catalogue
-from enip_farm.eds.reader import EdsError, eds_profile, parse_eds, read_eds
+from enip_farm.eds.reader import eds_profile, parse_eds, read_eds
 from enip_farm.eds.writer import SAFETY_INPUT, SAFETY_OUTPUT, model_profile, write_eds
 from enip_farm.protocol.epath import LogicalSegment, LogicalType, decode_epath
 from tests.test_safety_supervisor import make_device, open_safety
@@ -37,9 +35,10 @@ def test_the_farm_reads_the_safety_connections_back_and_its_target_admits_them()
     assert device.notes == () and (device.vendor_id, device.product_code) == (75, 1042)
     output, inputs = device.connections
     assert (output.kind, output.transport_classes, output.o_t_size, output.t_o_size, output.points) == (
-        "exclusive owner", 0x0001, 1, 0, (1, 100, 0))
+        "exclusive owner", SAFETY_OUTPUT, 1, 0, (1, 100, 0))
     assert (inputs.kind, inputs.transport_classes, inputs.o_t_size, inputs.t_o_size, inputs.points) == (
-        "input only", 0x0001, 0, 2, (1, 0, 101))
+        "input only", SAFETY_INPUT, 0, 2, (1, 0, 101))
+    assert output.transport_class == inputs.transport_class == 0  # class 0: CIP Safety
     assert output.rpi == inputs.rpi == (1_000, 100_000)
     target = make_device()
     for connection, server, trigger in ((output, True, SAFETY_OUTPUT), (inputs, False, SAFETY_INPUT)):
@@ -47,5 +46,11 @@ def test_the_farm_reads_the_safety_connections_back_and_its_target_admits_them()
         points = tuple(s.value for s in decode_epath(bytes.fromhex(connection.path))
                        if isinstance(s, LogicalSegment) and s.type is not LogicalType.CLASS_ID)
         assert open_safety(target, server=server, points=points) == 0
-    with pytest.raises(EdsError, match="no class-1 exclusive-owner connection"):
-        eds_profile(device, "DSQC1042.eds")  # an EDS import builds class-1 devices only
+    # an EDS import serves class-1 entries only: the safety target imports as explicit-only, and says why
+    _, document, notes = eds_profile(device, "DSQC1042.eds")
+    assert "connections" not in document
+    assert notes[:2] == [
+        "Connection1 'Safety Output' (exclusive owner, path 20 04 24 01 2C 64 2C 00): transport class 0; "
+        "only class-1 entries are served",
+        "Connection2 'Safety Input' (input only, path 20 04 24 01 2C 00 2C 65): transport class 0; "
+        "only class-1 entries are served"]
