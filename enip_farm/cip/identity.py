@@ -12,20 +12,11 @@ before it ends the device's sessions (device/device.py, farm.py)."""
 
 from __future__ import annotations
 
-import struct
 from collections.abc import Callable
 
-from enip_farm.cip.object import (
-    UDINT,
-    UINT,
-    Attribute,
-    CipClass,
-    CipInstance,
-    ServiceResult,
-    constant,
-    short_string,
-    short_string_size,
-)
+from enip_farm.cip.attribute import Access, Attribute, CipInstance
+from enip_farm.cip.data_types import SHORT_STRING, UDINT, UINT, USINT, WORD, Packed
+from enip_farm.cip.object import CipClass, ServiceResult
 from enip_farm.protocol.cip import ClassCode, Service
 from enip_farm.protocol.epath import RequestPath
 from enip_farm.protocol.session import MessageContext
@@ -41,6 +32,8 @@ STATE_OPERATIONAL = 3
 RESET_POWER_CYCLE = 0
 RESET_OUT_OF_BOX = 1
 RESET_KEEP_COMMUNICATION = 2
+#: Attribute 4: major and minor revision (Vol. 1, 5-2.2.1.4).
+REVISION = Packed("STRUCT of USINT major, USINT minor", "<BB")
 
 
 class IdentityObject(CipClass):
@@ -54,19 +47,16 @@ class IdentityObject(CipClass):
                  reset: Callable[[int], None] | None = None) -> None:
         super().__init__()
         self._reset = reset
-        self.instances[1] = CipInstance(
-            {
-                1: constant(UINT.pack(vendor_id)),
-                2: constant(UINT.pack(device_type)),
-                3: Attribute(lambda: UINT.pack(product_code())),
-                4: constant(struct.pack("<BB", *revision)),
-                5: Attribute(lambda: UINT.pack(status())),
-                6: constant(UDINT.pack(serial_number)),
-                7: Attribute(lambda: short_string(product_name), size=short_string_size),
-                8: Attribute(lambda: bytes((state(),))),
-            },
-            all_ids=(1, 2, 3, 4, 5, 6, 7),  # Get Attributes All: the required attributes, as OpENer
-        )
+        self.instances[1] = CipInstance((  # Get Attributes All: the required attributes 1-7, as OpENer
+            Attribute(1, UINT, value=vendor_id),
+            Attribute(2, UINT, value=device_type),
+            Attribute(3, UINT, product_code),
+            Attribute(4, REVISION, value=revision),
+            Attribute(5, WORD, status),
+            Attribute(6, UDINT, value=serial_number),
+            Attribute(7, SHORT_STRING, value=product_name),
+            Attribute(8, USINT, state, access=Access.GET),
+        ))
         self.handlers[Service.RESET] = self.reset
 
     def reset(self, instance: CipInstance, path: RequestPath, data: bytes,

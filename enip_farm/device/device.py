@@ -34,7 +34,7 @@ from enip_farm.cip.connection_table import TABLE_COUNTERS, ConnectionEvent, Conn
 from enip_farm.cip.ethernet_link import EthernetLinkObject, InterfaceCounters
 from enip_farm.cip.identity import RESET_OUT_OF_BOX, STATE_OPERATIONAL, STATE_SELF_TESTING, IdentityObject
 from enip_farm.cip.message_router import Handled, MessageRouter
-from enip_farm.cip.object import Attribute, ReplyItems
+from enip_farm.cip.object import ReplyItems
 from enip_farm.cip.parameter import ParameterObject, ParameterSpec
 from enip_farm.cip.safety.admission import SafetyPolicy
 from enip_farm.cip.safety.objects import SafetyValidatorObject
@@ -198,7 +198,7 @@ class Device:
             self.router.register(SafetySupervisor(safety, open_connections, close_safety_connections,
                                                   lambda: self.reset_window.active))
             state = safety.state
-            self._tcpip.instances[1].attributes[7] = Attribute(lambda: state.tunid.snn)  # follows Apply_TUNID
+            self._tcpip.safety_network_number = lambda: state.tunid.snn  # follows Apply_TUNID
             self.router.register(SafetyValidatorObject(open_connections, lambda: self.counters["safety_faulted"]))
         service = ServiceItem(PROTOCOL_VERSION, CAPABILITY_TCP | CAPABILITY_UDP_CLASS_0_1, "Communications")
         self._list_services = encode_items([(ItemType.LIST_SERVICES, encode_service_item(service))])
