@@ -35,13 +35,15 @@ from enip_farm.control.http import HttpApi, bind_problem
 from enip_farm.control.wiring import Wiring
 from enip_farm.device.build import build_profiles
 from enip_farm.device.catalogue import Catalogue
-from enip_farm.device.device import ENIP_PORT, Device
+from enip_farm.device.device import Device
 from enip_farm.device.events import Event
 from enip_farm.device.faults import Disconnect, FaultType
 from enip_farm.device.nonvolatile import load_state, save_state
 from enip_farm.eds.reader import eds_catalogue
+from enip_farm.protocol.connection import IO_PORT
+from enip_farm.protocol.encapsulation import ENIP_PORT
 from enip_farm.server.calibrate import DEFAULT_DATAGRAMS_PER_S, measure_budget
-from enip_farm.server.implicit import IO_PORT, ImplicitIo
+from enip_farm.server.implicit import ImplicitIo
 from enip_farm.server.limits import RateLimitedLog, TcpLimits
 from enip_farm.server.tcp import EncapsulationProtocol
 from enip_farm.server.udp import DeviceDatagramProtocol, DiscoveryResponder, udp_socket

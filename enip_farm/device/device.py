@@ -60,9 +60,9 @@ from enip_farm.protocol.commands import (
 )
 from enip_farm.protocol.connection import ConnectionTriad
 from enip_farm.protocol.cpf import ItemType, encode_items
+from enip_farm.protocol.encapsulation import ENIP_PORT
 from enip_farm.protocol.session import MessageContext, ReplyWithItems
 
-ENIP_PORT = 44818
 _RESET_KINDS: Mapping[int, str] = MappingProxyType({0: "power cycle", 1: "out-of-box configuration",
                                                     2: "out-of-box configuration but the communication parameters"})
 

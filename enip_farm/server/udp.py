@@ -13,7 +13,8 @@ import random
 import socket
 import struct
 
-from enip_farm.device.device import ENIP_PORT, Device
+from enip_farm.device.device import Device
+from enip_farm.protocol.encapsulation import ENIP_PORT
 from enip_farm.protocol.session import handle_datagram
 from enip_farm.server.waits import os_wait_s
 
