@@ -281,7 +281,7 @@ class Device:
     def product_code(self) -> int:
         """The product code the device shows; an `identity` fault changes it so keys stop matching."""
         code = self.profile.product_code
-        return (code + 1) & 0xFFFF if self.faults.identity_changed else code
+        return self.faults.product_code(code)
 
     @property
     def status(self) -> int:

@@ -57,7 +57,7 @@ class DeviceDatagramProtocol(asyncio.DatagramProtocol):
 
     def answer(self, data: bytes, addr: tuple[str, int]) -> None:
         device = self.device
-        if device.faults.offline or device.resetting:
+        if not device.faults.answers_udp or device.resetting:
             device.traffic.discarded()
             return
         reply = handle_datagram(device, data)
