@@ -26,19 +26,12 @@ from collections import Counter
 from collections.abc import Callable, Mapping
 from typing import NamedTuple
 
-from enip_farm.cip.admission import (
-    RUN_IDLE_HEADER_SIZE,
-    Admission,
-    ConnectionPolicy,
-    KeyIdentity,
-    Originator,
-    Refusal,
-)
+from enip_farm.cip.admission import Admission, Originator
 from enip_farm.cip.assembly import AssemblyInstance
 from enip_farm.cip.budget import CyclicBudget
 from enip_farm.cip.connection import Connection, ConnectionKind, Production
-from enip_farm.cip.safety.admission import SafetyOpen
-from enip_farm.cip.safety.validator import SafetyConsumer, SafetyProducer
+from enip_farm.cip.connection_path import KeyIdentity
+from enip_farm.cip.connection_policy import RUN_IDLE_HEADER_SIZE, ConnectionPolicy, Refusal, SafetyOpen
 from enip_farm.protocol.commands import SocketAddress, encode_sockaddr
 from enip_farm.protocol.connection import (
     IO_HEADER_SIZE,
@@ -51,6 +44,7 @@ from enip_farm.protocol.connection import (
     unpack_io_header,
 )
 from enip_farm.protocol.cpf import ItemType
+from enip_farm.protocol.safety.validator import SafetyConsumer, SafetyProducer
 from enip_farm.protocol.session import ReplyItems
 from enip_farm.protocol.status import ExtendedStatus as X
 from enip_farm.protocol.status import GeneralStatus, describe_status

@@ -25,11 +25,12 @@ from collections import Counter
 from collections.abc import Callable, Iterable, Mapping
 from types import MappingProxyType
 
-from enip_farm.cip.admission import ConnectionPolicy, DeclaredConnection, KeyIdentity
 from enip_farm.cip.assembly import AssemblyInstance, AssemblyObject
 from enip_farm.cip.budget import CyclicBudget
 from enip_farm.cip.connection import Connection, ConnectionKind
 from enip_farm.cip.connection_manager import ConnectionManager
+from enip_farm.cip.connection_path import KeyIdentity
+from enip_farm.cip.connection_policy import ConnectionPolicy, DeclaredConnection
 from enip_farm.cip.connection_table import TABLE_COUNTERS, ConnectionEvent, ConnectionTable
 from enip_farm.cip.ethernet_link import EthernetLinkObject, InterfaceCounters
 from enip_farm.cip.identity import RESET_OUT_OF_BOX, STATE_OPERATIONAL, STATE_SELF_TESTING, IdentityObject
@@ -38,7 +39,6 @@ from enip_farm.cip.object import ReplyItems
 from enip_farm.cip.parameter import ParameterObject, ParameterSpec
 from enip_farm.cip.safety.admission import SafetyPolicy
 from enip_farm.cip.safety.objects import SafetyValidatorObject
-from enip_farm.cip.safety.segment import Unid
 from enip_farm.cip.safety.supervisor import SafetySupervisor
 from enip_farm.cip.tcpip_interface import TcpIpInterfaceObject
 from enip_farm.device.catalogue import ConnectionEntry
@@ -61,6 +61,7 @@ from enip_farm.protocol.commands import (
 from enip_farm.protocol.connection import ConnectionTriad
 from enip_farm.protocol.cpf import ItemType, encode_items
 from enip_farm.protocol.encapsulation import ENIP_PORT
+from enip_farm.protocol.safety.segment import Unid
 from enip_farm.protocol.session import MessageContext, ReplyWithItems
 
 _RESET_KINDS: Mapping[int, str] = MappingProxyType({0: "power cycle", 1: "out-of-box configuration",

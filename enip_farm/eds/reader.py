@@ -35,6 +35,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from enip_farm.cip.data_types import ELEMENTARY, SIGNED
 from enip_farm.device.catalogue import MAX_ASSEMBLY_SIZE, Catalogue, shipped_catalogue
 from enip_farm.eds.grammar import EdsText, Entry, Value, decode_eds_bytes, parse_eds_text
 from enip_farm.protocol.cip import ClassCode
@@ -53,10 +54,6 @@ _KINDS = ((26, "exclusive owner"), (25, "input only"), (24, "listen only"), (27,
 #: Real-time transfer formats, connection parameters bits 8-10 (O->T) and 12-14 (T->O). Real files
 #: give 3 for heartbeat connections (no data) and 4 for the 32-bit run/idle header.
 FORMATS = {0: "modeless", 1: "zero length", 2: "heartbeat", 3: "heartbeat", 4: "run/idle"}
-#: Parameter data types (Vol. 1, C-6.1) and their sizes in bytes.
-_TYPE_SIZES = {0xC1: 1, 0xC2: 1, 0xC3: 2, 0xC4: 4, 0xC5: 8, 0xC6: 1, 0xC7: 2, 0xC8: 4, 0xC9: 8, 0xCA: 4,
-               0xCB: 8, 0xD1: 1, 0xD2: 2, 0xD3: 4, 0xD4: 8}
-_SIGNED = {0xC2, 0xC3, 0xC4, 0xC5}
 _REFERENCE = re.compile(r"^\[?((?:Proxy)?Param|Assem|ProxyAssem)(\d+)\]?$")
 _UNVERIFIED = re.compile(r"^\s*\$\s*UNVERIFIED:\s*(\S.*?)\s*$", re.MULTILINE)
 _DEVICE_NUMBERS = ("VendCode", "ProdType", "ProdCode", "MajRev", "MinRev")
@@ -95,7 +92,7 @@ class EdsParam:
             return struct.pack("<f", float(value))
         if self.data_type == 0xCB:
             return struct.pack("<d", float(value))
-        return int(value).to_bytes(self.size, "little", signed=self.data_type in _SIGNED and int(value) < 0)
+        return int(value).to_bytes(self.size, "little", signed=self.data_type in SIGNED and int(value) < 0)
 
 
 @dataclass(frozen=True)
@@ -250,8 +247,9 @@ class _Reader:
                         self.notes.append(f"[Params] {keyword}: {('minimum', 'maximum', 'default')[index - 9]} "
                                           f"{text!r} is not a number; not used")
                 minimum, maximum, default = limits
+                elementary = ELEMENTARY.get(data_type)
                 param = EdsParam(keyword, entry.line, _int(self.field(entry, 3)) or 0, data_type,
-                                 size or _TYPE_SIZES.get(data_type, 0), self.field(entry, 6).text,
+                                 size or (elementary.size if elementary is not None else 0), self.field(entry, 6).text,
                                  minimum, maximum, default, self.field(entry, 2).text)
                 if default is not None and ((minimum is not None and default < minimum)
                                             or (maximum is not None and default > maximum)):
@@ -536,7 +534,7 @@ def _served(connection: EdsConnection, notes: list[str]) -> dict[str, Any] | Non
 
 def _parameter(param: EdsParam, notes: list[str]) -> dict[str, Any] | None:
     """The profile's entry of a ParamN the Parameter Object serves, or None (a note says why)."""
-    if not 1 <= param.size <= 8 or param.data_type not in _TYPE_SIZES:
+    if not 1 <= param.size <= 8 or param.data_type not in ELEMENTARY:
         notes.append(f"[Params] {param.keyword}: data type 0x{param.data_type:02X} size {param.size}; not served "
                      "by the Parameter Object")
         return None

@@ -21,12 +21,16 @@ from __future__ import annotations
 
 from collections.abc import Callable, Collection
 from dataclasses import dataclass, field
-from typing import NamedTuple
 
 from enip_farm.cip.connection import Connection, ConnectionKind
-from enip_farm.cip.safety.crc import Seeds, crc_s4
-from enip_farm.cip.safety.messages import TCOO_SIZE, data_length, wire_size
-from enip_farm.cip.safety.segment import (
+from enip_farm.cip.connection_path import assembly_points
+from enip_farm.cip.connection_policy import Refusal, SafetyOpen
+from enip_farm.cip.safety.state import SafetyState
+from enip_farm.protocol.connection import ConnectionType, ForwardOpenRequest, NetworkParameters, encode_forward_open
+from enip_farm.protocol.epath import DataSegment, ElectronicKey, SafetyNetworkSegment
+from enip_farm.protocol.safety.crc import Seeds, crc_s4
+from enip_farm.protocol.safety.messages import TCOO_SIZE, data_length, wire_size
+from enip_farm.protocol.safety.segment import (
     NOT_USED,
     TIME_CORRECTION_NOT_USED,
     SafetySegment,
@@ -35,11 +39,7 @@ from enip_farm.cip.safety.segment import (
     compute_cpcrc,
     decode_segment,
 )
-from enip_farm.cip.safety.state import SafetyState
-from enip_farm.cip.safety.validator import SafetyConsumer, SafetyProducer
-from enip_farm.protocol.cip import ClassCode
-from enip_farm.protocol.connection import ConnectionType, ForwardOpenRequest, NetworkParameters, encode_forward_open
-from enip_farm.protocol.epath import DataSegment, ElectronicKey, LogicalSegment, LogicalType, SafetyNetworkSegment
+from enip_farm.protocol.safety.validator import SafetyConsumer, SafetyProducer
 from enip_farm.protocol.status import ExtendedStatus as X
 
 SERVER, CLIENT = 0xA0, 0x20  # transport type/trigger of a safety connection (Vol. 5, 3-5.4)
@@ -80,134 +80,111 @@ class SafetyPolicy:
     def tunid_set(self) -> bool:
         return self.state.tunid_set
 
+    def admit(self, request: ForwardOpenRequest, segments: list, route_size: int,
+              check_key: Callable[[ElectronicKey], None], sizes: tuple[int, int], originator_host: str,
+              t_o_address: tuple[str, int], now: int, connections: Collection[Connection],
+              new_id: Callable[[], int], first_watchdog_ns: int, initial_rc_offset: int) -> SafetyOpen | Refusal:
+        """A SafetyOpen admitted, or refused (cip/admission.py's `SafetyTarget` says what the
+        arguments are)."""
+        policy = self
+        raw = safety_segment_of(segments)
+        assert raw is not None
+        application = segments[:segments.index(raw)]
+        configuration_data = None
+        if application and isinstance(application[-1], DataSegment):  # a Type 1 SafetyOpen
+            configuration_data = application.pop().data
+        try:
+            segment = decode_segment(raw.raw)
+        except SegmentError as error:
+            return Refusal(X.INVALID_SAFETY_FORMAT if error.format_error else X.INVALID_SEGMENT)
+        if segments[-1] is not raw:
+            return Refusal(X.INVALID_SEGMENT)  # nothing may follow the safety segment
+        application_path = request.connection_path[route_size:len(request.connection_path) - len(raw.raw)]
+        fixed = encode_forward_open(request._replace(connection_path=b""))
+        fixed = fixed[:-1] + bytes(((len(application_path) + len(raw.raw)) // 2,))
+        if compute_cpcrc(fixed, application_path, raw.raw) != segment.cpcrc:
+            return Refusal(X.INVALID_CPCRC)
+        if not policy.tunid_set:
+            return Refusal(X.TUNID_NOT_SET)
+        state = policy.state
+        if segment.tunid != state.tunid:
+            return Refusal(X.TUNID_MISMATCH)
+        if any(c.triad == request.triad for c in connections):
+            return Refusal(X.CONNECTION_IN_USE)
+        if application and isinstance(application[0], ElectronicKey):
+            check_key(application.pop(0))
+        refusal = _parameters(request, segment, sizes)
+        if refusal is not None:
+            return refusal
+        server = request.transport_type_trigger == SERVER
+        points = assembly_points(application)
+        if points is None or points[0] is None:
+            return Refusal(X.INVALID_SEGMENT)
+        configuration, consuming, producing = points
+        if configuration not in (policy.configuration_point, policy.null_point):
+            return Refusal(X.INVALID_CONFIGURATION_PATH)
+        if server:
+            if producing != policy.null_point:
+                return Refusal(X.INVALID_PRODUCING_PATH)
+            if consuming != policy.output_point:
+                return Refusal(X.INVALID_CONSUMING_PATH)
+        else:
+            if consuming != policy.null_point:
+                return Refusal(X.INVALID_CONSUMING_PATH)
+            if producing != policy.input_point:
+                return Refusal(X.INVALID_PRODUCING_PATH)
+        safety = [c for c in connections if c.safety is not None]
+        if configuration_data is not None:
+            if configuration != policy.configuration_point:
+                return Refusal(X.INVALID_CONFIGURATION_PATH)
+            if state.cfunid is not None and state.cfunid != segment.ounid:
+                return Refusal(X.CONFIGURATION_OWNED)
+            if not any(segment.scid) or crc_s4(configuration_data) != segment.sccrc:
+                return Refusal(X.SCID_MISMATCH)
+            if segment.scid != state.scid and safety:
+                return Refusal(X.CONFIGURATION_OPERATION_NOT_ALLOWED)
+        elif any(segment.scid) and segment.scid != state.scid:
+            return Refusal(X.SCID_MISMATCH)
+        if server and any(c.kind is ConnectionKind.SAFETY_OUTPUT for c in safety):
+            return Refusal(X.OWNERSHIP_CONFLICT)  # one owner of the safe outputs
+        if len(safety) >= policy.max_connections:
+            return Refusal(X.OUT_OF_CONNECTIONS)
+        if configuration_data is not None:  # admitted: the originator owns the configuration
+            state.configure(segment.ounid, segment.scid, configuration_data)
 
-class SafetyRefusal(NamedTuple):
-    extended: int
-    expected_size: int | None = None
-
-
-class SafetyOpen(NamedTuple):
-    connection: Connection
-    application_reply: bytes
+        used = {c.instance for c in safety}  # the Safety Validator instances in use
+        instance = next(i for i in range(1, len(used) + 2) if i not in used)
+        target = Seeds.of(policy.vendor_id, policy.serial_number, instance)
+        originator = Seeds.of(request.triad.originator_vendor_id, request.triad.originator_serial,
+                              request.triad.connection_serial)
+        if server:
+            validator: SafetyConsumer | SafetyProducer = SafetyConsumer(
+                segment, sizes[0], pid=originator, cid=target, now=now, first_watchdog_ns=first_watchdog_ns,
+                initial_rc_offset=initial_rc_offset)
+            initial = (validator.initial_timestamp, validator.initial_rollover)
+        else:
+            validator = SafetyProducer(segment, sizes[1], pid=target, cid=originator, epi_ns=request.t_o_rpi * 1000,
+                                       now=now, first_watchdog_ns=first_watchdog_ns)
+            initial = (segment.initial_timestamp, segment.initial_rollover_value)
+        # application reply (Vol. 5, 3-5.4.2): consumer number (0xFFFF: single-cast), target vendor id,
+        # serial number and connection serial number (the Safety Validator instance); extended format:
+        # initial timestamp and initial rollover value
+        reply = (0xFFFF).to_bytes(2, "little") + policy.vendor_id.to_bytes(2, "little") + \
+            policy.serial_number.to_bytes(4, "little") + instance.to_bytes(2, "little")
+        if segment.extended:
+            reply += initial[0].to_bytes(2, "little") + initial[1].to_bytes(2, "little")
+        connection = Connection(
+            kind=ConnectionKind.SAFETY_OUTPUT if server else ConnectionKind.SAFETY_INPUT, triad=request.triad,
+            o_t_id=new_id(), t_o_id=request.t_o_connection_id, o_t_rpi=request.o_t_rpi, t_o_rpi=request.t_o_rpi,
+            timeout_multiplier=request.timeout_multiplier, originator_host=originator_host, opened_at=now,
+            first_watchdog_ns=first_watchdog_ns, t_o_address=t_o_address, o_t_point=consuming, t_o_point=producing,
+            o_t_run_idle_header=False, safety=validator, instance=instance, ounid=segment.ounid,
+        )
+        return SafetyOpen(connection, reply)
 
 
 def safety_segment_of(segments: list) -> SafetyNetworkSegment | None:
     return next((s for s in segments if isinstance(s, SafetyNetworkSegment)), None)
-
-
-def admit_safety(request: ForwardOpenRequest, segments: list, route_size: int, policy: SafetyPolicy,
-                 check_key: Callable[[ElectronicKey], None], sizes: tuple[int, int], originator_host: str,
-                 t_o_address: tuple[str, int], now: int, connections: Collection[Connection],
-                 new_id: Callable[[], int], instance_id: Callable[[], int], first_watchdog_ns: int,
-                 initial_rc_offset: int) -> SafetyOpen | SafetyRefusal:
-    """`segments`: the connection path after the route to this device (`route_size` bytes);
-    `sizes`: the output and input images' sizes; `check_key` raises the admission's refusal for a
-    key mismatch."""
-    raw = safety_segment_of(segments)
-    assert raw is not None
-    application = segments[:segments.index(raw)]
-    configuration_data = None
-    if application and isinstance(application[-1], DataSegment):  # a Type 1 SafetyOpen
-        configuration_data = application.pop().data
-    try:
-        segment = decode_segment(raw.raw)
-    except SegmentError as error:
-        return SafetyRefusal(X.INVALID_SAFETY_FORMAT if error.format_error else X.INVALID_SEGMENT)
-    if segments[-1] is not raw:
-        return SafetyRefusal(X.INVALID_SEGMENT)  # nothing may follow the safety segment
-    application_path = request.connection_path[route_size:len(request.connection_path) - len(raw.raw)]
-    fixed = encode_forward_open(request._replace(connection_path=b""))
-    fixed = fixed[:-1] + bytes(((len(application_path) + len(raw.raw)) // 2,))
-    if compute_cpcrc(fixed, application_path, raw.raw) != segment.cpcrc:
-        return SafetyRefusal(X.INVALID_CPCRC)
-    if not policy.tunid_set:
-        return SafetyRefusal(X.TUNID_NOT_SET)
-    state = policy.state
-    if segment.tunid != state.tunid:
-        return SafetyRefusal(X.TUNID_MISMATCH)
-    if any(c.triad == request.triad for c in connections):
-        return SafetyRefusal(X.CONNECTION_IN_USE)
-    if application and isinstance(application[0], ElectronicKey):
-        check_key(application.pop(0))
-    refusal = _parameters(request, segment, sizes)
-    if refusal is not None:
-        return refusal
-    server = request.transport_type_trigger == SERVER
-    points = _points(application)
-    if points is None:
-        return SafetyRefusal(X.INVALID_SEGMENT)
-    configuration, consuming, producing = points
-    if configuration not in (policy.configuration_point, policy.null_point):
-        return SafetyRefusal(X.INVALID_CONFIGURATION_PATH)
-    if server:
-        if producing != policy.null_point:
-            return SafetyRefusal(X.INVALID_PRODUCING_PATH)
-        if consuming != policy.output_point:
-            return SafetyRefusal(X.INVALID_CONSUMING_PATH)
-    else:
-        if consuming != policy.null_point:
-            return SafetyRefusal(X.INVALID_CONSUMING_PATH)
-        if producing != policy.input_point:
-            return SafetyRefusal(X.INVALID_PRODUCING_PATH)
-    safety = [c for c in connections if c.safety is not None]
-    if configuration_data is not None:
-        if configuration != policy.configuration_point:
-            return SafetyRefusal(X.INVALID_CONFIGURATION_PATH)
-        if state.cfunid is not None and state.cfunid != segment.ounid:
-            return SafetyRefusal(X.CONFIGURATION_OWNED)
-        if not any(segment.scid) or crc_s4(configuration_data) != segment.sccrc:
-            return SafetyRefusal(X.SCID_MISMATCH)
-        if segment.scid != state.scid and safety:
-            return SafetyRefusal(X.CONFIGURATION_OPERATION_NOT_ALLOWED)
-    elif any(segment.scid) and segment.scid != state.scid:
-        return SafetyRefusal(X.SCID_MISMATCH)
-    if server and any(c.kind is ConnectionKind.SAFETY_OUTPUT for c in safety):
-        return SafetyRefusal(X.OWNERSHIP_CONFLICT)  # one owner of the safe outputs
-    if len(safety) >= policy.max_connections:
-        return SafetyRefusal(X.OUT_OF_CONNECTIONS)
-    if configuration_data is not None:  # admitted: the originator owns the configuration
-        state.configure(segment.ounid, segment.scid, configuration_data)
-
-    instance = instance_id()
-    target = Seeds.of(policy.vendor_id, policy.serial_number, instance)
-    originator = Seeds.of(request.triad.originator_vendor_id, request.triad.originator_serial,
-                          request.triad.connection_serial)
-    if server:
-        validator: SafetyConsumer | SafetyProducer = SafetyConsumer(
-            segment, sizes[0], pid=originator, cid=target, now=now, first_watchdog_ns=first_watchdog_ns,
-            initial_rc_offset=initial_rc_offset)
-        initial = (validator.initial_timestamp, validator.initial_rollover)
-    else:
-        validator = SafetyProducer(segment, sizes[1], pid=target, cid=originator, epi_ns=request.t_o_rpi * 1000,
-                                   now=now, first_watchdog_ns=first_watchdog_ns)
-        initial = (segment.initial_timestamp, segment.initial_rollover_value)
-    # application reply (Vol. 5, 3-5.4.2): consumer number (0xFFFF: single-cast), target vendor id,
-    # serial number and connection serial number (the Safety Validator instance); extended format:
-    # initial timestamp and initial rollover value
-    reply = (0xFFFF).to_bytes(2, "little") + policy.vendor_id.to_bytes(2, "little") + \
-        policy.serial_number.to_bytes(4, "little") + instance.to_bytes(2, "little")
-    if segment.extended:
-        reply += initial[0].to_bytes(2, "little") + initial[1].to_bytes(2, "little")
-    connection = Connection(
-        kind=ConnectionKind.SAFETY_OUTPUT if server else ConnectionKind.SAFETY_INPUT, triad=request.triad,
-        o_t_id=new_id(), t_o_id=request.t_o_connection_id, o_t_rpi=request.o_t_rpi, t_o_rpi=request.t_o_rpi,
-        timeout_multiplier=request.timeout_multiplier, originator_host=originator_host, opened_at=now,
-        first_watchdog_ns=first_watchdog_ns, t_o_address=t_o_address, o_t_point=consuming, t_o_point=producing,
-        o_t_run_idle_header=False, safety=validator, instance=instance, ounid=segment.ounid,
-    )
-    return SafetyOpen(connection, reply)
-
-
-def _points(application: list) -> tuple[int, int, int] | None:
-    if not application or application[0] != LogicalSegment(LogicalType.CLASS_ID, ClassCode.ASSEMBLY):
-        return None
-    values = []
-    for segment in application[1:]:
-        if not isinstance(segment, LogicalSegment) or segment.type not in (
-                LogicalType.INSTANCE_ID, LogicalType.CONNECTION_POINT):
-            return None
-        values.append(segment.value)
-    return (values[0], values[1], values[2]) if len(values) == 3 else None
 
 
 def _network_ok(p: NetworkParameters, size: int | None) -> bool:
@@ -216,49 +193,49 @@ def _network_ok(p: NetworkParameters, size: int | None) -> bool:
             and not p.variable and not p.redundant_owner and (size is None or p.size == size))
 
 
-def _parameters(request: ForwardOpenRequest, segment: SafetySegment, sizes: tuple[int, int]) -> SafetyRefusal | None:
+def _parameters(request: ForwardOpenRequest, segment: SafetySegment, sizes: tuple[int, int]) -> Refusal | None:
     """Connection and safety parameters (Vol. 5, 3-5.4.1), in the order a target checks them."""
     if request.timeout_multiplier > _MAX_CONNECTION_TIMEOUT_MULTIPLIER:
-        return SafetyRefusal(X.INVALID_SAFETY_TIMEOUT_MULTIPLIER)
+        return Refusal(X.INVALID_SAFETY_TIMEOUT_MULTIPLIER)
     transport = request.transport_type_trigger
     if transport not in (SERVER, CLIENT):
-        return SafetyRefusal(X.TRANSPORT_TRIGGER_NOT_SUPPORTED)
+        return Refusal(X.TRANSPORT_TRIGGER_NOT_SUPPORTED)
     server = transport == SERVER
     data, tcoo = (request.o_t_parameters, request.t_o_parameters) if server else (
         request.t_o_parameters, request.o_t_parameters)
     if not _network_ok(data, None) or not _network_ok(tcoo, TCOO_SIZE):
-        return SafetyRefusal(X.INVALID_CONNECTION_TYPE)
+        return Refusal(X.INVALID_CONNECTION_TYPE)
     if segment.time_correction_parameters != 0:
-        return SafetyRefusal(X.INVALID_TIME_CORRECTION_PARAMETERS)
+        return Refusal(X.INVALID_TIME_CORRECTION_PARAMETERS)
     length = data_length(data.size)
     if length is None:
-        return SafetyRefusal(X.INVALID_SAFETY_CONNECTION_SIZE)
+        return Refusal(X.INVALID_SAFETY_CONNECTION_SIZE)
     expected = sizes[0] if server else sizes[1]
     if length != expected:
-        return SafetyRefusal(X.INVALID_O_T_SIZE if server else X.INVALID_T_O_SIZE, wire_size(expected))
+        return Refusal(X.INVALID_O_T_SIZE if server else X.INVALID_T_O_SIZE, wire_size(expected))
     data_rpi, tcoo_rpi = (request.o_t_rpi, request.t_o_rpi) if server else (request.t_o_rpi, request.o_t_rpi)
     max_rpi = _MAX_RPI_EXTENDED_US if segment.extended else _MAX_RPI_BASE_US
     if not (_MIN_RPI_US <= data_rpi <= max_rpi and _MIN_RPI_US <= tcoo_rpi <= _MAX_RPI_TCOO_US):
-        return SafetyRefusal(X.RPI_NOT_SUPPORTED)
+        return Refusal(X.RPI_NOT_SUPPORTED)
     if segment.time_correction_epi != 0:
-        return SafetyRefusal(X.MISCELLANEOUS)
+        return Refusal(X.MISCELLANEOUS)
     piem_min = min(segment.timeout_multiplier, 4) * segment.max_consumer_number + _MAX_CONSUMERS_MULTICAST
     if not piem_min <= segment.ping_interval_epi_multiplier <= _MAX_PIEM or (
             data_rpi * segment.ping_interval_epi_multiplier > 100_000_000):
-        return SafetyRefusal(X.INVALID_PING_INTERVAL_EPI_MULTIPLIER)
+        return Refusal(X.INVALID_PING_INTERVAL_EPI_MULTIPLIER)
     if segment.time_coord_msg_min_multiplier > _MAX_TCOO_MIN_MULTIPLIER:
-        return SafetyRefusal(X.INVALID_TIME_COORD_MSG_MIN_MULTIPLIER)
+        return Refusal(X.INVALID_TIME_COORD_MSG_MIN_MULTIPLIER)
     if not 1 <= segment.network_time_expectation_multiplier <= _MAX_NTE_MULTIPLIER:
-        return SafetyRefusal(X.INVALID_NETWORK_TIME_EXPECTATION_MULTIPLIER)
+        return Refusal(X.INVALID_NETWORK_TIME_EXPECTATION_MULTIPLIER)
     if segment.timeout_multiplier < 1 or (not segment.extended and segment.timeout_multiplier > 4):
-        return SafetyRefusal(X.INVALID_SAFETY_TIMEOUT_MULTIPLIER)
+        return Refusal(X.INVALID_SAFETY_TIMEOUT_MULTIPLIER)
     if segment.max_consumer_number != 1:
-        return SafetyRefusal(X.INVALID_MAX_CONSUMER_NUMBER)
+        return Refusal(X.INVALID_MAX_CONSUMER_NUMBER)
     if segment.time_correction_connection_id != TIME_CORRECTION_NOT_USED:
-        return SafetyRefusal(X.INVALID_TIME_CORRECTION_CONNECTION_ID)
+        return Refusal(X.INVALID_TIME_CORRECTION_CONNECTION_ID)
     if segment.extended:
         if segment.max_fault_number > 255:
-            return SafetyRefusal(X.MISCELLANEOUS)
+            return Refusal(X.MISCELLANEOUS)
         if server and (segment.initial_timestamp, segment.initial_rollover_value) != (NOT_USED, NOT_USED):
-            return SafetyRefusal(X.PARAMETER_ERROR)
+            return Refusal(X.PARAMETER_ERROR)
     return None

@@ -11,8 +11,8 @@ from enip_farm.cip.attribute import Attribute, CipInstance
 from enip_farm.cip.connection import Connection
 from enip_farm.cip.data_types import UINT, USINT
 from enip_farm.cip.object import CipClass
-from enip_farm.cip.safety.validator import SafetyConsumer
 from enip_farm.protocol.cip import ClassCode
+from enip_farm.protocol.safety.validator import SafetyConsumer
 
 #: Safety Validator state (attribute 1): 0 unallocated, 1 initializing, 2 established, 3 failed.
 _INITIALIZING, _ESTABLISHED = 1, 2

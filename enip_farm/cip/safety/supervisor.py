@@ -39,7 +39,6 @@ from enip_farm.cip.connection import Connection, ConnectionKind
 from enip_farm.cip.data_types import BOOL, BYTE, USINT, Encoded, Octets
 from enip_farm.cip.object import CipClass, ServiceResult
 from enip_farm.cip.safety.admission import SafetyPolicy
-from enip_farm.cip.safety.segment import Unid
 from enip_farm.cip.safety.state import (
     EXTENDED_MAP,
     NO_UNID,
@@ -51,6 +50,7 @@ from enip_farm.cip.safety.state import (
 )
 from enip_farm.protocol.cip import ClassCode
 from enip_farm.protocol.epath import RequestPath, encode_request_path
+from enip_farm.protocol.safety.segment import Unid
 from enip_farm.protocol.session import MessageContext
 from enip_farm.protocol.status import GeneralStatus
 
