@@ -39,7 +39,7 @@ class Attribute:
     value, `set` (the decoded value in, a general status out) takes a new one, `guard` (when
     given) answers a status before the value is read: a state in which the attribute cannot be set."""
 
-    __slots__ = ("id", "type", "access", "get", "set", "guard", "encoded")
+    __slots__ = ("id", "type", "access", "get", "set", "guard", "encoded", "gettable", "served", "in_all")
 
     def __init__(self, id: int, type: CipType, get: Callable[[], Any] | None = None,
                  set: Callable[[Any], int] | None = None, *, value: Any = None, access: Access | None = None,
@@ -52,11 +52,10 @@ class Attribute:
             raise ValueError(f"attribute {id}: settable if and only if it has a setter")
         self.id, self.type, self.access, self.get, self.set, self.guard = id, type, access, get, set, guard
         self.encoded = type.encode(value) if value is not None else None
-
-    @property
-    def served(self) -> bool:
-        """Whether the single and list services know it (else they answer 0x14)."""
-        return bool(self.access & (Access.GET | Access.SET))
+        # the access as plain truths, for the request path (a Flag operation costs microseconds)
+        self.gettable = Access.GET in access
+        self.served = self.gettable or set is not None  # known to the single and list services, else 0x14
+        self.in_all = Access.ALL in access
 
     def read(self) -> bytes:
         encoded = self.encoded
@@ -95,7 +94,7 @@ class CipInstance:
         """Add (or replace) attributes."""
         merged = {**self.attributes, **{a.id: a for a in attributes}}
         self.attributes = dict(sorted(merged.items()))
-        self.all_members = tuple(a for a in self.attributes.values() if Access.ALL in a.access)
+        self.all_members = tuple(a for a in self.attributes.values() if a.in_all)
 
     def served(self, attribute_id: int | None) -> Attribute | None:
         """The attribute the single and list services answer for this id, if any."""

@@ -19,7 +19,7 @@ import struct
 from collections.abc import Callable
 from typing import NamedTuple
 
-from enip_farm.cip.attribute import Access, Attribute, CipInstance
+from enip_farm.cip.attribute import Attribute, CipInstance
 from enip_farm.cip.data_types import UINT, UINT_LIST
 from enip_farm.protocol.cip import Service
 from enip_farm.protocol.epath import RequestPath
@@ -89,7 +89,7 @@ class CipClass:
     def get_attribute_single(instance: CipInstance, path: RequestPath, data: bytes,
                              context: MessageContext) -> ServiceResult:
         attribute = instance.attributes.get(path.attribute_id)  # type: ignore[arg-type]
-        if attribute is None or Access.GET not in attribute.access:
+        if attribute is None or not attribute.gettable:
             return ATTRIBUTE_NOT_SUPPORTED
         return ServiceResult(GeneralStatus.SUCCESS, attribute.read())
 
@@ -119,7 +119,7 @@ class CipClass:
         size = _COUNT.size
         for attribute_id in ids:
             attribute = instance.attributes.get(attribute_id)
-            if attribute is None or Access.GET not in attribute.access:
+            if attribute is None or not attribute.gettable:
                 entry = _ENTRY.pack(attribute_id, GeneralStatus.ATTRIBUTE_NOT_SUPPORTED)
                 status = GeneralStatus.ATTRIBUTE_LIST_ERROR
             else:
