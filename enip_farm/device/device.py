@@ -29,12 +29,12 @@ from enip_farm.device.profile import DeviceProfile
 from enip_farm.device.reset import Resets
 from enip_farm.device.sessions import SessionHandles
 from enip_farm.device.tap import TrafficTap
-from enip_farm.device.target import ENIP_PORT, EncapsulationTarget
+from enip_farm.device.target import EncapsulationTarget
 from enip_farm.protocol.commands import IdentityItem
 from enip_farm.protocol.connection import ConnectionTriad
 from enip_farm.protocol.session import MessageContext, ReplyWithItems
 
-__all__ = ["COUNTERS", "ENIP_PORT", "Device", "Observer", "SendDatagram", "describe", "replace_image"]
+__all__ = ["COUNTERS", "Device", "Observer", "SendDatagram", "describe", "replace_image"]
 
 #: Every counter of a device, present (at 0) from the start: TCP, sessions, replies, class 1 (the table's).
 COUNTERS = ("tcp_connections", "tcp_refused", "tcp_write_paused", "tcp_inactivity_closed", "sessions",
@@ -119,8 +119,7 @@ class Device:
     @property
     def product_code(self) -> int:
         """The product code the device shows; an `identity` fault changes it so keys stop matching."""
-        code = self.profile.product_code
-        return (code + 1) & 0xFFFF if self.faults.identity_changed else code
+        return self.faults.product_code(self.profile.product_code)
 
     @property
     def status(self) -> int:

@@ -27,9 +27,8 @@ from enip_farm.protocol.commands import (
     encode_service_item,
 )
 from enip_farm.protocol.cpf import ItemType, encode_items
+from enip_farm.protocol.encapsulation import ENIP_PORT
 from enip_farm.protocol.session import MessageContext, ReplyWithItems
-
-ENIP_PORT = 44818
 
 
 class EncapsulationTarget:
