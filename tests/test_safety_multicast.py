@@ -6,7 +6,13 @@ others; the last one ends the production. Raw frames through the sans-IO connect
 
 from __future__ import annotations
 
+import ipaddress
+import shutil
+import socket
 import struct
+import subprocess
+from contextlib import ExitStack
+from pathlib import Path
 
 import pytest
 
@@ -20,11 +26,26 @@ from enip_farm.cip.safety.messages import (
     encode_time_coordination,
     wire_size,
 )
+from enip_farm.cip.safety.segment import Unid
 from enip_farm.cip.safety.validator import ticks
+from enip_farm.config import parse_config
+from enip_farm.farm import Farm
+from enip_farm.protocol.cip import encode_request
 from enip_farm.protocol.commands import decode_sockaddr
-from enip_farm.protocol.connection import ForwardOpenRequest, class0_data, decode_io_packet, encode_class0_packet
+from enip_farm.protocol.connection import (
+    ForwardCloseRequest,
+    ForwardOpenRequest,
+    class0_data,
+    decode_forward_open_reply,
+    decode_io_packet,
+    encode_class0_packet,
+    encode_forward_close,
+    encode_forward_open,
+)
 from enip_farm.protocol.cpf import ItemType
+from enip_farm.protocol.epath import encode_request_path
 from enip_farm.protocol.status import ExtendedStatus as X
+from tests.helpers import RawClient
 from tests.test_safety import MS, SERIAL, T0, VENDOR, _pid, make_table, safety_open
 
 GROUP = ("239.192.1.0", 2222)
@@ -213,3 +234,110 @@ def test_a_join_must_ask_for_what_the_producer_produces(join_kwargs: dict, statu
     open_from(table, HOSTS[0], multicast_open())
     assert _refusal(multicast_open(**join_kwargs), table) == status
     assert len(table.connections) == 1 and next(iter(table.productions.values())).users == 1
+
+
+# -- on the wire: three originators of their own, the farm's multicast, Wireshark on the recording ----------
+
+
+def _multicast_receiver(group: str) -> socket.socket:
+    receiver = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    receiver.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+    receiver.bind(("0.0.0.0", 2222))  # beside the farm's device sockets, as a scanner binds
+    receiver.setsockopt(socket.IPPROTO_IP, socket.IP_ADD_MEMBERSHIP,
+                        socket.inet_aton(group) + socket.inet_aton("127.0.0.1"))
+    receiver.settimeout(5)
+    return receiver
+
+
+@pytest.mark.system
+@pytest.mark.skipif(shutil.which("tshark") is None, reason="tshark (Debian) is not installed; .ci/run installs it")
+def test_three_originators_consume_the_farms_multicast_safe_inputs(free_address, tmp_path: Path) -> None:
+    address = free_address()
+    hosts = [free_address() for _ in range(3)]
+    recording = tmp_path / "multicast.pcap"
+    farm = Farm(parse_config({"devices": [{"name": "s", "address": address, "model": "DSQC1042"}],
+                              "discovery": False}), record=recording)
+    tunid = Unid(bytes.fromhex("000000000001"), int(ipaddress.IPv4Address(address)))
+    requests = [multicast_open(tunid=tunid, ping=50) for _ in hosts]  # ping interval 500 ms, timeout 2 s
+    with ExitStack() as stack:
+        stack.enter_context(farm.running_in_thread())
+        clients = [stack.enter_context(RawClient(address, source=host)) for host in hosts]
+        senders = []
+        for host in hosts:
+            sender = stack.enter_context(socket.socket(socket.AF_INET, socket.SOCK_DGRAM))
+            sender.bind((host, 0))
+            senders.append(sender)
+        replies = []
+        for client, request in zip(clients, requests, strict=True):
+            client.register()
+            reply, items = client.request_items(encode_request(0x54, encode_request_path(6, 1),
+                                                               encode_forward_open(request)))
+            assert reply.general_status == 0, reply
+            replies.append((decode_forward_open_reply(reply.data), items))
+        (t_o_id,) = {opened.t_o_connection_id for opened, _ in replies}
+        (group,) = {decode_sockaddr(items[0].data).host for _, items in replies}
+        numbers = [struct.unpack_from("<H", opened.application_reply)[0] for opened, _ in replies]
+        assert numbers == [1, 2, 3]
+        (instance,) = {struct.unpack_from("<H", opened.application_reply, 8)[0] for opened, _ in replies}
+        pid = Seeds.of(75, farm.device("s").profile.serial_number, instance)
+        validator_type = clients[0].get(0x3A, instance, 2)
+        assert validator_type.general_status == 0 and validator_type.data == b"\x02"  # producer, multicast
+        receivers = [stack.enter_context(_multicast_receiver(group)) for _ in hosts]
+        farm["s"].set(DI1=1, DI12=1)
+
+        sequence = iter(range(1, 1_000_000))
+        last_ping: list[int | None] = [None]
+
+        def sections(receiver: socket.socket, consumers: list[int], until: set[int]) -> set[int]:
+            """Answer every ping of `consumers` (indices), read the multicast until the active time
+            correction sections of the numbers `until` were seen: the numbers seen."""
+            seen: set[int] = set()
+            while not until <= seen:
+                io = decode_io_packet(receiver.recv(2048))
+                if io is None or io.connection_id != t_o_id:
+                    continue  # another test's multicast on port 2222
+                message = class0_data(io)
+                data = decode_data(message[:8], 2, pid, False)
+                section = decode_time_correction(message[8:], pid, False)
+                assert data is not None and section is not None and data.data == b"\x01\x08"
+                if data.ping_count != last_ping[0]:
+                    last_ping[0] = data.ping_count
+                    for k in consumers:  # each answers with its own time: the producer's + 10000 x number
+                        message = encode_time_coordination(data.ping_count, data.timestamp + 10_000 * (k + 1),
+                                                           _pid(requests[k]), False)
+                        senders[k].sendto(encode_class0_packet(replies[k][0].o_t_connection_id, next(sequence),
+                                                               message), (address, 2222))
+                if section.active:
+                    # its correction: its time value minus the farm's clock when the answer came
+                    assert 0 <= 10_000 * section.consumer_number - section.value < 5_000
+                    seen.add(section.consumer_number)
+            return seen
+
+        assert sections(receivers[0], [0, 1, 2], {1, 2, 3}) == {1, 2, 3}
+        for receiver in receivers[1:]:  # every originator's socket gets the stream
+            io = decode_io_packet(receiver.recv(2048))
+            while io is None or io.connection_id != t_o_id:
+                io = decode_io_packet(receiver.recv(2048))
+        close = clients[1].request(encode_request(0x4E, encode_request_path(6, 1), encode_forward_close(
+            ForwardCloseRequest(0x05, 0x9C, requests[1].triad, requests[1].connection_path))))
+        assert close.general_status == 0
+        last_ping[0] = None
+        after = stack.enter_context(_multicast_receiver(group))  # what the farm sends from the close on
+        assert sections(after, [0, 2], {1, 3}) == {1, 3}  # 2 is gone, 1 and 3 go on
+        assert len(farm.device("s").connections) == 2
+    expert = subprocess.run(["tshark", "-r", str(recording), "-q", "-z", "expert"], capture_output=True, text=True,
+                            timeout=120)
+    assert expert.returncode == 0, expert.stderr
+    assert "Errors (" not in expert.stdout and "Warnings (" not in expert.stdout, expert.stdout
+    fields = subprocess.run(["tshark", "-r", str(recording), "-Y", f"cipsafety && ip.dst == {group}", "-T", "fields",
+                             "-e", "cipsafety.mcast_byte.consumer_num", "-e", "cipsafety.mcast_byte.active_idle",
+                             "-e", "cipsafety.crc_s1.status", "-e", "cipsafety.crc_s2.status"],
+                            capture_output=True, text=True, timeout=120).stdout.splitlines()
+    rows = {tuple(line.split("\t")) for line in fields}
+    # Wireshark reads the multicast data messages with their time correction sections; every CRC good (1)
+    assert {row[0] for row in rows if row[1] in ("1", "True")} == {"0x01", "0x02", "0x03"}, rows
+    assert {row[2:] for row in rows} == {("1,1", "1")}, rows  # CRC-S1 of the data and of the timestamp, CRC-S2
+    replies = subprocess.run(["tshark", "-r", str(recording), "-Y", "cip.cm.app_reply_size == 5", "-V"],
+                             capture_output=True, text=True, timeout=120).stdout
+    assert [line.strip() for line in replies.splitlines() if "Consumer Number:" in line] == [
+        "Consumer Number: 1", "Consumer Number: 2", "Consumer Number: 3"]
