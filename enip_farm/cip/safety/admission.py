@@ -47,6 +47,7 @@ from enip_farm.cip.safety.segment import (
 )
 from enip_farm.cip.safety.state import SafetyState
 from enip_farm.cip.safety.validator import SafetyConsumer, SafetyProducer
+from enip_farm.protocol.cip import ClassCode
 from enip_farm.protocol.connection import ConnectionType, ForwardOpenRequest, NetworkParameters, encode_forward_open
 from enip_farm.protocol.epath import DataSegment, ElectronicKey, LogicalSegment, LogicalType, SafetyNetworkSegment
 from enip_farm.protocol.status import ExtendedStatus as X
@@ -60,7 +61,6 @@ _MAX_NTE_MULTIPLIER = 45313  # 5.8 s
 _MAX_CONNECTION_TIMEOUT_MULTIPLIER = 7
 _MIN_RPI_US, _MAX_RPI_BASE_US, _MAX_RPI_EXTENDED_US = 1_000, 100_000, 1_000_000
 _MAX_RPI_TCOO_US = 10_000_000
-_ASSEMBLY = 0x04
 _REQUIRED = 4  # acceptable RPI type of extended status 0x0112: the RPI required
 SCID_SIZE = 10
 
@@ -274,7 +274,7 @@ def _multicast(request: ForwardOpenRequest, segment: SafetySegment, shared: Conn
 
 
 def _points(application: list) -> tuple[int, int, int] | None:
-    if not application or application[0] != LogicalSegment(LogicalType.CLASS_ID, _ASSEMBLY):
+    if not application or application[0] != LogicalSegment(LogicalType.CLASS_ID, ClassCode.ASSEMBLY):
         return None
     values = []
     for segment in application[1:]:
