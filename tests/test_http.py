@@ -79,6 +79,8 @@ def test_fault_parameters_are_checked_in_one_place() -> None:
         Fault("status", service=True, status=8)
     with pytest.raises(FaultError, match="delay_ms: must be a number"):
         Fault("delay", delay_ms="5")
+    with pytest.raises(FaultError, match="^delay_ms: must be a number, got None$"):  # the page's NaN, as JSON
+        Fault("delay", delay_ms=None)
     assert Fault("delay", delay_ms=MAX_DELAY_MS).on_reply() == 60_000_000_000
     assert Fault("status", service=0, status=0xFF).status == 0xFF
 
@@ -256,7 +258,7 @@ def test_subscriber_cap_and_a_freed_slot(enip_farm) -> None:
     second.close()
     third.close()
     assert wait_for(lambda: not hub.subscribers, timeout=DEADLINE_S), "every slot is free"
-    assert all(not device._observers or all(o != hub.deliver for o in device._observers)
+    assert all(not device.guard.observers or all(o != hub.deliver for o in device.guard.observers)
                for device in farm.devices.values())  # nobody listens: the devices carry no observer of the hub
 
 

@@ -91,7 +91,7 @@ def _check_t_o_size(request: ForwardOpenRequest, expected: int) -> None:
 
 class _Refused(Exception):
     def __init__(self, refusal: Refusal) -> None:
-        super().__init__(hex(refusal.extended))
+        super().__init__(refusal.additional_status)
         self.refusal = refusal
 
 
@@ -144,7 +144,7 @@ class Admission:
         result = target.admit(
             request, segments, route, self._check_key, (len(output.data), len(inputs.data)), originator.host,
             self._point_to_point_address(originator), now, connections, lambda: self._new_connection_id(taken_ids),
-            self.policy.first_watchdog_ns, self._initial_rc_offset)
+            self.policy.first_watchdog_ns, self._initial_rc_offset, (self.policy.multicast_group, IO_PORT))
         if type(result) is Refusal:
             raise _Refused(result)
         return result

@@ -72,15 +72,19 @@ class DeclaredConnection:
 
 
 class Refusal(NamedTuple):
-    """A Forward Open refused: general status, extended status, and for sizes the expected size."""
+    """A Forward Open refused: general status, extended status (None: none), for sizes the expected
+    size, and any further additional status words."""
 
-    extended: int
+    extended: int | None
     expected_size: int | None = None
     general: int = GeneralStatus.CONNECTION_FAILURE
+    more: tuple[int, ...] = ()
 
     @property
     def additional_status(self) -> tuple[int, ...]:
-        return (self.extended,) if self.expected_size is None else (self.extended, self.expected_size)
+        if self.extended is None:
+            return ()
+        return ((self.extended,) if self.expected_size is None else (self.extended, self.expected_size)) + self.more
 
 
 class SafetyOpen(NamedTuple):
@@ -94,11 +98,13 @@ class SafetyTarget(Protocol):
     """A CIP Safety target's admission of a SafetyOpen (cip/safety/admission.py's SafetyPolicy).
     `segments`: the connection path after the route to this device (`route_size` bytes); `sizes`:
     the output and input images' sizes; `check_key` raises the admission's refusal for a key
-    mismatch; `new_id()` a free connection id."""
+    mismatch; `new_id()` a free connection id; `t_o_address` where single-cast T->O goes,
+    `multicast_address` where multicast T->O goes."""
 
     def admit(self, request: ForwardOpenRequest, segments: list, route_size: int,
               check_key: Callable[[ElectronicKey], None], sizes: tuple[int, int], originator_host: str,
               t_o_address: tuple[str, int], now: int, connections: Collection[Connection],
-              new_id: Callable[[], int], first_watchdog_ns: int, initial_rc_offset: int) -> SafetyOpen | Refusal: ...
+              new_id: Callable[[], int], first_watchdog_ns: int, initial_rc_offset: int,
+              multicast_address: tuple[str, int]) -> SafetyOpen | Refusal: ...
 
 

@@ -1,7 +1,7 @@
 """The device event log: what happened to a device, with monotonic and wall-clock timestamps.
 
 Request events keep their raw (service, path, status) and are formatted only when read, so that
-logging every request stays cheap. The device tells its observers (device.py, `Device.observe`);
+logging every request stays cheap. The device tells its observers (guard.py, `Device.observe`);
 the log only keeps what happened.
 """
 
