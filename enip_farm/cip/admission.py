@@ -181,7 +181,7 @@ class Admission:
 
     def _path_segments(self, connection_path: bytes) -> list:
         segments = application_segments(connection_path, self.identity())
-        if type(segments) is int:
+        if isinstance(segments, int):
             raise _refuse(segments)
         return segments  # type: ignore[return-value]
 
