@@ -23,8 +23,9 @@ from starlette.responses import JSONResponse, Response, StreamingResponse
 from starlette.routing import Route
 
 from enip_farm.config import FarmConfig
+from enip_farm.control.client import merge_events
 from enip_farm.fleet import split
-from enip_farm.fleet_api import merge_metrics, merged_events
+from enip_farm.fleet_api import merge_metrics
 
 _PROBE_TIMEOUT = 3.0
 _FORWARD_TIMEOUT = 30.0
@@ -260,7 +261,7 @@ def create_shard_router(config: FarmConfig, shards: int, discover: Discover, tok
                 for opened in streams:
                     await opened.aclose()
                 return response_of(reply)
-        return StreamingResponse(merged_events(streams), media_type="text/event-stream")
+        return StreamingResponse(merge_events(streams), media_type="text/event-stream")
 
     async def other(request: Request) -> Response:  # the dashboard's page, /docs: every shard has the same
         up = [shard for shard in (await refresh(force=False)).shards if shard.up]

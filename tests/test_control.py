@@ -390,7 +390,7 @@ def test_cli_drives_a_running_farm(free_address: AddressPool, tmp_path) -> None:
     config.write_text(f"devices:\n  - {{name: io1, address: {address}, model: DSQC1030}}\ndiscovery: false\n")
     # port 0: the system picks a free port, the farm says which (no probe-then-reuse race)
     with serving(["serve", "--config", str(config), "--http", "0"], table_rows=1) as (server, _):
-        said = read_lines(server.stderr, 2)  # "1 devices listening ...", "HTTP API on http://127.0.0.1:PORT"
+        said = read_lines(server.stderr, 2)  # "1 device listening ...", "HTTP API on http://127.0.0.1:PORT"
         (api,) = [line.split()[-1] for line in said if line.startswith("HTTP API on ")]
         assert api.startswith("http://127.0.0.1:") and not api.endswith(":0"), said
         _drive_with_the_cli(address, api)
