@@ -30,6 +30,7 @@ def golden(capture: Path, config_path: Path | None, device: str | None, address:
     from enip_farm.capture.packets import read_capture
     from enip_farm.cli.cell import load_cell, make_farm
     from enip_farm.farm import BindError
+    from enip_farm.protocol.encapsulation import ENIP_PORT
     from enip_farm.words import plural
 
     try:
@@ -41,7 +42,7 @@ def golden(capture: Path, config_path: Path | None, device: str | None, address:
     captured = sorted({e.device for group in groups for e in group})
     if not captured:
         damaged = f" ({plural(read.damaged, 'damaged frame')} skipped)" if read.damaged else ""
-        click.echo(f"{capture}: no EtherNet/IP exchanges on port 44818{damaged}", err=True)
+        click.echo(f"{capture}: no EtherNet/IP exchanges on port {ENIP_PORT}{damaged}", err=True)
         sys.exit(2)
     farm = None if address else make_farm(load_cell(config_path, build=False))
     names: dict[str, str] = {}

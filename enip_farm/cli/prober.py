@@ -7,9 +7,8 @@ import socket
 import time
 from collections.abc import Iterable
 
-from enip_farm.protocol.encapsulation import Command, decode_frame, encode_frame
+from enip_farm.protocol.encapsulation import ENIP_PORT, Command, decode_frame, encode_frame
 
-ENIP_PORT = 44818
 BURST = 64  # addresses asked at once: a burst of replies would overflow one socket's receive buffer
 
 

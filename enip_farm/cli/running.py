@@ -15,6 +15,7 @@ from enip_farm.cli.options import DEFAULT_API
 from enip_farm.config import FarmConfig
 from enip_farm.console import Console, configure_logging
 from enip_farm.farm import BindError, Farm, freeze_heap, new_event_loop, until_stopped_or_failed
+from enip_farm.protocol.encapsulation import ENIP_PORT
 from enip_farm.table import device_table
 from enip_farm.words import plural
 
@@ -23,7 +24,7 @@ def banner(devices: int, source: str, http_url: str | None, workers: int = 1) ->
     """What `serve` says once every device listens: the configuration it loaded, where the HTTP API
     and the dashboard are (or how to get them)."""
     served = f" in {workers} workers" if workers > 1 else ""
-    lines = [f"{plural(devices, 'device')} listening on TCP and UDP 44818{served}, from {source}. Ctrl-C to stop."]
+    lines = [f"{plural(devices, 'device')} listening on TCP and UDP {ENIP_PORT}{served}, from {source}. Ctrl-C to stop."]
     if http_url:
         lines += [f"HTTP API on {http_url}" + (f" (the devices of all {workers} workers)" if workers > 1 else ""),
                   f"dashboard on {http_url}/ and API docs on {http_url}/docs; `enip-farm io` and `enip-farm fault` "
