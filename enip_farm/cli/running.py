@@ -24,7 +24,8 @@ def banner(devices: int, source: str, http_url: str | None, workers: int = 1) ->
     """What `serve` says once every device listens: the configuration it loaded, where the HTTP API
     and the dashboard are (or how to get them)."""
     served = f" in {workers} workers" if workers > 1 else ""
-    lines = [f"{plural(devices, 'device')} listening on TCP and UDP {ENIP_PORT}{served}, from {source}. Ctrl-C to stop."]
+    lines = [f"{plural(devices, 'device')} listening on TCP and UDP {ENIP_PORT}{served}, from {source}. "
+             "Ctrl-C to stop."]
     if http_url:
         lines += [f"HTTP API on {http_url}" + (f" (the devices of all {workers} workers)" if workers > 1 else ""),
                   f"dashboard on {http_url}/ and API docs on {http_url}/docs; `enip-farm io` and `enip-farm fault` "
