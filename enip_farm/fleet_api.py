@@ -22,7 +22,7 @@ from starlette.routing import Route
 
 from enip_farm.control.client import merge_events
 from enip_farm.control.guard import Guard
-from enip_farm.control.http import bind_problem, listening_socket
+from enip_farm.control.http import bind_problem, listening_socket, no_such_device
 
 _START_TIMEOUT = 120.0
 _FORWARD_TIMEOUT = 30.0
@@ -96,7 +96,7 @@ def create_router(owners: dict[str, int], apis: list[str]) -> Starlette:
     async def device(request: Request) -> Response:
         name = request.path_params["name"]
         if name not in owners:
-            return JSONResponse({"detail": f"no device named {name!r}"}, status_code=404)
+            return JSONResponse({"detail": no_such_device(name, owners)}, status_code=404)
         return await forward(request, owners[name])
 
     async def metrics(request: Request) -> Response:
@@ -110,7 +110,7 @@ def create_router(owners: dict[str, int], apis: list[str]) -> Starlette:
         names = request.query_params.getlist("device")
         for name in names:
             if name not in owners:
-                return JSONResponse({"detail": f"no device named {name!r}"}, status_code=404)
+                return JSONResponse({"detail": no_such_device(name, owners)}, status_code=404)
         kinds = [(key, value) for key, value in request.query_params.multi_items()
                  if key in ("kind", "exclude_kind")]
         workers = sorted({owners[name] for name in names}) if names else list(range(len(apis)))
@@ -131,7 +131,7 @@ def create_router(owners: dict[str, int], apis: list[str]) -> Starlette:
         names = request.query_params.getlist("device")
         for name in names:
             if name not in owners:
-                return JSONResponse({"detail": f"no device named {name!r}"}, status_code=404)
+                return JSONResponse({"detail": no_such_device(name, owners)}, status_code=404)
         workers = sorted({owners[name] for name in names}) if names else list(range(len(apis)))
         replies = await asyncio.gather(*(client().get(apis[i] + "/state", headers=headers_of(request), params=[
             ("device", name) for name in names if owners[name] == i]) for i in workers))

@@ -24,6 +24,7 @@ from starlette.routing import Route
 
 from enip_farm.config import FarmConfig
 from enip_farm.control.client import merge_events
+from enip_farm.control.http import no_such_device
 from enip_farm.fleet import split
 from enip_farm.fleet_api import merge_metrics
 
@@ -165,7 +166,7 @@ def create_shard_router(config: FarmConfig, shards: int, discover: Discover, tok
         return response_of(reply)
 
     def unknown(name: str) -> Response:
-        return JSONResponse({"detail": f"no device named {name!r}"}, status_code=404)
+        return JSONResponse({"detail": no_such_device(name, view.order)}, status_code=404)
 
     def unavailable(shard: Shard) -> Response:
         return JSONResponse({"detail": view.down(shard)}, status_code=503)

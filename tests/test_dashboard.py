@@ -319,13 +319,16 @@ def test_io_watch_says_what_went_wrong(enip_farm) -> None:
     api = f"http://127.0.0.1:{farm.http.port}"
     unknown = subprocess.run([*CLI, "io", "watch", "nobody", "--api", api], capture_output=True, text=True,
                              timeout=DEADLINE_S)
-    assert unknown.returncode == 1 and unknown.stderr == "GET /events: 404 no device named 'nobody'\n"
+    assert unknown.returncode == 1 and unknown.stderr == "GET /events: 404 no device named 'nobody'; known: io\n"
     with socket.socket() as closed:
         closed.bind(("127.0.0.1", 0))
         port = closed.getsockname()[1]
     refused = subprocess.run([*CLI, "io", "watch", "io", "--api", f"http://127.0.0.1:{port}"], capture_output=True,
                              text=True, timeout=DEADLINE_S)
-    assert refused.returncode == 1 and refused.stderr.startswith(f"cannot reach the farm at http://127.0.0.1:{port}")
+    assert (refused.returncode, refused.stderr) == (1, (  # the words of every client command (cli/api.py)
+        f"cannot reach the farm's HTTP API at http://127.0.0.1:{port} (Connection refused): is the farm running with "
+        f"its HTTP API? Start it with `enip-farm serve --http {port}`, or give the API's address with --api (or "
+        "ENIP_FARM_API).\n"))
 
 
 @pytest.mark.system

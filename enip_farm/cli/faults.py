@@ -33,7 +33,8 @@ def _number(text: str) -> int | float | str:
 def in_flags(detail: str) -> str:
     """A parameter problem (`field: message`, the farm's words) in the CLI's: flags, not field names."""
     field, _, message = detail.partition(": ")
-    for name in sorted(FLAGS, key=len, reverse=True):  # names no word of prose; max_delay_ms before delay_ms
+    message = message.removeprefix(f"{field}: ")  # the API's error names the field twice: where, and in its text
+    for name in sorted((n for n in FLAGS if "_" in n), key=len, reverse=True):  # no word of prose; max_ first
         message = re.sub(rf"(?<![\w-]){name}\b", FLAGS[name], message)
     flag = FLAGS.get(field, field)
     return f"{flag}: {message}{EXAMPLES.get(flag, '')}"
@@ -83,11 +84,12 @@ def fault(first: str | None, rest: tuple[str, ...], list_kinds: bool, api: str, 
         raise click.UsageError("fault DEVICE KIND [NAME=VALUE...] [options] (fault --list: the kinds)")
     kind, assignments = rest[0], rest[1:]
     body: dict[str, Any] = {name: value for name, value in flags.items() if value is not None}
+    said = {name: FLAGS[name] for name in body}  # each parameter as the command line gave it
     for assignment in assignments:
         name, equals, value = assignment.partition("=")
         if not equals or not name:
             raise click.UsageError(f"{assignment!r}: expected NAME=VALUE (fault --list: each kind's parameters)")
-        body[name] = _number(value)
+        body[name], said[name] = _number(value), name
     kinds = {item["kind"]: item for item in call(api, token, "GET", "/fault-kinds")}
     if kind not in kinds:
         click.echo(f"fault {first} {kind}: unknown kind {kind!r}; one of {', '.join(kinds)}", err=True)
@@ -96,7 +98,7 @@ def fault(first: str | None, rest: tuple[str, ...], list_kinds: bool, api: str, 
     for name in body:
         if name not in known:
             takes = ", ".join(sorted(known - {"duration_s"})) or "no parameter"
-            click.echo(f"fault {first} {kind}: {FLAGS.get(name, name)}: not a parameter of {kind} "
+            click.echo(f"fault {first} {kind}: {said[name]}: not a parameter of {kind} "
                        f"(it takes {takes}, and --duration)", err=True)
             sys.exit(2)
     active = _inject(api, token, first, kind, body)
