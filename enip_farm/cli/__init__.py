@@ -17,12 +17,17 @@ import click
 
 from enip_farm.cli import captures, cells, eds, eio, engines, faults, io, serve
 
+#: Modules the HTTP client imports when they are installed and no command uses: httpx's own command
+#: line (with rich and pygments, which import-linter brings), and trio (which selenium brings), whose
+#: support httpcore loads for async clients on trio. Marked missing in the CLI's process, they cost
+#: `enip-farm io get` nothing instead of most of its start (bench/cli_startup.py).
+UNUSED = ("httpx._main", "trio")
+
 
 class Main(click.Group):
     def main(self, *args: Any, **kwargs: Any) -> Any:  # type: ignore[override]
-        # httpx imports its own command line (httpx._main, with rich and pygments when they are
-        # installed) on `import httpx`; this process never runs it: a quarter of a second saved
-        sys.modules.setdefault("httpx._main", None)  # type: ignore[arg-type]
+        for name in UNUSED:
+            sys.modules.setdefault(name, None)  # type: ignore[arg-type]  # `import` raises ImportError
         return super().main(*args, **kwargs)
 
 

@@ -4,7 +4,6 @@ httpx-sse and written back in the same format when several streams are merged.""
 
 from __future__ import annotations
 
-import asyncio
 import contextlib
 from collections.abc import AsyncIterator, Iterable, Iterator
 from typing import Any
@@ -64,7 +63,10 @@ class ApiClient:
 
     def __init__(self, api: str, token: str | None = None, timeout: float = 10.0) -> None:
         self.api = api.rstrip("/")
-        self.http = httpx.Client(base_url=self.api, headers=bearer(token), timeout=timeout)
+        # certificates are loaded (a fifth of a second) only for an https API: the client asks
+        # nothing of any other address (paths only, no redirects followed)
+        self.http = httpx.Client(base_url=self.api, headers=bearer(token), timeout=timeout,
+                                 verify=self.api.startswith("https:"))
 
     def request(self, method: str, path: str, **options: Any) -> Any:
         try:
@@ -116,6 +118,8 @@ async def merge_events(streams: list[httpx.Response], greeting: str = "enip-farm
                        keepalive_s: float = KEEPALIVE_S) -> AsyncIterator[bytes]:
     """Server-sent events of several open streams as one stream, event by event, in the order they
     arrive; a comment every `keepalive_s` of silence; it ends when every stream has ended, and closes them."""
+    import asyncio  # here: the CLI's blocking calls do without it (bench/cli_startup.py)
+
     merged: asyncio.Queue[ServerSentEvent | None] = asyncio.Queue()
 
     async def pump(stream: httpx.Response) -> None:
