@@ -171,7 +171,7 @@ def test_an_event_written_again_reads_the_same() -> None:
 def test_the_client_reads_the_event_stream(enip_farm) -> None:
     farm = enip_farm(name="io1", model="DSQC1030", http=True)
     with ApiClient(f"http://127.0.0.1:{farm.http.port}") as client, \
-            client.events({"device": "io1", "kind": "io"}) as events:
+            client.events({"device": "io1", "kind": "io"}, 10) as events:
         assert wait_for(lambda: farm.http.hub.subscribers, timeout=10)
         farm["io1"].set(DI2=1)
         event = next(events)

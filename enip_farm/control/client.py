@@ -80,12 +80,14 @@ class ApiClient:
         return response.json()
 
     @contextlib.contextmanager
-    def events(self, params: Iterable[tuple[str, str]] | dict[str, str] = ()) -> Iterator[Iterator[ServerSentEvent]]:
+    def events(self, params: Iterable[tuple[str, str]] | dict[str, Any] = (),
+               read_timeout: float | None = None) -> Iterator[Iterator[ServerSentEvent]]:
         """GET /events (filtered by `params`: device, kind, exclude_kind) as its events, one
-        ServerSentEvent each (`.event`: "message" or "lost", `.json()`), until the farm ends it."""
+        ServerSentEvent each (`.event`: "message" or "lost", `.json()`), until the farm ends it or
+        nothing comes for `read_timeout` seconds (None: wait for ever). Subscribed once open."""
         try:
             with connect_sse(self.http, "GET", "/events", params=params,
-                             timeout=httpx.Timeout(self.http.timeout.connect, read=None)) as source:
+                             timeout=httpx.Timeout(self.http.timeout.connect, read=read_timeout)) as source:
                 if source.response.status_code >= 400:
                     source.response.read()
                     raise ApiError("GET", "/events", source.response.status_code, detail_of(source.response))
