@@ -79,6 +79,8 @@ def test_fault_parameters_are_checked_in_one_place() -> None:
         Fault("status", service=True, status=8)
     with pytest.raises(FaultError, match="delay_ms: must be a number"):
         Fault("delay", delay_ms="5")
+    with pytest.raises(FaultError, match="^delay_ms: must be a number, got None$"):  # the page's NaN, as JSON
+        Fault("delay", delay_ms=None)
     assert Fault("delay", delay_ms=MAX_DELAY_MS).on_reply() == 60_000_000_000
     assert Fault("status", service=0, status=0xFF).status == 0xFF
 

@@ -28,7 +28,7 @@ class Delay(FaultType):
     @field_validator("delay_ms", "max_delay_ms", mode="before")
     @classmethod
     def _delays(cls, value: Any, info: Any) -> Any:
-        return None if value is None else delay_ms(info.field_name, value)
+        return None if value is None and info.field_name == "max_delay_ms" else delay_ms(info.field_name, value)
 
     @model_validator(mode="after")
     def _ordered(self) -> Delay:
