@@ -6,7 +6,6 @@ driven in a real browser in tests/test_dashboard_browser.py."""
 from __future__ import annotations
 
 import asyncio
-import json
 import re
 import signal
 import socket
