@@ -29,8 +29,9 @@ from enip_farm.cip.admission import ConnectionPolicy, DeclaredConnection, KeyIde
 from enip_farm.cip.assembly import AssemblyInstance, AssemblyObject
 from enip_farm.cip.budget import CyclicBudget
 from enip_farm.cip.connection import Connection, ConnectionKind
+from enip_farm.cip.connection_events import ConnectionEvent, ConnectionOpened
 from enip_farm.cip.connection_manager import ConnectionManager
-from enip_farm.cip.connection_table import TABLE_COUNTERS, ConnectionEvent, ConnectionTable
+from enip_farm.cip.connection_table import TABLE_COUNTERS, ConnectionTable
 from enip_farm.cip.ethernet_link import EthernetLinkObject, InterfaceCounters
 from enip_farm.cip.identity import RESET_OUT_OF_BOX, STATE_OPERATIONAL, STATE_SELF_TESTING, IdentityObject
 from enip_farm.cip.message_router import Handled, MessageRouter
@@ -142,6 +143,9 @@ class Device:
         self.sessions: set[int] = set()
         self.events = EventLog(profile.name)
         self._observers: list[Observer] = []
+        #: The cyclic I/O thread's (server/implicit.py): called, outside the lock, when a connection
+        #: opened (a new T->O stream and watchdog), so the table's timer may be earlier than the thread's.
+        self.timer_moved: Callable[[], None] | None = None
         self.lock = threading.Lock()
         self.table = ConnectionTable(self.assemblies, _policy(profile), self._key_identity, self.counters,
                                      budget=budget)
@@ -243,12 +247,12 @@ class Device:
                 event = self.events.event(entry)
                 for observer in observers:
                     observer(event)
+        opened = False
         for change in connections:
-            if change.connection is None:  # a refusal: the reason says it all
-                self.record(change.kind, change.reason, change.at / 1e9)
-            else:
-                self.record(change.kind, describe(change.connection) + (f": {change.reason}" if change.reason else ""),
-                            change.at / 1e9)
+            self.record(change.kind, change.text, change.at / 1e9)
+            opened = opened or isinstance(change, ConnectionOpened)
+        if opened and self.timer_moved is not None:
+            self.timer_moved()
         for role, old, new in (("output", before[0], after[0]), ("input", before[1], after[1])):
             if old != new and self._observers:
                 event = Event(time.monotonic(), time.time(), self.name, "image changed", ImageChange(role, old, new))
@@ -487,8 +491,8 @@ class Device:
         with self.lock:  # O->T changes the outputs only: the inputs need no snapshot
             old = bytes(output.data) if output is not None else b""
             taken = table.receive_datagram(data, source[0], now, source[1])
-            if table.has_replies:
-                for packet, address in table.pop_replies():
+            if table.answers_queued:  # CIP Safety time coordination answering a ping: at once
+                for packet, address in table.datagrams_to_send(now):
                     send(packet, address)
             connections = table.pop_events() if table.has_events else ()
             changed = output is not None and output.data != old
@@ -521,16 +525,6 @@ class Device:
     def get_timer(self) -> int | None:
         with self.lock:
             return self.table.get_timer()
-
-
-def describe(connection: Connection) -> str:
-    """A connection in one line: kind, originator, each direction's id, RPI and size, where T->O goes."""
-    c = connection
-    text = (f"{c.kind.value} from {c.originator_host}: O->T 0x{c.o_t_id:08X} RPI {c.o_t_rpi} us {c.o_t_size} bytes, "
-            f"T->O 0x{c.t_o_id:08X} RPI {c.t_o_rpi} us {c.t_o_size} bytes")
-    if c.t_o_address is not None:
-        text += f" {'multicast ' if c.multicast else ''}to {c.t_o_address[0]}:{c.t_o_address[1]}"
-    return text
 
 
 def replace_image(image: bytearray, data: bytes, what: str) -> None:
