@@ -228,9 +228,10 @@ class Device:
             self._observers = [o for o in self._observers if o is not observer]
         return unsubscribe
 
-    def record(self, kind: str, detail: object = "", at: float | None = None) -> None:
-        """Log an event and tell the observers."""
-        event = self.events.record(kind, detail, at)
+    def record(self, kind: str, detail: object = "", now: int | None = None) -> None:
+        """Log an event that happened at `now` (ns, monotonic; None: the clock's now, for the
+        server's and the API's events) and tell the observers."""
+        event = self.events.record(kind, detail, time.monotonic_ns() if now is None else now)
         for observer in self._observers:
             observer(event)
 
@@ -238,24 +239,25 @@ class Device:
         output, inputs = self._output, self._input
         return (bytes(output.data) if output is not None else b"", bytes(inputs.data) if inputs is not None else b"")
 
-    def _publish(self, before: tuple[bytes, bytes], after: tuple[bytes, bytes],
+    def _publish(self, before: tuple[bytes, bytes], after: tuple[bytes, bytes], now: int,
                  requests: Iterable[Handled] = (), connections: Iterable[ConnectionEvent] = ()) -> None:
+        """Tell the log and the observers what happened at `now` (ns): requests, connection events, image changes."""
         observers = self._observers
         for handled in requests:
-            entry = self.events.request(handled)
+            entry = self.events.request(handled, now)
             if observers:
                 event = self.events.event(entry)
                 for observer in observers:
                     observer(event)
         opened = False
         for change in connections:
-            self.record(change.kind, change.text, change.at / 1e9)
+            self.record(change.kind, change.text, change.at)
             opened = opened or isinstance(change, ConnectionOpened)
         if opened and self.timer_moved is not None:
             self.timer_moved()
         for role, old, new in (("output", before[0], after[0]), ("input", before[1], after[1])):
             if old != new and self._observers:
-                event = Event(time.monotonic(), time.time(), self.name, "image changed", ImageChange(role, old, new))
+                event = self.events.event((now, "image changed", ImageChange(role, old, new)))
                 for observer in self._observers:
                     observer(event)
 
@@ -303,11 +305,11 @@ class Device:
         with self.lock:
             return self.table.find(triad)
 
-    def set_inputs(self, data: bytes) -> None:
+    def set_inputs(self, data: bytes, now: int | None = None) -> None:
         """Set the input image as a sensor would (not subject to `writable_inputs`)."""
-        self.write_image("input", lambda image: replace_image(image, data, self.name))
+        self.write_image("input", lambda image: replace_image(image, data, self.name), now)
 
-    def write_image(self, role: str, change: Callable[[bytearray], object]) -> None:
+    def write_image(self, role: str, change: Callable[[bytearray], object], now: int | None = None) -> None:
         """Change an image in one locked step: `change` edits a copy, which replaces the image only
         if it returns without an error. No reader sees half of it, no concurrent writer loses a write."""
         image = self.assemblies[role].data
@@ -319,7 +321,7 @@ class Device:
                 raise ValueError(f"{self.name}: the {role} image is {len(image)} bytes")
             image[:] = edited
             after = self._snapshot()
-        self._publish(before, after)
+        self._publish(before, after, time.monotonic_ns() if now is None else now)
 
     # -- encapsulation Target -------------------------------------------------------------------
 
@@ -370,12 +372,12 @@ class Device:
             connections = self.table.pop_events() if self.table.has_events else ()
             after = self._snapshot()
         if connections or before != after or self._observers or reset is not None:
-            self._publish(before, after, requests, connections)
+            self._publish(before, after, context.now, requests, connections)
             if reset is not None:
-                self._record_reset(reset)
+                self._record_reset(reset, context.now)
         else:  # the hot path: a request that changed nothing, nobody listening
             for handled in requests:
-                self.events.request(handled)
+                self.events.request(handled, context.now)
         return reply
 
     def handle_connected(self, connection_id: int, sequence_count: int, message: bytes,
@@ -395,9 +397,9 @@ class Device:
             requests = self.router.pop_handled()
             connections = self.table.pop_events()
             after = self._snapshot()
-        self._publish(before, after, requests, connections)
+        self._publish(before, after, context.now, requests, connections)
         if reset is not None:
-            self._record_reset(reset)
+            self._record_reset(reset, context.now)
         return connection.t_o_id, reply, items
 
     # -- Identity Reset ---------------------------------------------------------------------------
@@ -449,32 +451,32 @@ class Device:
             self._reset(kind, now)
             connections = self.table.pop_events()
             after = self._snapshot()
-        self._publish(before, after, (), connections)
-        self._record_reset(kind)
+        self._publish(before, after, now, (), connections)
+        self._record_reset(kind, now)
         return True
 
-    def _record_reset(self, kind: int) -> None:
+    def _record_reset(self, kind: int, now: int) -> None:
         self.record("reset", f"type {kind} ({_RESET_KINDS[kind]}): not answering for "
-                    f"{self.profile.reset_time_s:g} s")
+                    f"{self.profile.reset_time_s:g} s", now)
 
     def end_reset(self, now: int) -> bool:
         """End the reset window if its deadline has come (never before): True if the device
         answers again from now, with a "reset done" event."""
         if not self.reset_window.end(now):
             return False
-        self.record("reset done", "answering again")
+        self.record("reset done", "answering again", now)
         return True
 
     def session_closed(self, session: object, now: int) -> None:
-        self._locked(lambda: self.table.session_closed(session, now))
+        self._locked(lambda: self.table.session_closed(session, now), now)
 
-    def _locked(self, operation: Callable[[], object]) -> None:
+    def _locked(self, operation: Callable[[], object], now: int) -> None:
         with self.lock:
             before = self._snapshot()
             operation()
             connections = self.table.pop_events()
             after = self._snapshot()
-        self._publish(before, after, (), connections)
+        self._publish(before, after, now, (), connections)
 
     # -- class-1 I/O (the cyclic I/O thread) --------------------------------------------------------
 
@@ -498,7 +500,7 @@ class Device:
             changed = output is not None and output.data != old
             new = bytes(output.data) if changed else old
         if connections or changed:
-            self._publish((old, b""), (new, b""), (), connections)
+            self._publish((old, b""), (new, b""), now, (), connections)
         return taken
 
     def service_io(self, now: int, send: SendDatagram, horizon: int | None = None) -> int | None:
@@ -519,7 +521,7 @@ class Device:
                 connections = table.pop_events()
                 after = self._snapshot()
         if expiring and connections:
-            self._publish(before, after, (), connections)
+            self._publish(before, after, now, (), connections)
         return timer
 
     def get_timer(self) -> int | None:
