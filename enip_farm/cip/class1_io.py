@@ -193,7 +193,11 @@ class ClassOneIo:
         I/O thread's call, once per stream and period). With `horizon`, the packets due up to it are
         produced now (the thread serves what falls due within its next turn: a packet leaves at
         most `horizon - now` before its deadline; deadlines stay absolute, so no period drifts)."""
-        out, self._outbox = self._outbox, []
+        out = self._outbox
+        if out:  # the answers queued go first
+            self._outbox = []
+        else:
+            out = []
         if self._safety_connections and self._safety_pending:
             out += self._pending_time_coordination(now)
         data = None
