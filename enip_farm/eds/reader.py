@@ -37,6 +37,7 @@ from typing import Any
 
 from enip_farm.device.catalogue import MAX_ASSEMBLY_SIZE, Catalogue, shipped_catalogue
 from enip_farm.eds.grammar import EdsText, Entry, Value, decode_eds_bytes, parse_eds_text
+from enip_farm.protocol.cip import ClassCode
 from enip_farm.protocol.epath import (
     DataSegment,
     ElectronicKey,
@@ -407,7 +408,7 @@ class _Reader:
             return None, None
         key = next((s for s in segments if isinstance(s, ElectronicKey)), None)
         segments = [s for s in segments if not isinstance(s, (PortSegment, ElectronicKey, DataSegment))]
-        if not segments or segments[0] != LogicalSegment(LogicalType.CLASS_ID, 4):
+        if not segments or segments[0] != LogicalSegment(LogicalType.CLASS_ID, ClassCode.ASSEMBLY):
             self.notes.append(f"{where}: path {path!r} names no assembly (class 4); not served")
             return None, key
         values = [s.value for s in segments[1:] if isinstance(s, LogicalSegment)
