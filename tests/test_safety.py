@@ -196,9 +196,10 @@ def safety_open(server: bool = True, extended: bool = False, rpi_us: int = 10_00
                 timeout_multiplier: int = 2, max_faults: int = 2, scid: bytes = bytes(10), tunid: Unid = TUNID,
                 points: tuple[int, int, int] | None = None, data_size: int | None = None, tcoo_size: int = 6,
                 key: bytes = b"", transport: int | None = None, cpcrc_delta: int = 0, configuration_data: bytes = b"",
-                ounid: Unid = OUNID, **changes: object) -> ForwardOpenRequest:
+                ounid: Unid = OUNID, multicast: bool = False, **changes: object) -> ForwardOpenRequest:
     """A SafetyOpen as an originator builds it (CPCRC over the fields, as cm-ethernetip computes it);
-    with `configuration_data`, a Type 1 SafetyOpen (the data in a simple data segment, 0x80)."""
+    with `configuration_data`, a Type 1 SafetyOpen (the data in a simple data segment, 0x80); with
+    `multicast`, a client's T->O multicast (the data message and its 6-byte time correction)."""
     configuration, consuming, producing = points or ((1, 100, 0) if server else (1, 0, 101))
     application = key + bytes((0x20, 0x04, 0x24, configuration, 0x2C, consuming, 0x2C, producing))
     if configuration_data:
@@ -207,8 +208,9 @@ def safety_open(server: bool = True, extended: bool = False, rpi_us: int = 10_00
         FORMAT_EXTENDED if extended else FORMAT_BASE, struct.unpack_from("<I", scid)[0], scid[4:], 0, 0, tunid, ounid,
         ping, 0, nte, timeout_multiplier, 1, 0, 0xFFFFFFFF, max_faults if extended else 0)
     segment = segment._replace(**changes)  # type: ignore[arg-type]
-    size = data_size if data_size is not None else wire_size(1 if server else 2)
-    data = NetworkParameters(False, ConnectionType.POINT_TO_POINT, 1, False, size)
+    size = data_size if data_size is not None else wire_size(1 if server else 2) + (6 if multicast else 0)
+    data = NetworkParameters(False, ConnectionType.MULTICAST if multicast else ConnectionType.POINT_TO_POINT, 1,
+                             False, size)
     tcoo = NetworkParameters(False, ConnectionType.POINT_TO_POINT, 1, False, tcoo_size)
     raw = encode_segment(segment)
     request = ForwardOpenRequest(0x05, 0x9C, 0, 0x10000000 | next(_serials), ConnectionTriad(next(_serials), 0x0001,

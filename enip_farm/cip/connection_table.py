@@ -44,7 +44,8 @@ from enip_farm.cip.connection_events import (
     refused_open,
 )
 from enip_farm.cip.safety.admission import SafetyOpen
-from enip_farm.cip.safety.validator import SafetyConsumer, SafetyProducer
+from enip_farm.cip.safety.multicast import MulticastConsumer
+from enip_farm.cip.safety.validator import SafetyConsumer
 from enip_farm.protocol.commands import SocketAddress, encode_sockaddr
 from enip_farm.protocol.connection import ConnectionTriad, ForwardOpenRequest
 from enip_farm.protocol.cpf import ItemType
@@ -186,8 +187,7 @@ class ConnectionTable(ClassOneIo):
                     connection.t_o_id, connection.t_o_address, connection.t_o_rpi * 1000, now,  # type: ignore[arg-type]
                     point=connection.t_o_point if self.policy.declared else None,
                     header=_RUN_HEADER if connection.t_o_run_idle_header else b"", heartbeat=connection.t_o_heartbeat)
-            if connection.multicast:
-                items = ((ItemType.SOCKADDR_T_O, encode_sockaddr(SocketAddress(*connection.t_o_address))),)  # type: ignore[misc]
+            items = _multicast_items(connection)
         self._events.append(ConnectionOpened(now, connection))
         return Opened(connection, items)
 
@@ -216,13 +216,19 @@ class ConnectionTable(ClassOneIo):
         if connection.kind is ConnectionKind.SAFETY_OUTPUT:
             self.assemblies["output"].owned = True
         else:
-            self.productions[(connection.t_o_id, connection.t_o_address)] = Production(  # type: ignore[index]
-                connection.t_o_id, connection.t_o_address, connection.t_o_rpi * 1000, now,  # type: ignore[arg-type]
-                safety=connection.safety)  # type: ignore[arg-type]
+            key = (connection.t_o_id, connection.t_o_address)
+            production = self.productions.get(key)  # type: ignore[arg-type]
+            if production is not None:  # another consumer of a multicast producer (cip/safety/multicast.py)
+                production.users += 1
+            else:
+                safety = connection.safety
+                self.productions[key] = Production(  # type: ignore[index]
+                    connection.t_o_id, connection.t_o_address, connection.t_o_rpi * 1000, now,  # type: ignore[arg-type]
+                    safety=safety.producer if type(safety) is MulticastConsumer else safety)  # type: ignore[arg-type]
         self.counters["safety_connections"] += 1
         self._safety_connections += 1
         self._events.append(ConnectionOpened(now, connection))
-        return Opened(connection, (), opened.application_reply)
+        return Opened(connection, _multicast_items(connection), opened.application_reply)
 
     def forward_close(self, triad: ConnectionTriad, now: int, host: str = "") -> Connection | None:
         """Close the connection of this triad; None if there is none (0x0107). `host`: who asked."""
@@ -253,6 +259,8 @@ class ConnectionTable(ClassOneIo):
             connection.reservation = None
         if connection.safety is not None:
             self._safety_connections -= 1
+            if type(connection.safety) is MulticastConsumer:  # only this consumer leaves the producer
+                connection.safety.leave()
         self.connections.pop(connection.o_t_id, None)
         self._by_triad.pop(connection.triad, None)
         self._short_data_reported.discard(connection.o_t_id)
@@ -293,7 +301,7 @@ class ConnectionTable(ClassOneIo):
                 reason = (f"safety timeout: no valid data for the network time expectation, "
                           f"{safety.nte_ns / 1e6:g} ms" if safety.last_valid is not None else
                           f"safety timeout: no valid data within {(safety.deadline - safety.opened_at) / 1e6:g} ms")
-            elif type(safety) is SafetyProducer:
+            elif safety is not None:  # a producer, single-cast or one multicast consumer
                 self.counters["safety_timeouts"] += 1
                 reason = f"safety timeout: no time coordination for {(safety.timeout_pi + 2)} ping intervals"
             else:
@@ -311,3 +319,10 @@ class ConnectionTable(ClassOneIo):
         connection.last_received = now
         connection.received += 1
         return connection
+
+
+def _multicast_items(connection: Connection) -> ReplyItems:
+    """The T->O socket address item of a multicast connection's reply: its group (Vol. 2, 3-3.9.4)."""
+    if not connection.multicast:
+        return ()
+    return ((ItemType.SOCKADDR_T_O, encode_sockaddr(SocketAddress(*connection.t_o_address))),)  # type: ignore[misc]
