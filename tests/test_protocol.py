@@ -10,7 +10,7 @@ import pytest
 from enip_farm import console
 from enip_farm.cip.safety import segment
 from enip_farm.config import parse_config
-from enip_farm.device import device as device_module
+from enip_farm.device import reset as device_reset
 from enip_farm.device.build import build_profiles
 from enip_farm.device.catalogue import shipped_catalogue
 from enip_farm.device.device import Device
@@ -163,7 +163,7 @@ def test_status_words_and_module_constants_are_read_only() -> None:
     assert status.describe_status(0x01, 0x0205) == (
         "0x01/0x0205 connection failure: parameter error in unconnected request service")  # Vol. 1, 3-5.33
     tables = (status.GENERAL_STATUS_TEXT, status.EXTENDED_STATUS_TEXT, segment.SIZE_WORDS, console._LEVELS,
-              encapsulation._COMMAND_NAMES, device_module._RESET_KINDS)
+              encapsulation._COMMAND_NAMES, device_reset.RESET_KINDS)
     for table in tables:
         with pytest.raises(TypeError):
             table[0x7FFF] = 0  # type: ignore[index]

@@ -3,7 +3,7 @@ integer nanoseconds (the core's one time unit); the JSON form (`as_dict`) says s
 the event stream and the dashboard always have.
 
 Request events keep their raw (service, path, status) and are formatted only when read, so that
-logging every request stays cheap. The device tells its observers (device.py, `Device.observe`);
+logging every request stays cheap. The device tells its observers (guard.py, `Device.observe`);
 the log only keeps what happened.
 """
 
