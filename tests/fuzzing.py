@@ -26,6 +26,7 @@ from contextlib import contextmanager
 from enip_farm.cip.admission import Originator
 from enip_farm.cip.assembly import AssemblyInstance
 from enip_farm.cip.connection import ConnectionKind
+from enip_farm.cip.connection_events import ConnectionEnded
 from enip_farm.cip.connection_path import KeyIdentity
 from enip_farm.cip.connection_policy import ConnectionPolicy
 from enip_farm.cip.connection_table import ConnectionTable
@@ -948,7 +949,7 @@ class TableFuzzer:
     def check(self) -> None:
         table = self.table
         for event in table.pop_events():
-            if event.kind in ("connection closed", "connection timed out"):
+            if isinstance(event, ConnectionEnded):
                 self.closed.add(event.connection.o_t_id)
         connections = table.connections
         expect(all(key == c.o_t_id and not c.closed and key not in self.closed for key, c in connections.items()),
