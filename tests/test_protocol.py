@@ -146,7 +146,7 @@ def test_fuzzed_frames_never_raise() -> None:
             else:
                 frame.insert(position, rng.randrange(256))
         session = device_session(device)
-        for reply in session.receive(bytes(frame)):
+        for reply in session.receive(bytes(frame), 0):
             out = StreamFramer(65535).feed(reply)
             assert len(out) == 1 and type(out[0]) is Frame
 
@@ -155,7 +155,7 @@ def device_session(device: Device):
     from enip_farm.protocol.session import EncapsulationSession
 
     session = EncapsulationSession(device)
-    session.receive(encode_frame(Command.REGISTER_SESSION, b"\x01\x00\x00\x00"))
+    session.receive(encode_frame(Command.REGISTER_SESSION, b"\x01\x00\x00\x00"), 0)
     return session
 
 

@@ -17,6 +17,7 @@ from pathlib import Path
 import pytest
 
 from enip_farm.cip.admission import Originator, Refusal
+from enip_farm.cip.connection_events import ConnectionRefused, ConnectionTimedOut
 from enip_farm.cip.connection_table import ConnectionTable, Opened
 from enip_farm.cip.safety.crc import Seeds
 from enip_farm.cip.safety.messages import (
@@ -150,7 +151,7 @@ def test_a_close_or_a_timeout_removes_only_that_consumer_and_the_last_ends_the_p
     assert len(table.connections) == 3
     table.handle_timer(deadline)
     assert opened[0].connection.closed and not opened[2].connection.closed and len(table.connections) == 2
-    assert [e.reason for e in table.pop_events() if e.kind == "connection timed out"] == [
+    assert [e.reason for e in table.pop_events() if type(e) is ConnectionTimedOut] == [
         "safety timeout: no time coordination for 4 ping intervals"]
     assert table.productions  # the others still consume
     for request, host in ((requests[2], HOSTS[2]), (fourth, HOSTS[3])):
@@ -164,7 +165,7 @@ def test_the_sixteenth_consumer_is_refused_resource_unavailable() -> None:
     assert [reply_fields(o)[0] for o in opened] == list(range(1, 16))
     refused = table.forward_open(multicast_open(max_consumers=15), Originator(HOSTS[15]), T0)
     assert refused == Refusal(None, general=0x02) and refused.additional_status == ()  # type: ignore[union-attr]
-    events = [e.reason for e in table.pop_events() if e.kind == "connection refused"]
+    events = [e.reason for e in table.pop_events() if type(e) is ConnectionRefused]
     assert len(events) == 1 and "0x02 resource unavailable" in events[0]
 
 

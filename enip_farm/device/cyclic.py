@@ -41,14 +41,14 @@ class CyclicIo:
         with guard.lock:  # O->T changes the outputs only: the inputs need no snapshot
             old = bytes(output.data) if output is not None else b""
             taken = table.receive_datagram(data, source[0], now, source[1])
-            replies = table.pop_replies() if table.has_replies else ()
+            replies = table.datagrams_to_send(now) if table.answers_queued else ()  # the one way out
             connections = table.pop_events() if table.has_events else ()
             changed = output is not None and output.data != old
             new = bytes(output.data) if changed else old
         for packet, address in replies:
             send(packet, address)
         if connections or changed:
-            guard.publish((old, b""), (new, b""), (), connections)
+            guard.publish((old, b""), (new, b""), now, (), connections)
         return taken
 
     def service_io(self, now: int, send: SendDatagram, horizon: int | None = None) -> int | None:
@@ -68,7 +68,7 @@ class CyclicIo:
             for packet, address in due:
                 send(packet, address)
         if expiring and connections:
-            guard.publish(before, after, (), connections)
+            guard.publish(before, after, now, (), connections)
         return timer
 
     def get_timer(self) -> int | None:

@@ -83,9 +83,18 @@ class Device:
         is released, in the thread that made it happen (keep it short). Returns the unsubscribe."""
         return self.guard.observe(observer)
 
-    def record(self, kind: str, detail: object = "", at: float | None = None) -> None:
-        """Log an event and tell the observers."""
-        self.guard.record(kind, detail, at)
+    def record(self, kind: str, detail: object = "", now: int | None = None) -> None:
+        """Log an event that happened at `now` (ns, monotonic; None: the clock's now) and tell the observers."""
+        self.guard.record(kind, detail, now)
+
+    @property
+    def timer_moved(self) -> Callable[[], None] | None:
+        """The cyclic I/O thread's: called when a connection opened (its timer may be earlier)."""
+        return self.guard.timer_moved
+
+    @timer_moved.setter
+    def timer_moved(self, callback: Callable[[], None] | None) -> None:
+        self.guard.timer_moved = callback
 
     # -- the I/O image and the connections --------------------------------------------------------
 
@@ -97,14 +106,15 @@ class Device:
     def inputs(self) -> bytes:
         return self.guard.image("input")
 
-    def set_inputs(self, data: bytes) -> None:
+    def set_inputs(self, data: bytes, now: int | None = None) -> None:
         """Set the input image as a sensor would (not subject to `writable_inputs`)."""
-        self.write_image("input", lambda image: replace_image(image, data, self.name))
+        self.write_image("input", lambda image: replace_image(image, data, self.name), now)
 
-    def write_image(self, role: str, change: Callable[[bytearray], object]) -> None:
+    def write_image(self, role: str, change: Callable[[bytearray], object], now: int | None = None) -> None:
         """Change an image in one locked step: `change` edits a copy, which replaces the image only
-        if it returns without an error. No reader sees half of it, no concurrent writer loses a write."""
-        self.guard.write_image(role, change)
+        if it returns without an error. No reader sees half of it, no concurrent writer loses a write.
+        `now` (ns): when; None: the clock's now (the Python and HTTP APIs' edge)."""
+        self.guard.write_image(role, change, now)
 
     @property
     def encapsulation_inactivity_timeout_s(self) -> int:
@@ -171,7 +181,7 @@ class Device:
         return self.target.handle_connected(connection_id, sequence_count, message, context)
 
     def session_closed(self, session: object, now: int) -> None:
-        self.guard.locked(lambda: self.table.session_closed(session, now))
+        self.guard.locked(lambda: self.table.session_closed(session, now), now)
 
     # -- resets (device/reset.py) -----------------------------------------------------------------
 

@@ -15,10 +15,12 @@ import time
 from collections.abc import Callable, Iterable
 
 from enip_farm.cip.assembly import AssemblyInstance
-from enip_farm.cip.connection import Connection
-from enip_farm.cip.connection_table import ConnectionEvent, ConnectionTable
+from enip_farm.cip.connection_events import ConnectionEvent, ConnectionOpened, describe
+from enip_farm.cip.connection_table import ConnectionTable
 from enip_farm.cip.message_router import Handled
 from enip_farm.device.events import Event, EventLog, ImageChange
+
+__all__ = ["DeviceGuard", "Observer", "Snapshot", "describe", "replace_image"]
 
 #: An observer of a device: called with every event (log entries, connection events, image changes).
 Observer = Callable[[Event], None]
@@ -38,6 +40,9 @@ class DeviceGuard:
         self.table = table
         self.output = assemblies.get("output")
         self.input = assemblies.get("input")
+        #: The cyclic I/O thread's (server/implicit.py): called, after the lock, when a connection
+        #: opened (a new T->O stream and watchdog), so the table's timer may be earlier than the thread's.
+        self.timer_moved: Callable[[], None] | None = None
 
     def observe(self, observer: Observer) -> Callable[[], None]:
         """Call `observer(event)` for everything that happens to the device, after the device lock
@@ -48,9 +53,10 @@ class DeviceGuard:
             self.observers = [o for o in self.observers if o is not observer]
         return unsubscribe
 
-    def record(self, kind: str, detail: object = "", at: float | None = None) -> None:
-        """Log an event and tell the observers."""
-        event = self.events.record(kind, detail, at)
+    def record(self, kind: str, detail: object = "", now: int | None = None) -> None:
+        """Log an event that happened at `now` (ns, monotonic; None: the clock's now, for the
+        server's and the API's events) and tell the observers."""
+        event = self.events.record(kind, detail, time.monotonic_ns() if now is None else now)
         for observer in self.observers:
             observer(event)
 
@@ -65,31 +71,34 @@ class DeviceGuard:
         with self.lock:
             return bytes(assembly.data) if assembly is not None else b""
 
-    def publish(self, before: Snapshot, after: Snapshot, requests: Iterable[Handled] = (),
+    def publish(self, before: Snapshot, after: Snapshot, now: int, requests: Iterable[Handled] = (),
                 connections: Iterable[ConnectionEvent] = ()) -> None:
-        """After the lock: log and tell what happened inside it."""
+        """After the lock: log and tell what happened inside it, at `now` (ns); the connection events
+        as their classes word them (cip/connection_events.py). A connection opened re-arms the
+        cyclic I/O thread's timer (`timer_moved`)."""
         observers = self.observers
         for handled in requests:
-            entry = self.events.request(handled)
+            entry = self.events.request(handled, now)
             if observers:
                 event = self.events.event(entry)
                 for observer in observers:
                     observer(event)
+        opened = False
         for change in connections:
-            if change.connection is None:  # a refusal: the reason says it all
-                self.record(change.kind, change.reason, change.at / 1e9)
-            else:
-                self.record(change.kind, describe(change.connection) + (f": {change.reason}" if change.reason else ""),
-                            change.at / 1e9)
+            self.record(change.kind, change.text, change.at)
+            opened = opened or isinstance(change, ConnectionOpened)
+        if opened and self.timer_moved is not None:
+            self.timer_moved()
         for role, old, new in (("output", before[0], after[0]), ("input", before[1], after[1])):
             if old != new and self.observers:
-                event = Event(time.monotonic(), time.time(), self.name, "image changed", ImageChange(role, old, new))
+                event = self.events.event((now, "image changed", ImageChange(role, old, new)))
                 for observer in self.observers:
                     observer(event)
 
-    def write_image(self, role: str, change: Callable[[bytearray], object]) -> None:
+    def write_image(self, role: str, change: Callable[[bytearray], object], now: int | None = None) -> None:
         """Change an image in one locked step: `change` edits a copy, which replaces the image only
-        if it returns without an error. No reader sees half of it, no concurrent writer loses a write."""
+        if it returns without an error. No reader sees half of it, no concurrent writer loses a write.
+        `now` (ns): when; None: the clock's now (the Python and HTTP APIs' edge)."""
         image = self.assemblies[role].data
         with self.lock:
             before = self.snapshot()
@@ -99,26 +108,16 @@ class DeviceGuard:
                 raise ValueError(f"{self.name}: the {role} image is {len(image)} bytes")
             image[:] = edited
             after = self.snapshot()
-        self.publish(before, after)
+        self.publish(before, after, time.monotonic_ns() if now is None else now)
 
-    def locked(self, operation: Callable[[], object]) -> None:
-        """Run `operation` on the table under the lock, then publish what it changed."""
+    def locked(self, operation: Callable[[], object], now: int) -> None:
+        """Run `operation` on the table under the lock at `now` (ns), then publish what it changed."""
         with self.lock:
             before = self.snapshot()
             operation()
             connections = self.table.pop_events()
             after = self.snapshot()
-        self.publish(before, after, (), connections)
-
-
-def describe(connection: Connection) -> str:
-    """A connection in one line: kind, originator, each direction's id, RPI and size, where T->O goes."""
-    c = connection
-    text = (f"{c.kind.value} from {c.originator_host}: O->T 0x{c.o_t_id:08X} RPI {c.o_t_rpi} us {c.o_t_size} bytes, "
-            f"T->O 0x{c.t_o_id:08X} RPI {c.t_o_rpi} us {c.t_o_size} bytes")
-    if c.t_o_address is not None:
-        text += f" {'multicast ' if c.multicast else ''}to {c.t_o_address[0]}:{c.t_o_address[1]}"
-    return text
+        self.publish(before, after, now, (), connections)
 
 
 def replace_image(image: bytearray, data: bytes, what: str) -> None:

@@ -126,7 +126,7 @@ class Resets:
             self.perform(request, now)
             connections = self.objects.table.pop_events()
             after = guard.snapshot()
-        guard.publish(before, after, (), connections)
+        guard.publish(before, after, now, (), connections)
         self.announce(request)
         return True
 
@@ -135,5 +135,5 @@ class Resets:
         answers again from now, with a "reset done" event."""
         if not self.window.end(now):
             return False
-        self.guard.record("reset done", "answering again")
+        self.guard.record("reset done", "answering again", now)
         return True

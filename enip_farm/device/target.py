@@ -84,12 +84,12 @@ class EncapsulationTarget:
             connections = self.table.pop_events() if self.table.has_events else ()
             after = guard.snapshot()
         if connections or before != after or guard.observers or reset is not None:
-            guard.publish(before, after, requests, connections)
+            guard.publish(before, after, context.now, requests, connections)
             if reset is not None:
                 self.resets.announce(reset)
         else:  # the hot path: a request that changed nothing, nobody listening
             for handled in requests:
-                guard.events.request(handled)
+                guard.events.request(handled, context.now)
         return reply
 
     def handle_connected(self, connection_id: int, sequence_count: int, message: bytes,
@@ -108,7 +108,7 @@ class EncapsulationTarget:
             requests = router.pop_handled()
             connections = table.pop_events()
             after = guard.snapshot()
-        guard.publish(before, after, requests, connections)
+        guard.publish(before, after, context.now, requests, connections)
         if reset is not None:
             self.resets.announce(reset)
         return connection.t_o_id, reply, items
