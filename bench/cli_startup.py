@@ -1,5 +1,5 @@
 """How long the CLI takes to answer: `enip-farm --help`, and `enip-farm io get io1` against a farm
-with its HTTP API (one device, in a subprocess on 127.0.0.1). Each command runs `--runs` times as
+with its HTTP API (one device on a free 127.x address, in a subprocess). Each command runs `--runs` times as
 the installed `enip-farm` script would run it (a fresh interpreter each time), and so does
 `python -c pass`, the floor; the median and the spread of the wall-clock time, and the median CPU
 time (the steadier figure on a busy machine), are printed, and a JSON line. Issue 23's goal: both
