@@ -44,4 +44,6 @@ while read -r address; do
     fi
     count=$((count + 1))
 done < "$file"
-echo "$count devices listen on TCP 44818${heartbeat:+, class-1 I/O running}"
+counted="$count devices listen"
+[ "$count" -eq 1 ] && counted="1 device listens"
+echo "$counted on TCP 44818${heartbeat:+, class-1 I/O running}"

@@ -49,11 +49,12 @@ from enip_farm.protocol.connection import (
 from enip_farm.protocol.cpf import ItemType
 from enip_farm.protocol.epath import encode_request_path
 from tests.fuzzing import HEADER, TRIADS, FrameGenerator, Malformed, SessionMirror
-from tests.helpers import serving
+from tests.helpers import serving, wait_for
 
 ENIP_PORT, IO_PORT = 44818, 2222
 ASSEMBLY_PATH = bytes.fromhex("20 04 24 01 2C 64 2C 65")  # DSQC1030: config 1, O->T 100, T->O 101
 REPLY_WAIT_S = 10.0  # a reply later than this is a failure (generous for a loaded machine)
+DRAIN_WAIT_S = 10.0  # at most this long for the farm to read what was sent before it is counted
 _SO_TIMESTAMPNS = getattr(socket, "SO_TIMESTAMPNS", 35)
 _REGISTER = HEADER.pack(0x65, 4, 0, 0, b"prober\0\0", 0) + b"\x01\x00\x00\x00"
 
@@ -278,12 +279,16 @@ class Class1Originator:
         self.started_ns = time.monotonic_ns()
         self._thread.start()
 
-    def stop(self) -> list[int]:
-        """Stop sending; Forward Close every connection: the general statuses (0x01 = the farm had
-        timed it out, a spurious timeout)."""
+    def stop_sending(self) -> None:
+        """Stop sending O->T (each stream's `sequence` is then the count it sent)."""
         self._stop.set()
         self._thread.join(10)
         self.stopped_ns = time.monotonic_ns()
+
+    def close(self) -> list[int]:
+        """Forward Close every connection: the general statuses (0x01 = the farm had timed it out, a
+        spurious timeout). Call it once the farm has taken every O->T sent (`stop_sending`): a
+        datagram it reads after the close is one for an unknown connection."""
         statuses = []
         for stream in self.streams:
             close = encode_forward_close(ForwardCloseRequest(0x0A, 0x0E, stream.triad, ASSEMBLY_PATH))
@@ -400,6 +405,15 @@ def _free_port() -> int:
         return sock.getsockname()[1]
 
 
+def _counters(api: str, name: str) -> dict[str, int]:
+    return httpx.get(f"{api}/devices/{name}", timeout=10).json()["counters"]
+
+
+def _dropped(api: str, names: dict[str, str]) -> int:
+    """O->T datagrams not taken (every reason) by these devices."""
+    return sum(v for name in names for k, v in _counters(api, name).items() if k.startswith("o_t_dropped_"))
+
+
 def fuzz_farm(workdir: Path, addresses: list[str], seconds: float, seed: int, max_frames: int = 10_000_000,
               batches: tuple[int, ...] = (1, 1, 2, 8), rpi_us: int = 20_000, multiplier: int = 5) -> Report:
     """Serve five DSQC1030s (`addresses`: two fuzzed, three with class-1 connections) with
@@ -451,12 +465,20 @@ def fuzz_farm(workdir: Path, addresses: list[str], seconds: float, seed: int, ma
                 fuzzer.close()
             noise.close()
             prober.close()
-            report.close_statuses = originator.stop()
+            originator.stop_sending()
+            # the farm reads UDP on its cyclic I/O thread and Forward Close on its event loop: close
+            # once every O->T sent is taken (its count), so that no late one meets a closed connection
+            sent = {name: stream.sequence for name, stream in zip(cyclic, originator.streams, strict=True)}
+            wait_for(lambda: all(_counters(api, name)["o_t_packets"] >= count for name, count in sent.items()),
+                     timeout=DRAIN_WAIT_S)
+            report.close_statuses = originator.close()
             report.streams = sum(f.streams for f in fuzzers)
             report.replies = sum(f.replies for f in fuzzers)
         report.health = httpx.get(api + "/health", timeout=10).json()
+        # every datagram sent to UDP 2222 of those devices is read before they are counted
+        wait_for(lambda: _dropped(api, cyclic) >= report.datagrams_to_cyclic, timeout=DRAIN_WAIT_S)
         for name in cyclic:
-            report.cyclic_counters[name] = httpx.get(f"{api}/devices/{name}", timeout=10).json()["counters"]
+            report.cyclic_counters[name] = _counters(api, name)
         report.farm_alive = farm.poll() is None
     report.farm_log = log.read_text()
     return report

@@ -214,15 +214,26 @@ def test_healthcheck_fails_once_the_heartbeat_stops(free_address, tmp_path: Path
         assert wait_for(heartbeat.exists, timeout=SUPERVISE_S * 10)
         healthy = check()
         assert healthy.returncode == 0, healthy.stderr
-        assert healthy.stdout == "1 devices listen on TCP 44818, class-1 I/O running\n"
+        assert healthy.stdout == "1 device listens on TCP 44818, class-1 I/O running\n"
         thread = farm._implicit.thread
         thread._stopping = True
         thread._wake()
         thread.join(5)
-        stopped = time.monotonic()
-        assert wait_for(lambda: check().returncode == 1, timeout=30)
+        assert not thread.is_alive()
+        # the check reads whole seconds (date +%s, stat %Y) and fails once `now - set > 2`: so it
+        # passes while the file is under 2 s old and fails once it is 3 s old, whenever it was last set
+        checks: list[tuple[float, float, int]] = []  # (wall clock before, after, exit status)
+        for _ in range(3000):  # bounded: 30 s of checks at the most
+            before = time.time()
+            status = check().returncode
+            checks.append((before, time.time(), status))
+            if status == 1 or before - heartbeat.stat().st_mtime > 30:
+                break
+            time.sleep(0.01)
+        set_at = heartbeat.stat().st_mtime  # no longer set: the I/O thread has stopped
+        _, failing_after, status = checks[-1]
+        assert status == 1, checks[-5:]
+        assert failing_after - set_at > 2  # not before: it failed only once the file was over 2 s old
+        assert all(before - set_at < 3 for before, _, _ in checks[:-1])  # not after: none passed past 3 s
         failing = check()
-        # not before: the check fails when the file is more than 2 whole seconds old, and it was last
-        # set at most one supervision period before the thread stopped
-        assert time.monotonic() - stopped > 2 - SUPERVISE_S
         assert failing.stderr.startswith(f"class-1 I/O is not running: {heartbeat} was last set ")
