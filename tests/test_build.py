@@ -56,7 +56,7 @@ def test_a_profile_named_like_a_built_in_model_is_refused(tmp_path: Path) -> Non
 
 def test_the_shipped_catalogue_cannot_change(tmp_path: Path) -> None:
     shipped = shipped_catalogue()
-    with pytest.raises(TypeError):
+    with pytest.raises(TypeError, match="^'mappingproxy' object does not support item assignment$"):
         shipped.models["DSQC1030"] = shipped.models["DSQC1031"]  # type: ignore[index]
     extended, base = shipped.with_profile(_profile(tmp_path / "mine.yaml", "MINE", di=8))
     assert base == "MINE" and extended.origins["MINE"] == str(tmp_path / "mine.yaml")
@@ -93,8 +93,9 @@ def test_two_profiles_with_one_model_name_are_refused(tmp_path: Path) -> None:
                                        {"name": "b", "address": "127.0.0.6", "model": "b.yaml"}]}, "cell", tmp_path)
     with pytest.raises(ConfigError) as error:
         build_profiles(config, shipped_catalogue())
-    assert f"device 'b' (devices[1]), model: profile {tmp_path / 'b.yaml'} defines model 'LEARNED'" in str(error.value)
-    assert f"the model of {tmp_path / 'a.yaml'}" in str(error.value)
+    assert str(error.value) == (f"cell: device 'b' (devices[1]), model: profile {tmp_path / 'b.yaml'} defines "
+                                f"model 'LEARNED', which would replace the model of {tmp_path / 'a.yaml'}: give the "
+                                "profile's model another name (enip-farm learn --name)")
 
 
 def test_problems_of_a_count_entry_are_reported_once() -> None:
@@ -172,7 +173,5 @@ def test_a_chain_of_thousands_of_devices_does_not_exhaust_the_stack(closed: bool
         return
     with pytest.raises(ConfigError) as error:
         build_profiles(config, shipped_catalogue())
-    [line] = str(error.value).splitlines()
-    assert line.startswith("<config>: wiring cycle: d0.inputs -> d0.outputs -> d1.inputs -> d1.outputs -> ")
-    assert line.endswith(" -> d2999.inputs -> d2999.outputs -> d0.inputs")
-    assert line.count(" -> ") == 6000
+    cycle = [f"d{n}.{end}" for n in range(3000) for end in ("inputs", "outputs")] + ["d0.inputs"]
+    assert str(error.value) == "<config>: wiring cycle: " + " -> ".join(cycle)

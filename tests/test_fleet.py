@@ -25,7 +25,7 @@ from enip_farm.config import ConfigError, load_config, parse_config
 from enip_farm.fleet import FleetClient, shard, split
 from enip_farm.protocol.encapsulation import Command, encode_frame
 from enip_farm.pytest_plugin import AddressPool
-from tests.helpers import CLI, ROOT, STARTUP_S, RawClient, read_lines, serving
+from tests.helpers import CLI, ROOT, STARTUP_S, RawClient, metric_samples, read_lines, serving
 
 
 def _block(free_address: AddressPool) -> str:
@@ -104,7 +104,7 @@ def test_workers_start_serve_and_stop(free_address: AddressPool, tmp_path: Path)
         # the workers (and multiprocessing's resource tracker, which follows a moment later) are gone
         _, alive = psutil.wait_procs(workers, timeout=STARTUP_S)
         assert not alive
-        with pytest.raises(OSError):
+        with pytest.raises(OSError, match="Connection refused"):
             socket.create_connection((first, 44818), timeout=1)
     finally:
         for worker in workers:  # only after a failure: bounded clean-up of what this test started
@@ -144,7 +144,7 @@ def test_one_http_port_drives_the_devices_of_every_worker(free_address: AddressP
             assert client.get("/state", params={"device": "nope"}).status_code == 404
             metrics = client.get("/metrics").text
             assert metrics.count("# HELP enip_farm_tcp_connections_total") == 1
-            assert all(f'enip_farm_tcp_connections_total{{device="{n}"}}' in metrics for n in names)
+            assert metric_samples(metrics, "enip_farm_tcp_connections_total") == {(("device", n),): 0.0 for n in names}
             with client.stream("GET", "/events", params={"kind": "fault injected"}) as stream:
                 lines = stream.iter_lines()
                 assert next(lines).startswith(": ")
@@ -182,7 +182,7 @@ def test_one_http_port_drives_the_devices_of_every_worker(free_address: AddressP
             assert [f["kind"] for f in fleet["io2"].faults] == ["delay"]
             fleet["io2"].clear_faults()
             assert fleet["io2"].faults == []
-            with pytest.raises(KeyError):
+            with pytest.raises(KeyError, match="device 'io2': DI99: this device has 16 DI signals"):
                 fleet["io2"].get("DI99")
         inputs = {name: b"\x07\x00" if name == "io5" else b"\x04\x00" for name in names}
         for name in names:  # read back over EtherNet/IP: the writes reached the devices themselves
@@ -215,7 +215,7 @@ def test_shards_cover_every_device_once_and_keep_wired_devices_together() -> Non
     assert {"harness", "io1"} <= {d.name for d in wired.devices}
     assert len(split(config, 1)[0].devices) == len(config.devices)
     for bad in ("0/3", "4/3", "x/2", "2"):
-        with pytest.raises(ValueError):
+        with pytest.raises(ValueError, match=f"^--shard '{bad}': expected I/N with 1 <= I <= N$"):
             shard(config, bad)
 
 
