@@ -286,7 +286,7 @@ def test_reset_type_1_cpppo_restores_the_configuration(make_farm, cpppo_plain: N
         results = [(reply.service, reply.status) for _, _, _, reply, _, _ in conn.synchronous(
             operations=[cpppo_op(0x05, "@1/1", b"\x01"), cpppo_op(0x0E, "@1/1/1")])]
     assert results == [(0x85, 0)]  # the Get after it got no reply: the connection ended
-    assert device.events.of_kind("reset")[0].text.startswith("type 1 (out-of-box configuration)")
+    assert device.events.of_kind("reset")[0].text == "type 1 (out-of-box configuration): not answering for 0.2 s"
     assert wait_for(lambda: answers(address))
     assert cpppo_replies(address, cpppo_op(0x03, "@0xF5/1", b"\x01\x00\x0d\x00")) == [
         (0x83, 0, bytes.fromhex("0100" "0d00 0000 7800"))]  # 120 s again
