@@ -437,7 +437,7 @@ def probe(config_path: Path | None, shard_spec: str | None, timeout: float) -> N
     import socket
     import time
 
-    from enip_farm.protocol.encapsulation import Command, decode_frame, encode_frame
+    from enip_farm.protocol.encapsulation import ENIP_PORT, Command, decode_frame, encode_frame
 
     wanted = [str(d.address) for d in _select(_load(config_path), shard_spec).devices]
     answered: set[str] = set()
@@ -460,7 +460,7 @@ def probe(config_path: Path | None, shard_spec: str | None, timeout: float) -> N
         # a few at a time: a burst of replies would overflow one socket's receive buffer
         for start in range(0, len(wanted), 64):
             for address in wanted[start : start + 64]:
-                sock.sendto(encode_frame(Command.LIST_IDENTITY), (address, 44818))
+                sock.sendto(encode_frame(Command.LIST_IDENTITY), (address, ENIP_PORT))
             collect(sock, min(deadline, time.monotonic() + 0.5), min(start + 64, len(wanted)))
         collect(sock, deadline, len(wanted))
     click.echo(f"{len(answered)}/{len(wanted)} devices answered ListIdentity")

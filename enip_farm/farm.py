@@ -35,13 +35,15 @@ from enip_farm.control.http import HttpApi, bind_problem
 from enip_farm.control.wiring import Wiring
 from enip_farm.device.build import build_profiles
 from enip_farm.device.catalogue import Catalogue
-from enip_farm.device.device import ENIP_PORT, Device
+from enip_farm.device.device import Device
 from enip_farm.device.events import Event
-from enip_farm.device.faults import Fault, FaultKind
+from enip_farm.device.faults import Disconnect, FaultType
 from enip_farm.device.nonvolatile import load_state, save_state
 from enip_farm.eds.reader import eds_catalogue
+from enip_farm.protocol.connection import IO_PORT
+from enip_farm.protocol.encapsulation import ENIP_PORT
 from enip_farm.server.calibrate import DEFAULT_DATAGRAMS_PER_S, measure_budget
-from enip_farm.server.implicit import IO_PORT, ImplicitIo
+from enip_farm.server.implicit import ImplicitIo
 from enip_farm.server.limits import RateLimitedLog, TcpLimits
 from enip_farm.server.tcp import EncapsulationProtocol
 from enip_farm.server.udp import DeviceDatagramProtocol, DiscoveryResponder, udp_socket
@@ -144,7 +146,7 @@ class Farm:
         self._datagram_transports: list[asyncio.DatagramTransport] = []
         self._discovery: DiscoveryResponder | None = None
         self._implicit: ImplicitIo | None = None
-        self._fault_timers: dict[tuple[str, FaultKind], asyncio.TimerHandle] = {}
+        self._fault_timers: dict[tuple[str, str], asyncio.TimerHandle] = {}
         self._reset_timers: dict[str, asyncio.TimerHandle] = {}
         self._tasks: set[asyncio.Task] = set()
         for device in self.devices.values():
@@ -181,7 +183,7 @@ class Farm:
         except OSError as error:
             raise BindError(_bind_message(device, "TCP", error)) from None
 
-    def _close_connections(self, device: Device, kind: FaultKind = FaultKind.CLOSE) -> None:
+    def _close_connections(self, device: Device, kind: Disconnect = Disconnect.CLOSE) -> None:
         for connection in [c for c in self._connections if c.device is device]:
             connection.kill(kind)
 
@@ -266,7 +268,7 @@ class Farm:
         for server in self._servers.values():
             server.close()
         for connection in list(self._connections):
-            connection.kill(FaultKind.CLOSE)
+            connection.kill(Disconnect.CLOSE)
         for server in self._servers.values():
             await server.wait_closed()
         self._servers.clear()
@@ -336,21 +338,23 @@ class Farm:
 
     # -- faults (device/faults.py) ---------------------------------------------------------------
 
-    async def inject_fault(self, name: str, fault: Fault) -> None:
-        """Switch a fault on for one device, on the farm's loop; `fault.duration_s` ends it by itself."""
+    async def inject_fault(self, name: str, fault: FaultType) -> None:
+        """Switch a fault on for one device, on the farm's loop; `fault.duration_s` ends it by itself.
+        Its hooks (device/fault_type.py) say whether open connections end and TCP stops listening."""
         device = self.devices[name]
-        self._cancel_timer(name, fault.kind)
-        device.faults.set(fault)
+        self._cancel_timer(name, fault.name)
+        device.faults.set(fault, time.monotonic_ns())
         device.record("fault injected", fault.parameters())
-        if fault.kind in (FaultKind.CLOSE, FaultKind.RESET, FaultKind.OFFLINE):
-            self._close_connections(device, FaultKind.RESET if fault.kind is FaultKind.RESET else FaultKind.CLOSE)
-        if fault.kind is FaultKind.OFFLINE and name in self._servers:
+        end = fault.on_tcp_connection()
+        if end is not None or not fault.listens():
+            self._close_connections(device, end or Disconnect.CLOSE)
+        if not fault.listens() and name in self._servers:
             server = self._servers.pop(name)
             server.close()
-        if fault.duration_s is not None:
-            self._arm_fault_end(name, fault.kind, asyncio.get_running_loop().time() + fault.duration_s)
+        if fault.duration_ns is not None:
+            self._arm_fault_end(name, fault.name, asyncio.get_running_loop().time() + fault.duration_ns / 1e9)
 
-    def _arm_fault_end(self, name: str, kind: FaultKind, end: float) -> None:
+    def _arm_fault_end(self, name: str, kind: str, end: float) -> None:
         """Clear the fault at `end` (loop time), in bounded steps (server/waits.py)."""
         loop = asyncio.get_running_loop()
         delay = end - loop.time()
@@ -372,17 +376,17 @@ class Farm:
             self.loop.call_exception_handler({"message": "a farm task failed", "exception": task.exception(),
                                               "task": task})
 
-    async def clear_faults(self, name: str, kind: FaultKind | None = None) -> list[FaultKind]:
+    async def clear_faults(self, name: str, kind: str | None = None) -> list[str]:
         """Switch one fault (or all) off; normal behaviour returns without a restart."""
         device = self.devices[name]
-        offline_ends = FaultKind.OFFLINE in device.faults.active and kind in (None, FaultKind.OFFLINE)
-        if offline_ends and self.running and name not in self._servers and not device.resetting:
+        listens_again = not device.faults.listens and device.faults.listens_without(kind)
+        if listens_again and self.running and name not in self._servers and not device.resetting:
             await self._listen(device)  # listening again before the fault is seen gone (a reset's end listens)
         cleared = device.faults.clear(kind)
         for k in cleared:
             self._cancel_timer(name, k)
         if cleared:
-            device.record("fault cleared", {"kind": ", ".join(k.value for k in cleared)})
+            device.record("fault cleared", {"kind": ", ".join(cleared)})
         return cleared
 
     # -- Identity Reset --------------------------------------------------------------------------
@@ -417,7 +421,7 @@ class Farm:
         if not device.end_reset(time.monotonic_ns()):
             self._arm_reset_end(device)  # the timer came a little early: wait for the deadline itself
             return
-        if self.running and not device.faults.offline and device.name not in self._servers:
+        if self.running and device.faults.listens and device.name not in self._servers:
             self._spawn(self._listen_after_reset(device))
 
     async def _listen_after_reset(self, device: Device) -> None:
@@ -426,7 +430,7 @@ class Farm:
         except BindError as error:  # someone took the address meanwhile: say so, keep serving the others
             log.error("%s (after its reset)", error)
 
-    def _cancel_timer(self, name: str, kind: FaultKind) -> None:
+    def _cancel_timer(self, name: str, kind: str) -> None:
         timer = self._fault_timers.pop((name, kind), None)
         if timer is not None:
             timer.cancel()

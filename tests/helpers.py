@@ -30,10 +30,9 @@ from enip_farm.protocol.connection import (
     encode_forward_open,
 )
 from enip_farm.protocol.cpf import CpfItem, ItemType
-from enip_farm.protocol.encapsulation import Command, Frame, StreamFramer, encode_frame
+from enip_farm.protocol.encapsulation import ENIP_PORT, Command, Frame, StreamFramer, encode_frame
 from enip_farm.protocol.epath import encode_request_path
 
-ENIP_PORT = 44818
 ROOT = Path(__file__).resolve().parent.parent
 CLI = [sys.executable, "-m", "enip_farm"]  # the tree under test (conftest puts ROOT on PYTHONPATH)
 STARTUP_S = 60.0  # a subprocess's bound to print its table, generous for a loaded machine

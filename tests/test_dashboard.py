@@ -83,10 +83,40 @@ def test_coalesce_merges_each_devices_image_changes_into_one_io_event() -> None:
     assert coalesce(events[1:2], lambda name: diff) == events[1:2]
 
 
-def test_the_pages_fault_kinds_are_the_farms() -> None:
-    script = (WEB / "dashboard.js").read_text()
-    kinds = json.loads(re.search(r"const FAULT_KINDS = (\[[^\]]*\]);", script)[1].replace("'", '"'))
-    assert kinds == [kind.value for kind in FaultKind]
+def test_the_page_lists_no_fault_kind_of_its_own() -> None:
+    """The faults panel reads the kinds from GET fault-kinds (tests/test_dashboard_modules.py checks
+    the menu against the farm's list); no script names a kind."""
+    for script in sorted(WEB.glob("*.js")):
+        text = script.read_text()
+        assert not [kind for kind in FaultKind if f"'{kind.value}'" in text or f'"{kind.value}"' in text], script.name
+        assert "FAULT_KINDS" not in text and "PARAM_HINT" not in text, script.name
+    assert "api('fault-kinds')" in (WEB / "faults-panel.js").read_text()
+
+
+_IMPORT = re.compile(r"^import .* from '\./([\w.-]+\.js)';$", re.MULTILINE)
+
+
+def test_the_scripts_are_es_modules_each_reached_from_the_entry() -> None:
+    """index.html loads one module script; its relative imports reach every script of web/ and
+    only those (no bundler, no module left over), without a cycle."""
+    html = (WEB / "index.html").read_text()
+    assert re.findall(r"<script[^>]*>", html) == ['<script type="module" src="dashboard/dashboard.js">']
+    graph = {script.name: _IMPORT.findall(script.read_text()) for script in WEB.glob("*.js")}
+    reached, order = set(), []
+
+    def visit(name: str, path: tuple[str, ...]) -> None:
+        assert name in graph and name not in path, (name, path)
+        if name not in reached:
+            reached.add(name)
+            for imported in graph[name]:
+                visit(imported, (*path, name))
+            order.append(name)
+
+    visit("dashboard.js", ())
+    assert reached == set(graph), set(graph) - reached
+    assert sorted(graph) == ["api.js", "dashboard.js", "devices.js", "dom.js", "event-log.js", "events.js",
+                             "faults-panel.js", "frame.js", "io-panel.js", "overview.js", "table.js"]
+    assert all("'use strict'" not in (WEB / name).read_text() for name in graph)  # modules are strict already
 
 
 class _References(HTMLParser):
@@ -106,10 +136,9 @@ def _references(html: str) -> list[str]:
 
 def test_the_page_is_package_data_and_names_no_other_host() -> None:
     urls = _references((WEB / "index.html").read_text())
-    assert sorted(urls) == ["dashboard/dashboard.css", "dashboard/dashboard.js", "dashboard/overview.js", "data:,",
-                            "docs"]
-    for name in ("dashboard.js", "overview.js", "dashboard.css"):
-        assert not re.search(r"https?://", (WEB / name).read_text()), name
+    assert sorted(urls) == ["dashboard/dashboard.css", "dashboard/dashboard.js", "data:,", "docs"]
+    for path in sorted(WEB.iterdir()):
+        assert not re.search(r"https?://", path.read_text()), path.name
     assert '"control/web/*"' in (ROOT / "pyproject.toml").read_text()
 
 
@@ -246,10 +275,12 @@ def test_the_page_passes_the_guard_without_a_token_and_nothing_else_does(free_ad
         page = httpx.get(base + "/")
         assert page.status_code == 200 and page.headers["content-type"].startswith("text/html")
         assert page.text == (WEB / "index.html").read_text()
-        for name, kind in (("dashboard.js", "javascript"), ("overview.js", "javascript"),
-                           ("dashboard.css", "text/css")):
+        scripts = sorted(path.name for path in WEB.glob("*.js"))
+        assert len(scripts) == 11
+        for name, kind in (*((name, "text/javascript; charset=utf-8") for name in scripts),
+                           ("dashboard.css", "text/css; charset=utf-8")):
             asset = httpx.get(f"{base}/dashboard/{name}")
-            assert asset.status_code == 200 and kind in asset.headers["content-type"], name
+            assert asset.status_code == 200 and asset.headers["content-type"] == kind, name
             assert asset.text == (WEB / name).read_text()
         assert httpx.get(base + "/dashboard/nothing.js").status_code == 404
         for path in ("/devices", "/state", "/overview", "/events", "/docs", "/openapi.json",

@@ -79,7 +79,9 @@ def test_fault_parameters_are_checked_in_one_place() -> None:
         Fault("status", service=True, status=8)
     with pytest.raises(FaultError, match="delay_ms: must be a number"):
         Fault("delay", delay_ms="5")
-    assert Fault("delay", delay_ms=MAX_DELAY_MS).reply_delay() == 60.0
+    with pytest.raises(FaultError, match="^delay_ms: must be a number, got None$"):  # the page's NaN, as JSON
+        Fault("delay", delay_ms=None)
+    assert Fault("delay", delay_ms=MAX_DELAY_MS).on_reply() == 60_000_000_000
     assert Fault("status", service=0, status=0xFF).status == 0xFF
 
 
@@ -105,6 +107,38 @@ def test_python_api_refuses_the_same_parameters(enip_farm) -> None:
     with pytest.raises(ValueError, match="duration_s: must be > 0"):
         io.inject("offline", duration_s=0)
     assert io.faults == []
+
+
+def test_the_fault_kinds_are_listed_with_their_parameters(enip_farm) -> None:
+    """GET /fault-kinds: the registry (device/fault_kinds.py) in order, each kind with a one-line
+    summary and its parameters' JSON Schema; the OpenAPI schema names the answer's model."""
+    farm = enip_farm(name="io", model="DSQC1030", http=True)
+    base = f"http://127.0.0.1:{farm.http.port}"
+    kinds = httpx.get(f"{base}/fault-kinds").json()
+    assert [kind["kind"] for kind in kinds] == ["delay", "drop", "close", "reset", "offline", "status", "stop-io",
+                                                "identity"]
+    assert all(set(kind) == {"kind", "summary", "parameters"} for kind in kinds)
+    assert all(kind["summary"] and "\n" not in kind["summary"] for kind in kinds)
+    schemas = {kind["kind"]: kind["parameters"] for kind in kinds}
+    assert {name: sorted(schema["properties"]) for name, schema in schemas.items()} == {
+        "delay": ["delay_ms", "duration_s", "max_delay_ms"], "drop": ["duration_s"], "close": ["duration_s"],
+        "reset": ["duration_s"], "offline": ["duration_s"], "status": ["duration_s", "service", "status"],
+        "stop-io": ["duration_s"], "identity": ["duration_s"]}
+    assert schemas["status"]["required"] == ["service", "status"]
+    assert schemas["status"]["properties"]["service"]["anyOf"][0] == {"type": "integer", "minimum": 0, "maximum": 255}
+    assert schemas["delay"]["properties"]["delay_ms"]["maximum"] == MAX_DELAY_MS
+    assert all(schema["type"] == "object" and schema["additionalProperties"] is False for schema in schemas.values())
+    openapi = httpx.get(f"{base}/openapi.json").json()
+    answer = openapi["paths"]["/fault-kinds"]["get"]["responses"]["200"]["content"]["application/json"]["schema"]
+    assert answer["items"] == {"$ref": "#/components/schemas/FaultKindInfo"}
+    assert sorted(openapi["components"]["schemas"]["FaultKindInfo"]["properties"]) == ["kind", "parameters", "summary"]
+
+
+def test_a_parameter_no_kind_takes_is_refused_and_another_kinds_is_ignored() -> None:
+    with pytest.raises(FaultError, match=r"^delay_msec: is not a parameter of any fault kind \(delay_ms, "):
+        Fault("delay", delay_msec=800)
+    assert Fault("drop", delay_ms=0.0, service=None).parameters() == {"kind": "drop"}  # what the CLI sends
+    assert Fault("close", duration_s=2).duration_ns == 2_000_000_000
 
 
 # -- all-or-nothing writes ---------------------------------------------------------------------------------

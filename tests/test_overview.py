@@ -44,8 +44,8 @@ def test_the_last_class1_ending_decides_between_timed_out_and_idle() -> None:
     io3.record("connection timed out", OWNER)
     io3.record("connection closed", OWNER)  # a later class-1 connection closed normally
     assert _states(overview) == {"io1": "timed_out", "io2": "idle", "io3": "idle"}
-    io3.faults.set(Fault("drop"))
-    io1.faults.set(Fault("delay", delay_ms=5))  # a fault wins over a timeout
+    io3.faults.set(Fault("drop"), 0)
+    io1.faults.set(Fault("delay", delay_ms=5), 0)  # a fault wins over a timeout
     snapshot = overview.snapshot()
     assert snapshot["counts"] == {"idle": 1, "running": 0, "timed_out": 0, "faulted": 2}
     assert [(d["name"], d["state"], d["faults"]) for d in snapshot["devices"]] == [

@@ -8,9 +8,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from enip_farm.capture.packets import Packet, read_capture, tcp_streams
-from enip_farm.protocol.encapsulation import HEADER, Frame, StreamFramer, decode_frame
-
-ENIP_PORT = 44818
+from enip_farm.protocol.encapsulation import ENIP_PORT, HEADER, Frame, StreamFramer, decode_frame
 
 
 @dataclass

@@ -21,6 +21,8 @@ from enip_farm.capture.compare import Difference, ReplayMap, compare_replies
 from enip_farm.capture.exchanges import Exchange
 from enip_farm.protocol.cip import (
     CipDecodeError,
+    ClassCode,
+    Service,
     decode_reply,
     decode_request,
     decode_unconnected_send,
@@ -41,12 +43,12 @@ from enip_farm.protocol.connection import (
     encode_forward_open,
 )
 from enip_farm.protocol.cpf import ItemType
-from enip_farm.protocol.encapsulation import HEADER, Command, Frame, StreamFramer, decode_frame, encode_frame
+from enip_farm.protocol.encapsulation import ENIP_PORT, HEADER, Command, Frame, StreamFramer, decode_frame, encode_frame
 from enip_farm.protocol.epath import PathError, decode_request_path, encode_request_path
 
 TIMEOUT = 5.0
-_CONNECTION_MANAGER = (6, 1)
-_MESSAGE_ROUTER_PATH = bytes.fromhex("20 02 24 01")
+_CONNECTION_MANAGER = (ClassCode.CONNECTION_MANAGER, 1)
+_MESSAGE_ROUTER_PATH = encode_request_path(ClassCode.MESSAGE_ROUTER, 1)
 
 
 @dataclass
@@ -155,7 +157,7 @@ class _Rewriter:
 
 class _Connection:
     def __init__(self, host: str) -> None:
-        self.sock = socket.create_connection((host, 44818), timeout=TIMEOUT)
+        self.sock = socket.create_connection((host, ENIP_PORT), timeout=TIMEOUT)
         self.framer = StreamFramer(max_length=65535)
         self.pending: list[Frame] = []
 
@@ -212,7 +214,8 @@ def _open_class3(connection: _Connection, session: int, t_o_id: int, rewriter: _
         0x0A, 0x0E, 0, t_o_id, triad, 7,
         2_000_000, NetworkParameters(False, ConnectionType.POINT_TO_POINT, 0, True, 504), 2_000_000,
         NetworkParameters(False, ConnectionType.POINT_TO_POINT, 0, True, 504), 0xA3, _MESSAGE_ROUTER_PATH)
-    message = encode_request(0x54, encode_request_path(*_CONNECTION_MANAGER), encode_forward_open(request))
+    message = encode_request(Service.FORWARD_OPEN, encode_request_path(*_CONNECTION_MANAGER),
+                             encode_forward_open(request))
     connection.send(encode_frame(Command.SEND_RR_DATA, encode_unconnected_payload(message), session))
     reply = connection.receive()
     try:
@@ -277,7 +280,7 @@ def _moved(captured: str, host: str) -> tuple[str, str] | None:
 def replay_datagram(exchange: Exchange, host: str) -> Result:
     with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as sock:
         sock.settimeout(TIMEOUT if exchange.reply is not None else 0.2)
-        sock.sendto(exchange.raw_request, (host, 44818))
+        sock.sendto(exchange.raw_request, (host, ENIP_PORT))
         try:
             data = sock.recv(65536)
         except OSError:

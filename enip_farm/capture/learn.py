@@ -44,11 +44,18 @@ from enip_farm.config import DeviceConfig
 from enip_farm.device.catalogue import Catalogue, shipped_catalogue
 from enip_farm.device.device import Device
 from enip_farm.device.profile import resolve
-from enip_farm.protocol.cip import CipDecodeError, decode_reply, decode_request, decode_unconnected_send
+from enip_farm.protocol.cip import (
+    CipDecodeError,
+    ClassCode,
+    Service,
+    decode_reply,
+    decode_request,
+    decode_unconnected_send,
+)
 from enip_farm.protocol.commands import IdentityItem, decode_identity_item, decode_send_data
 from enip_farm.protocol.connection import ConnectionType, DecodeError, ForwardOpenRequest, decode_forward_open
 from enip_farm.protocol.cpf import ItemType, decode_items
-from enip_farm.protocol.encapsulation import Command, decode_frame
+from enip_farm.protocol.encapsulation import ENIP_PORT, Command, decode_frame
 from enip_farm.protocol.epath import (
     DataSegment,
     LogicalSegment,
@@ -59,7 +66,6 @@ from enip_farm.protocol.epath import (
 )
 from enip_farm.protocol.session import MessageContext
 
-ENIP_PORT = 44818
 _IDENTITY_FIELDS = ("vendor_id", "device_type", "product_code", "revision", "product_name", "serial_number")
 _PLACEHOLDER = MappingProxyType({"vendor_id": 0, "device_type": 0, "product_code": 0, "revision": (1, 0),
                                  "product_name": "learned"})
@@ -133,7 +139,8 @@ def _cip_pairs(exchange: Exchange) -> tuple[bytes, bytes] | None:
     if exchange.request.header.command == Command.SEND_UNIT_DATA:
         request, reply = request[2:], reply[2:]  # the sequence count
     try:
-        if request[0] == 0x52 and decode_request_path(decode_request(request).path)[:2] == (6, 1):
+        if (request[0] == Service.UNCONNECTED_SEND
+                and decode_request_path(decode_request(request).path)[:2] == (ClassCode.CONNECTION_MANAGER, 1)):
             request = decode_unconnected_send(decode_request(request).data).message
     except (CipDecodeError, PathError, IndexError):
         pass
@@ -207,23 +214,24 @@ def _observe(exchange: Exchange, evidence: _Evidence) -> None:
         return
     if reply.general_status != 0:
         return
-    if path.class_id == 1 and path.instance_id == 1:
-        if request.service == 0x01:
+    service, class_id = request.service, path.class_id
+    if class_id == ClassCode.IDENTITY and path.instance_id == 1:
+        if service == Service.GET_ATTRIBUTES_ALL:
             _identity_from_gaa(reply.data, evidence.identity)
-        elif request.service == 0x0E and path.attribute_id:
+        elif service == Service.GET_ATTRIBUTE_SINGLE and path.attribute_id:
             _identity_attribute(path.attribute_id, reply.data, evidence.identity)
-    elif path.class_id == 4 and path.instance_id and path.attribute_id == 3:
-        if request.service == 0x0E:
+    elif class_id == ClassCode.ASSEMBLY and path.instance_id and path.attribute_id == 3:
+        if service == Service.GET_ATTRIBUTE_SINGLE:
             evidence.size(path.instance_id, len(reply.data), evidence.sizes)
-        elif request.service == 0x10:
+        elif service == Service.SET_ATTRIBUTE_SINGLE:
             evidence.size(path.instance_id, len(request.data), evidence.sizes)
             evidence.claim("output", path.instance_id)
-    elif (path.class_id == 4 and path.instance_id and path.attribute_id == 4 and request.service == 0x0E
-          and len(reply.data) >= 2):
+    elif (class_id == ClassCode.ASSEMBLY and path.instance_id and path.attribute_id == 4
+          and service == Service.GET_ATTRIBUTE_SINGLE and len(reply.data) >= 2):
         evidence.size(path.instance_id, struct.unpack_from("<H", reply.data)[0], evidence.sizes)
-    elif path.class_id == 6 and request.service in (0x54, 0x5B):
+    elif class_id == ClassCode.CONNECTION_MANAGER and service in (Service.FORWARD_OPEN, Service.LARGE_FORWARD_OPEN):
         try:
-            forward_open = decode_forward_open(request.data, request.service == 0x5B)
+            forward_open = decode_forward_open(request.data, service == Service.LARGE_FORWARD_OPEN)
         except DecodeError:
             return
         _observe_forward_open(forward_open, evidence)

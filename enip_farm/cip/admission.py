@@ -17,8 +17,9 @@ from typing import NamedTuple
 from enip_farm.cip.assembly import AssemblyInstance
 from enip_farm.cip.connection import Connection, ConnectionKind
 from enip_farm.cip.safety.admission import SafetyOpen, SafetyPolicy, admit_safety, safety_segment_of
+from enip_farm.protocol.cip import ClassCode
 from enip_farm.protocol.commands import SocketAddress
-from enip_farm.protocol.connection import ConnectionType, ForwardOpenRequest
+from enip_farm.protocol.connection import IO_PORT, ConnectionType, ForwardOpenRequest
 from enip_farm.protocol.epath import (
     DataSegment,
     ElectronicKey,
@@ -31,13 +32,11 @@ from enip_farm.protocol.epath import (
 from enip_farm.protocol.status import ExtendedStatus as X
 from enip_farm.protocol.status import GeneralStatus
 
-IO_PORT = 2222
 SEQUENCE_COUNT_SIZE = 2
 RUN_IDLE_HEADER_SIZE = 4
 _SELF = PortSegment(1, b"\x00")  # a route to this device itself: backplane port 1, slot 0
 _CLASS_1, _CLASS_3 = 0x01, 0x03
 _MAX_TIMEOUT_MULTIPLIER = 7  # x512; 8-255 are reserved (Vol. 1, 3-5.4.1.4)
-_ASSEMBLY, _MESSAGE_ROUTER = 0x04, 0x02
 
 
 @dataclass(frozen=True)
@@ -246,7 +245,7 @@ class Admission:
     def _io_points(self, connection_path: bytes) -> tuple[int | None, int, int]:
         """(configuration, consuming O->T, producing T->O) points of an assembly connection path."""
         segments = [s for s in self._path_segments(connection_path) if not isinstance(s, DataSegment)]
-        if not segments or segments[0] != LogicalSegment(LogicalType.CLASS_ID, _ASSEMBLY):
+        if not segments or segments[0] != LogicalSegment(LogicalType.CLASS_ID, ClassCode.ASSEMBLY):
             raise _refuse(X.INVALID_SEGMENT)
         values = []
         for segment in segments[1:]:
@@ -430,7 +429,7 @@ class Admission:
     def _admit_explicit(self, request: ForwardOpenRequest, originator: Originator, now: int,
                         connections: Collection[Connection], taken_ids: Callable[[int], bool]) -> Connection:
         segments = self._path_segments(request.connection_path)
-        if segments != [LogicalSegment(LogicalType.CLASS_ID, _MESSAGE_ROUTER),
+        if segments != [LogicalSegment(LogicalType.CLASS_ID, ClassCode.MESSAGE_ROUTER),
                         LogicalSegment(LogicalType.INSTANCE_ID, 1)]:
             raise _refuse(X.INVALID_SEGMENT)
         if (request.o_t_parameters.connection_type != ConnectionType.POINT_TO_POINT

@@ -5,6 +5,7 @@ The device holds its lock around every read and write of the bytes (device/devic
 from __future__ import annotations
 
 from enip_farm.cip.object import UINT, Attribute, CipClass, CipInstance
+from enip_farm.protocol.cip import ClassCode
 from enip_farm.protocol.status import GeneralStatus
 
 
@@ -38,7 +39,7 @@ class AssemblyInstance:
 
 
 class AssemblyObject(CipClass):
-    class_id = 0x04
+    class_id = ClassCode.ASSEMBLY
     revision = 2
 
     def __init__(self, assemblies: list[AssemblyInstance]) -> None:

@@ -17,7 +17,7 @@ from enip_farm.cip.admission import Originator
 from enip_farm.cip.connection_table import ConnectionTable, Opened
 from enip_farm.cip.message_router import MAX_NESTING, MessageRouter
 from enip_farm.cip.object import CipClass, CipInstance, Reply, ServiceResult
-from enip_farm.protocol.cip import CipDecodeError, Service, decode_unconnected_send
+from enip_farm.protocol.cip import CipDecodeError, ClassCode, Service, decode_unconnected_send
 from enip_farm.protocol.commands import SocketAddress, decode_sockaddr
 from enip_farm.protocol.connection import (
     DecodeError,
@@ -39,7 +39,7 @@ _SELF = PortSegment(1, b"\x00")
 
 
 class ConnectionManager(CipClass):
-    class_id = 0x06
+    class_id = ClassCode.CONNECTION_MANAGER
     revision = 1
 
     def __init__(self, router: MessageRouter, table: ConnectionTable, unconnected_send: bool = True) -> None:

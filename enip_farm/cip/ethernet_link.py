@@ -40,7 +40,7 @@ from enip_farm.cip.object import (
     short_string_size,
     udint,
 )
-from enip_farm.protocol.cip import Service
+from enip_farm.protocol.cip import ClassCode, Service
 from enip_farm.protocol.epath import RequestPath
 from enip_farm.protocol.session import MessageContext
 from enip_farm.protocol.status import GeneralStatus
@@ -102,7 +102,7 @@ class InterfaceCounters:
 
 
 class EthernetLinkObject(CipClass):
-    class_id = 0xF6
+    class_id = ClassCode.ETHERNET_LINK
     revision = 4
     optional_attributes = tuple(range(4, 12))
     optional_services = (Service.GET_AND_CLEAR,)

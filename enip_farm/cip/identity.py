@@ -26,7 +26,7 @@ from enip_farm.cip.object import (
     short_string,
     short_string_size,
 )
-from enip_farm.protocol.cip import Service
+from enip_farm.protocol.cip import ClassCode, Service
 from enip_farm.protocol.epath import RequestPath
 from enip_farm.protocol.session import MessageContext
 from enip_farm.protocol.status import GeneralStatus
@@ -44,7 +44,7 @@ RESET_KEEP_COMMUNICATION = 2
 
 
 class IdentityObject(CipClass):
-    class_id = 0x01
+    class_id = ClassCode.IDENTITY
     revision = 1
     optional_attributes = (8,)
 

@@ -25,6 +25,7 @@ from enip_farm.cip.object import (
 from enip_farm.protocol.cip import (
     REPLY_BIT,
     CipDecodeError,
+    ClassCode,
     Service,
     decode_multiple_service_request,
     decode_request,
@@ -51,7 +52,7 @@ Handled = tuple[int, bytes, int, "int | None", bool]
 class MessageRouter(CipClass):
     """The message router object and the dispatcher of every unconnected request of one device."""
 
-    class_id = 0x02
+    class_id = ClassCode.MESSAGE_ROUTER
     revision = 1
 
     def __init__(self, multiple_service_packet: bool = True, max_connections: int = 0,

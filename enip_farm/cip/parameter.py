@@ -10,6 +10,7 @@ import struct
 from dataclasses import dataclass
 
 from enip_farm.cip.object import Attribute, CipClass, CipInstance
+from enip_farm.protocol.cip import ClassCode
 from enip_farm.protocol.status import GeneralStatus
 
 _READ_ONLY = 0x0010  # descriptor bit 4
@@ -66,7 +67,7 @@ class ParameterInstance:
 
 
 class ParameterObject(CipClass):
-    class_id = 0x0F
+    class_id = ClassCode.PARAMETER
     revision = 1
 
     def __init__(self, parameters: list[ParameterSpec]) -> None:

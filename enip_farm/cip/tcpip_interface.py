@@ -38,6 +38,7 @@ from enip_farm.cip.object import (
     string_size,
     udint,
 )
+from enip_farm.protocol.cip import ClassCode
 from enip_farm.protocol.status import GeneralStatus
 
 #: Attribute 1: interface configuration status 1 = "valid configuration obtained".
@@ -97,7 +98,7 @@ class TcpIpSettings:
 
 
 class TcpIpInterfaceObject(CipClass):
-    class_id = 0xF5
+    class_id = ClassCode.TCP_IP_INTERFACE
     revision = 4
 
     def __init__(self, *, address: str, netmask: str, gateway: str, host_name: str,

@@ -14,7 +14,7 @@ from typing import Any, Protocol, TypeVar, runtime_checkable
 from enip_farm.config import FarmConfig
 from enip_farm.device.device import Device, replace_image
 from enip_farm.device.events import Event
-from enip_farm.device.faults import Fault, FaultKind
+from enip_farm.device.faults import Fault, FaultKind, FaultType
 from enip_farm.device.named_signals import NamedSignal
 from enip_farm.device.signals import Signal, SignalError, SignalMap
 
@@ -39,9 +39,9 @@ class FarmControl(Protocol):
 
     def run(self, coroutine: Coroutine[Any, Any, T], timeout: float = ...) -> T: ...
 
-    async def inject_fault(self, name: str, fault: Fault) -> None: ...
+    async def inject_fault(self, name: str, fault: FaultType) -> None: ...
 
-    async def clear_faults(self, name: str, kind: FaultKind | None = None) -> list[FaultKind]: ...
+    async def clear_faults(self, name: str, kind: str | None = None) -> list[str]: ...
 
     def health(self) -> dict[str, Any]: ...
 
@@ -187,7 +187,7 @@ class DeviceHandle:
 
     @property
     def faults(self) -> list[dict]:
-        return [fault.describe() for fault in self.device.faults.active.values()]
+        return self.device.faults.describe(time.monotonic_ns())
 
 
 def _chain(steps: list[Callable[[bytearray], object]]) -> Callable[[bytearray], None]:

@@ -1,10 +1,11 @@
 """The farm's HTTP API (FastAPI, served by uvicorn on the farm's own event loop).
 
 GET /devices, GET /devices/{name}, GET and PUT /devices/{name}/io, GET /devices/{name}/io/{signal}
-(one signal by its number or name), POST and DELETE /devices/{name}/faults, GET /state (what the
-dashboard shows of each device: signals, connections, counters, faults), GET /overview (every
-device's state in one answer, and recent events: control/overview.py), GET /events (server-sent
-events, control/stream.py), GET /metrics (Prometheus), the dashboard at / (control/dashboard.py),
+(one signal by its number or name), POST and DELETE /devices/{name}/faults, GET /fault-kinds (each
+kind and its parameters' JSON Schema, from device/fault_kinds.py), GET /state (what the dashboard
+shows of each device: signals, connections, counters, faults), GET /overview (every device's state
+in one answer, and recent events: control/overview.py), GET /events (server-sent events,
+control/stream.py), GET /metrics (Prometheus), the dashboard at / (control/dashboard.py),
 and the OpenAPI schema at /openapi.json with /docs and /redoc served from assets shipped in the
 package (no CDN). Bound to a loopback address (localhost, 127.x.y.z, ::1) the API may run without
 a token; bound to any other address it needs one, and every request then carries `Authorization:
@@ -32,7 +33,7 @@ from fastapi.responses import JSONResponse, PlainTextResponse
 from fastapi_offline import FastAPIOffline
 from prometheus_client import CollectorRegistry, generate_latest
 from prometheus_client.exposition import CONTENT_TYPE_LATEST
-from pydantic import BaseModel, Field, field_validator
+from pydantic import BaseModel, ConfigDict, Field, field_validator
 
 from enip_farm.control.dashboard import mount_dashboard
 from enip_farm.control.guard import Guard, needs_token
@@ -41,7 +42,7 @@ from enip_farm.control.metrics import FarmCollector
 from enip_farm.control.overview import RECENT, Overview
 from enip_farm.control.stream import EventHub, EventStream
 from enip_farm.device.device import Device
-from enip_farm.device.faults import Fault, FaultError, FaultKind
+from enip_farm.device.faults import Fault, FaultError, FaultKind, fault_kinds
 from enip_farm.device.signals import SignalError
 
 
@@ -67,12 +68,21 @@ class IoWrite(BaseModel):
 
 
 class FaultRequest(BaseModel):
+    """A kind and its parameters, side by side, e.g. {"kind": "delay", "delay_ms": 800, "duration_s": 10}:
+    GET /fault-kinds lists each kind's parameters (a JSON Schema); `Fault` checks them."""
+
+    model_config = ConfigDict(extra="allow")
+
     kind: FaultKind
-    delay_ms: float = Field(0.0, description="delay: ms to hold each reply, 0..60000")
-    max_delay_ms: float | None = Field(None, description="delay: each reply waits a random time up to this, 0..60000")
-    service: int | None = Field(None, description="status: the CIP service code, e.g. 14 for Get Attribute Single")
-    status: int | None = Field(None, description="status: the general status to answer with, 0..255")
     duration_s: float | None = Field(None, description="end the fault by itself after this long (> 0)")
+
+
+class FaultKindInfo(BaseModel):
+    """One fault kind (device/fault_kinds.py): its name, what it does, its parameters' JSON Schema."""
+
+    kind: str
+    summary: str
+    parameters: dict[str, Any]
 
 
 class ResetRequest(BaseModel):
@@ -183,6 +193,12 @@ def create_app(farm: FarmControl, hub: EventHub | None = None, overview: Overvie
             raise HTTPException(422, str(error)) from None
         return _io(farm, name)
 
+    @app.get("/fault-kinds", response_model=list[FaultKindInfo])
+    def kinds() -> list[dict[str, Any]]:
+        """The fault kinds POST /devices/{name}/faults takes, each with a one-line summary and the
+        JSON Schema of its parameters (the CLI and the dashboard build their forms from it)."""
+        return fault_kinds()
+
     @app.post("/devices/{name}/faults", status_code=201)
     async def inject(name: str, body: FaultRequest) -> list[dict]:
         known(name)
@@ -197,7 +213,7 @@ def create_app(farm: FarmControl, hub: EventHub | None = None, overview: Overvie
     @app.delete("/devices/{name}/faults")
     async def clear(name: str, kind: FaultKind | None = None) -> dict[str, list[str]]:
         cleared = await farm.clear_faults(known(name), kind)
-        return {"cleared": [k.value for k in cleared]}
+        return {"cleared": cleared}
 
     @app.post("/devices/{name}/reset")
     def reset(name: str, body: ResetRequest) -> dict[str, Any]:

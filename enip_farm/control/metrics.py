@@ -12,9 +12,10 @@ from typing import Any
 from prometheus_client.core import CounterMetricFamily, GaugeMetricFamily, HistogramMetricFamily
 from prometheus_client.registry import Collector
 
+from enip_farm.protocol.connection import IO_PORT
+
 #: Where Linux lists its UDP sockets with the datagrams each dropped (its receive buffer was full).
 PROC_NET_UDP = Path("/proc/net/udp")
-IO_PORT = 2222
 
 
 def udp_drops(port: int, table: Path = PROC_NET_UDP) -> dict[str, int]:

@@ -63,7 +63,7 @@ class Overview:
         """One device as a tile shows it."""
         p = device.profile
         io = sum(connection.is_io for connection in device.connections.values())
-        faults = [kind.value for kind in list(device.faults.active)]  # one atomic copy: the loop changes it
+        faults = list(device.faults.active)  # one atomic copy: the loop changes it
         if faults:
             state = "faulted"
         elif io:

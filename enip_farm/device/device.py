@@ -60,9 +60,9 @@ from enip_farm.protocol.commands import (
 )
 from enip_farm.protocol.connection import ConnectionTriad
 from enip_farm.protocol.cpf import ItemType, encode_items
+from enip_farm.protocol.encapsulation import ENIP_PORT
 from enip_farm.protocol.session import MessageContext, ReplyWithItems
 
-ENIP_PORT = 44818
 _RESET_KINDS: Mapping[int, str] = MappingProxyType({0: "power cycle", 1: "out-of-box configuration",
                                                     2: "out-of-box configuration but the communication parameters"})
 
@@ -281,7 +281,7 @@ class Device:
     def product_code(self) -> int:
         """The product code the device shows; an `identity` fault changes it so keys stop matching."""
         code = self.profile.product_code
-        return (code + 1) & 0xFFFF if self.faults.identity_changed else code
+        return self.faults.product_code(code)
 
     @property
     def status(self) -> int:

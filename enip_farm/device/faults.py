@@ -1,171 +1,127 @@
 """Fault injection per device: what a misbehaving module does, switched on and off at run time.
 
-| kind | effect |
-|---|---|
-| delay | replies on TCP are held back `delay_ms` (or a random time up to `max_delay_ms`), in order |
-| drop | requests are processed but their replies are not sent |
-| close | TCP connections are closed (FIN), existing and new ones |
-| reset | TCP connections are reset (RST), existing and new ones |
-| offline | like a module without power: TCP refused, UDP unanswered, no T->O, O->T ignored |
-| status | requests of one CIP service get a chosen general status |
-| stop-io | T->O production stops and O->T is ignored, so a scanner's connection times out |
-| identity | the product code changes, so electronic keys stop matching |
+The kinds are classes (device/fault_kinds.py, one each; device/fault_type.py says what a kind is):
+`FAULT_TYPES` maps a name to its class, `Fault(kind, **params)` makes one fault with its parameters
+checked, and `DeviceFaults` holds a device's active faults and gathers their effects (hooks) into
+what the hot paths read without a lookup.
 
 A fault lasts until cleared, or for `duration_s`. Clearing restores normal behaviour at once.
-
-Parameters are checked here, once, for the Python API and the HTTP API alike (a `FaultError`, a
-ValueError naming the field): `delay_ms` and `max_delay_ms` finite, 0..60 000 ms, `max_delay_ms`
-not below `delay_ms`; `service` and `status` 0..0xFF (a CIP service code and general status);
-`duration_s` finite and > 0.
+Parameters are checked once, for the Python API and the HTTP API alike (a `FaultError`, a
+ValueError naming the field). A parameter that only other kinds take is ignored (a `delay_ms` of
+0 given to a `drop`), one that no kind takes is refused. Times are integer nanoseconds of the
+monotonic clock, passed in.
 """
 
 from __future__ import annotations
 
-import math
-import random
-import time
-from dataclasses import asdict, dataclass, field
+from collections.abc import Mapping
 from enum import Enum
+from types import MappingProxyType
+from typing import Any
 
-MAX_DELAY_MS = 60_000.0  # one minute: longer than any client's timeout, short enough to end on its own
+from pydantic import ValidationError
 
+from enip_farm.device.fault_kinds import KINDS
+from enip_farm.device.fault_type import DROP, MAX_DELAY_MS, Disconnect, FaultError, FaultType
 
-class FaultError(ValueError):
-    """A fault parameter out of range; `field` names it."""
+__all__ = ["DROP", "FAULT_TYPES", "MAX_DELAY_MS", "DeviceFaults", "Disconnect", "Fault", "FaultError", "FaultKind",
+           "FaultType", "fault_kinds"]
 
-    def __init__(self, field: str, message: str, value: object = None) -> None:
-        super().__init__(f"{field}: {message}")
-        self.field = field
-        self.value = value
-
-
-def _number(field: str, value: object) -> float:
-    if isinstance(value, bool) or not isinstance(value, (int, float)):
-        raise FaultError(field, f"must be a number, got {value!r}", value)
-    if not math.isfinite(value):
-        raise FaultError(field, f"must be finite, got {value!r}", value)
-    return float(value)
+#: The registry: each kind's name -> its class.
+FAULT_TYPES: Mapping[str, type[FaultType]] = MappingProxyType({kind.name: kind for kind in KINDS})
+#: The kinds' names as an enum (the HTTP API's `kind`), e.g. FaultKind.STOP_IO == "stop-io".
+FaultKind = Enum("FaultKind", {name.upper().replace("-", "_"): name for name in FAULT_TYPES}, type=str)  # type: ignore[misc]
+_PARAMETERS = frozenset(field for kind in KINDS for field in kind.model_fields)
 
 
-def _delay(field: str, value: object) -> float:
-    number = _number(field, value)
-    if not 0 <= number <= MAX_DELAY_MS:
-        raise FaultError(field, f"must be 0..{MAX_DELAY_MS:.0f} ms, got {value!r}", value)
-    return number
+def fault_kinds() -> list[dict[str, Any]]:
+    """Every kind as GET /fault-kinds lists it: name, summary, JSON Schema of its parameters."""
+    return [kind.describe_kind() for kind in KINDS]
 
 
-def _byte(field: str, value: object, what: str) -> int:
-    if isinstance(value, bool) or not isinstance(value, int) or not 0 <= value <= 0xFF:
-        raise FaultError(field, f"must be {what} 0..255 (0x00..0xFF), got {value!r}", value)
-    return value
-
-
-class FaultKind(str, Enum):
-    DELAY = "delay"
-    DROP = "drop"
-    CLOSE = "close"
-    RESET = "reset"
-    OFFLINE = "offline"
-    STATUS = "status"
-    STOP_IO = "stop-io"
-    IDENTITY = "identity"
-
-
-@dataclass
-class Fault:
-    kind: FaultKind
-    delay_ms: float = 0.0
-    max_delay_ms: float | None = None  # with it, each reply waits a random time in [delay_ms, max_delay_ms]
-    service: int | None = None  # STATUS: the CIP service to answer
-    status: int | None = None  # STATUS: the general status to answer it with
-    duration_s: float | None = None
-    started: float = field(default_factory=time.monotonic)
-
-    def __post_init__(self) -> None:
-        try:
-            self.kind = FaultKind(self.kind)
-        except ValueError:
-            kinds = ", ".join(k.value for k in FaultKind)
-            raise FaultError("kind", f"{self.kind!r} is not one of {kinds}", self.kind) from None
-        self.delay_ms = _delay("delay_ms", self.delay_ms)
-        if self.max_delay_ms is not None:
-            self.max_delay_ms = _delay("max_delay_ms", self.max_delay_ms)
-            if self.max_delay_ms < self.delay_ms:
-                raise FaultError("max_delay_ms", f"must not be below delay_ms ({self.delay_ms:g}), "
-                                 f"got {self.max_delay_ms:g}", self.max_delay_ms)
-        if self.service is not None:
-            _byte("service", self.service, "a CIP service code")
-        if self.status is not None:
-            _byte("status", self.status, "a CIP general status")
-        if self.duration_s is not None:
-            self.duration_s = _number("duration_s", self.duration_s)
-            if self.duration_s <= 0:
-                raise FaultError("duration_s", f"must be > 0, got {self.duration_s:g}", self.duration_s)
-        if self.kind is FaultKind.STATUS:
-            for name in ("service", "status"):
-                if getattr(self, name) is None:
-                    raise FaultError(name, "a status fault needs a service and a status")
-        if self.kind is FaultKind.DELAY and self.delay_ms <= 0 and not self.max_delay_ms:
-            raise FaultError("delay_ms", "a delay fault needs delay_ms > 0 (and optionally max_delay_ms)", 0)
-
-    def reply_delay(self) -> float:
-        """Seconds to hold one reply back."""
-        if self.max_delay_ms is not None and self.max_delay_ms > self.delay_ms:
-            return random.uniform(self.delay_ms, self.max_delay_ms) / 1000
-        return self.delay_ms / 1000
-
-    def parameters(self) -> dict:
-        """The fault as JSON takes it: its kind and the parameters it was given (None left out),
-        e.g. {"kind": "delay", "delay_ms": 800.0, "duration_s": 10.0}."""
-        out = {k: v for k, v in asdict(self).items() if v is not None and k != "started"}
-        out["kind"] = self.kind.value
-        if self.kind is not FaultKind.DELAY:
-            out.pop("delay_ms", None)  # only a delay holds replies back
-        return {"kind": out.pop("kind"), **out}
-
-    def describe(self) -> dict:
-        """`parameters` and how long the fault has been on (`age_s`)."""
-        return {**self.parameters(), "age_s": round(time.monotonic() - self.started, 3)}
+def Fault(kind: str, **params: Any) -> FaultType:  # noqa: N802 (it reads as the constructor it replaces)
+    """One fault of `kind` with its parameters checked, e.g. Fault("delay", delay_ms=800)."""
+    fault_type = FAULT_TYPES.get(kind) if isinstance(kind, str) else None
+    if fault_type is None:
+        raise FaultError("kind", f"{kind!r} is not one of {', '.join(FAULT_TYPES)}", kind)
+    for name in params:
+        if name not in _PARAMETERS:
+            raise FaultError(name, f"is not a parameter of any fault kind ({', '.join(sorted(_PARAMETERS))})")
+    try:
+        return fault_type(**{name: value for name, value in params.items() if name in fault_type.model_fields})
+    except ValidationError as error:
+        first = error.errors()[0]
+        cause = first.get("ctx", {}).get("error")
+        if isinstance(cause, FaultError):
+            raise cause from None
+        field = str(first["loc"][0]) if first["loc"] else "kind"
+        raise FaultError(field, first["msg"], first.get("input")) from None
 
 
 class DeviceFaults:
-    """The active faults of one device, with flags the hot paths read without a lookup."""
+    """The active faults of one device (one per kind), with their effects gathered for the hot
+    paths: `forced_status` (the message router's), `io_stopped`, `answers_udp`, `listens`."""
 
     def __init__(self) -> None:
-        self.active: dict[FaultKind, Fault] = {}
+        self.active: dict[str, FaultType] = {}
+        self.started_ns: dict[str, int] = {}
         self.forced_status: dict[int, int] = {}  # service -> general status, read by the message router
-        self.offline = False
         self.io_stopped = False
-        self.identity_changed = False
+        self.answers_udp = True
+        self.listens = True
+        self._replies: tuple[FaultType, ...] = ()  # the faults that change how TCP replies go out
+        self._disconnect: Disconnect | None = None
 
-    def set(self, fault: Fault) -> None:
-        self.active[fault.kind] = fault
+    def set(self, fault: FaultType, now: int) -> None:
+        """Switch `fault` on at `now` (ns), in place of a fault of its kind."""
+        self.active[fault.name] = fault
+        self.started_ns[fault.name] = now
         self._update()
 
-    def clear(self, kind: FaultKind | None = None) -> list[FaultKind]:
-        kinds = list(self.active) if kind is None else [kind] if kind in self.active else []
-        for k in kinds:
-            del self.active[k]
+    def clear(self, kind: str | None = None) -> list[str]:
+        """Switch one kind (or all) off; the kinds cleared."""
+        cleared = [name for name in self.active if kind is None or name == kind]
+        for name in cleared:
+            del self.active[name]
+            self.started_ns.pop(name, None)
         self._update()
-        return kinds
+        return cleared
+
+    def listens_without(self, kind: str | None) -> bool:
+        """Whether TCP would listen once `kind` (None: every kind) is cleared."""
+        return kind is None or all(fault.listens() for name, fault in self.active.items() if name != kind)
 
     def _update(self) -> None:
-        status = self.active.get(FaultKind.STATUS)
+        faults = list(self.active.values())
         self.forced_status.clear()
-        if status is not None:
-            self.forced_status[status.service] = status.status  # type: ignore[index]
-        self.offline = FaultKind.OFFLINE in self.active
-        self.io_stopped = self.offline or FaultKind.STOP_IO in self.active
-        self.identity_changed = FaultKind.IDENTITY in self.active
+        for fault in faults:
+            self.forced_status.update(fault.on_request_statuses())
+        self.io_stopped = not all(fault.on_io_datagram() for fault in faults)
+        self.answers_udp = all(fault.on_udp_datagram() for fault in faults)
+        self.listens = all(fault.listens() for fault in faults)
+        self._replies = tuple(f for f in faults if type(f).on_reply is not FaultType.on_reply)
+        ends = {fault.on_tcp_connection() for fault in faults} - {None}
+        self._disconnect = Disconnect.RESET if Disconnect.RESET in ends else ends.pop() if ends else None
 
-    @property
-    def reply_fault(self) -> Fault | None:
-        """The fault that changes how TCP replies go out, if any (drop wins over delay)."""
-        return self.active.get(FaultKind.DROP) or self.active.get(FaultKind.DELAY)
+    def on_reply(self) -> int | None:
+        """Nanoseconds to hold this turn's TCP replies back (in order after the ones held before), or
+        `DROP` (drop wins); None: no fault changes how replies go out."""
+        if not self._replies:
+            return None
+        holds = [fault.on_reply() for fault in self._replies]
+        return DROP if DROP in holds else max(holds)
 
-    @property
-    def connection_fault(self) -> FaultKind | None:
-        for kind in (FaultKind.RESET, FaultKind.CLOSE):
-            if kind in self.active:
-                return kind
-        return None
+    def on_tcp_connection(self) -> Disconnect | None:
+        """How a new TCP connection ends at once, if it does (reset wins over close)."""
+        return self._disconnect
+
+    def product_code(self, code: int) -> int:
+        """The product code the Identity object shows."""
+        for fault in list(self.active.values()):
+            code = fault.on_product_code(code)
+        return code
+
+    def describe(self, now: int) -> list[dict[str, Any]]:
+        """Each active fault's `parameters` and how long it has been on at `now` (`age_s`)."""
+        return [{**fault.parameters(), "age_s": round((now - self.started_ns.get(name, now)) / 1e9, 3)}
+                for name, fault in list(self.active.items())]

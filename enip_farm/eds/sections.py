@@ -20,6 +20,7 @@ from enip_farm.eds.entries import (
     parse_number,
 )
 from enip_farm.eds.grammar import EdsText, Entry, Value
+from enip_farm.protocol.cip import ClassCode
 from enip_farm.protocol.epath import (
     DataSegment,
     ElectronicKey,
@@ -238,7 +239,7 @@ class SectionReader:
             return None, None
         key = next((s for s in segments if isinstance(s, ElectronicKey)), None)
         segments = [s for s in segments if not isinstance(s, (PortSegment, ElectronicKey, DataSegment))]
-        if not segments or segments[0] != LogicalSegment(LogicalType.CLASS_ID, 4):
+        if not segments or segments[0] != LogicalSegment(LogicalType.CLASS_ID, ClassCode.ASSEMBLY):
             self.notes.append(f"{where}: path {path!r} names no assembly (class 4); not served")
             return None, key
         values = [s.value for s in segments[1:] if isinstance(s, LogicalSegment)

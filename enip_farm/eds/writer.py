@@ -30,6 +30,7 @@ from enip_farm.config import parse_config
 from enip_farm.device.build import build_profiles
 from enip_farm.device.catalogue import Catalogue
 from enip_farm.device.profile import AssemblySpec, DeviceProfile
+from enip_farm.protocol.cip import ClassCode
 from enip_farm.protocol.epath import LogicalType, encode_logical
 
 #: Trigger and transport: class 1, cyclic, and the connection type bit.
@@ -44,6 +45,9 @@ DEVICE_TYPES = MappingProxyType({0x07: "General Purpose Discrete I/O", 0x0C: "Co
 _DATA_TYPES = MappingProxyType({8: (0xD1, "BYTE"), 16: (0xD2, "WORD"), 32: (0xD3, "DWORD")})
 _INT, _UDINT = 0xC3, 0xC8
 _INDENT, _FIELD = " " * 8, " " * 16
+_ASSEMBLY_CLASS = (LogicalType.CLASS_ID, ClassCode.ASSEMBLY)
+_ASSEMBLY_CODE = f"{_INDENT}Object_Class_Code = {ClassCode.ASSEMBLY:#04x};"
+_CONNECTION_MANAGER_CODE = f"{_INDENT}Object_Class_Code = {ClassCode.CONNECTION_MANAGER:#04x};"
 
 
 @dataclass(frozen=True)
@@ -109,7 +113,7 @@ def _members(profile: DeviceProfile, params: _Params, role: str) -> list[_Member
 
 
 def _assembly(instance: int, name: str, size: int, members: list[_Member]) -> str:
-    fields = [(_quote(name), "name"), (_quote(_path((LogicalType.CLASS_ID, 4), (LogicalType.INSTANCE_ID, instance),
+    fields = [(_quote(name), "name"), (_quote(_path(_ASSEMBLY_CLASS, (LogicalType.INSTANCE_ID, instance),
                                                    (LogicalType.ATTRIBUTE_ID, 3))), "path"),
               (str(size), "size in bytes"), ("0x0000", "descriptor"), (",", "reserved")]
     if sum(m.bits for m in members) != 8 * size:
@@ -192,7 +196,7 @@ def write_eds(profile: DeviceProfile, created: datetime.datetime) -> str:
     input_members = _members(profile, params, "input")
     lines += ["", "[Params]", *params.entries]
     lines += ["", "[Assembly]", f"{_INDENT}Object_Name = {_quote('Assembly Object')};",
-              f"{_INDENT}Object_Class_Code = 0x04;",
+              _ASSEMBLY_CODE,
               _assembly(output.instance_id, "Output", output.size, output_members),
               _assembly(inputs.instance_id, "Input", inputs.size, input_members)]
     config_format = ""
@@ -203,7 +207,7 @@ def write_eds(profile: DeviceProfile, created: datetime.datetime) -> str:
     config_size = configuration.size if configuration is not None else 0
 
     def connection_path(consumed: int) -> str:
-        return _path((LogicalType.CLASS_ID, 4), *config_point, (LogicalType.CONNECTION_POINT, consumed),
+        return _path(_ASSEMBLY_CLASS, *config_point, (LogicalType.CONNECTION_POINT, consumed),
                      (LogicalType.CONNECTION_POINT, inputs.instance_id))
 
     t_o = (inputs.size, f"Assem{inputs.instance_id}")
@@ -214,7 +218,7 @@ def write_eds(profile: DeviceProfile, created: datetime.datetime) -> str:
     if profile.listen_only_point is not None:
         connections.append((LISTEN_ONLY, LISTEN_ONLY_PARAMETERS, (0, ""), "Listen Only", profile.listen_only_point))
     lines += ["", "[Connection Manager]", f"{_INDENT}Object_Name = {_quote('Connection Manager Object')};",
-              f"{_INDENT}Object_Class_Code = 0x06;"]
+              _CONNECTION_MANAGER_CODE]
     if profile.input_only_point is not None or profile.listen_only_point is not None:
         lines.append(f"{_INDENT}$ Input-only and listen-only heartbeat points are a common convention, "
                      "unverified for these modules.")
@@ -252,7 +256,7 @@ def _safety_sections(profile: DeviceProfile, output: AssemblySpec, inputs: Assem
 
     def connection(number: int, kind: int, o_t: tuple[int, str], t_o: tuple[int, str], name: str,
                    consumed: int, produced: int) -> str:
-        path = _path((LogicalType.CLASS_ID, 4), (LogicalType.INSTANCE_ID, config),
+        path = _path(_ASSEMBLY_CLASS, (LogicalType.INSTANCE_ID, config),
                      (LogicalType.CONNECTION_POINT, consumed), (LogicalType.CONNECTION_POINT, produced))
         return _entry(f"Connection{number}", [
             (f"0x{kind:08X}", "trigger and transport: class 0, application object, "
@@ -269,11 +273,11 @@ def _safety_sections(profile: DeviceProfile, output: AssemblySpec, inputs: Assem
         f"{_INDENT}$ No Class2 = Safety: eds-pie's checker takes no classification after a public one (Class1).",
         "", "$ A CIP Safety target: its safe I/O travels over CIP Safety connections only, no class-1 I/O.",
         "", "[Params]", *params.entries,
-        "", "[Assembly]", f"{_INDENT}Object_Name = {_quote('Assembly Object')};", f"{_INDENT}Object_Class_Code = 0x04;",
+        "", "[Assembly]", f"{_INDENT}Object_Name = {_quote('Assembly Object')};", _ASSEMBLY_CODE,
         _assembly(output.instance_id, "Safe Outputs", output.size, output_members),
         _assembly(inputs.instance_id, "Safe Inputs", inputs.size, input_members),
         "", "[Connection Manager]", f"{_INDENT}Object_Name = {_quote('Connection Manager Object')};",
-        f"{_INDENT}Object_Class_Code = 0x06;",
+        _CONNECTION_MANAGER_CODE,
         connection(1, SAFETY_OUTPUT, (output.size, f"Assem{output.instance_id}"), (0, ""), "Safety Output",
                    output.instance_id, null),
         connection(2, SAFETY_INPUT, (0, ""), (inputs.size, f"Assem{inputs.instance_id}"), "Safety Input",
@@ -301,13 +305,13 @@ def _declared_sections(profile: DeviceProfile) -> list[str]:
                                                  (str(low), str(high), str(min(max(10_000, low), high))))
     lines = ["", "[Params]", *params.entries] if params.entries else []  # eds-pie refuses an empty section
     lines += ["", "[Assembly]", f"{_INDENT}Object_Name = {_quote('Assembly Object')};",
-              f"{_INDENT}Object_Class_Code = 0x04;"]
+              _ASSEMBLY_CODE]
     named = {entry.configuration for entry in profile.connections}
     sizes = {spec.instance_id: spec.size for spec in profile.assemblies
              if spec.role != "configuration" or spec.instance_id in named}
     lines += [_assembly(instance, f"Assembly {instance}", size, []) for instance, size in sorted(sizes.items())]
     lines += ["", "[Connection Manager]", f"{_INDENT}Object_Name = {_quote('Connection Manager Object')};",
-              f"{_INDENT}Object_Class_Code = 0x06;"]
+              _CONNECTION_MANAGER_CODE]
     for number, entry in enumerate(profile.connections, 1):
         trigger = 0x00010002 | 1 << _KIND_BITS[entry.kind]
         parameters = (0x77040000 | _FORMAT_CODES[entry.o_t_format] << 8 | _FORMAT_CODES[entry.t_o_format] << 12
@@ -315,7 +319,7 @@ def _declared_sections(profile: DeviceProfile) -> list[str]:
                       | entry.t_o_multicast << 21 | entry.t_o_point_to_point << 22)
         rpi = f"Param{rpi_params[entry.rpi_us]}" if entry.rpi_us is not None else ""
         config_point = [(LogicalType.INSTANCE_ID, entry.configuration)] if entry.configuration is not None else []
-        path = _path((LogicalType.CLASS_ID, 4), *config_point, (LogicalType.CONNECTION_POINT, entry.o_t),
+        path = _path(_ASSEMBLY_CLASS, *config_point, (LogicalType.CONNECTION_POINT, entry.o_t),
                      (LogicalType.CONNECTION_POINT, entry.t_o))
         lines.append(_entry(f"Connection{number}", [
             (f"0x{trigger:08X}", f"trigger and transport: class 1, cyclic, {entry.kind}"),

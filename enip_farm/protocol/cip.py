@@ -32,6 +32,21 @@ class Service(IntEnum):
     LARGE_FORWARD_OPEN = 0x5B
 
 
+class ClassCode(IntEnum):
+    """The CIP object classes the farm serves or addresses (Vol. 1, table 5-1.1; Vol. 2, 5-4 and
+    5-5; Vol. 5, chapter 5): the one list of class codes, used everywhere."""
+
+    IDENTITY = 0x01
+    MESSAGE_ROUTER = 0x02
+    ASSEMBLY = 0x04
+    CONNECTION_MANAGER = 0x06
+    PARAMETER = 0x0F
+    SAFETY_SUPERVISOR = 0x39
+    SAFETY_VALIDATOR = 0x3A
+    TCP_IP_INTERFACE = 0xF5
+    ETHERNET_LINK = 0xF6
+
+
 class MessageRouterRequest(NamedTuple):
     service: int
     path: bytes  # the padded EPATH, undecoded

@@ -10,6 +10,8 @@ from typing import NamedTuple
 
 from enip_farm.protocol.cpf import ItemType
 
+#: The UDP port of class-1 I/O packets (Vol. 2, 3-3.9.4).
+IO_PORT = 2222
 _FO_HEAD = struct.Struct("<BBIIHHIB3x")  # up to and including the timeout multiplier and reserved
 _FO_RPI_PARAMS = struct.Struct("<IH")
 _LFO_RPI_PARAMS = struct.Struct("<II")

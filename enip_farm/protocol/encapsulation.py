@@ -13,6 +13,8 @@ from enum import IntEnum
 from types import MappingProxyType
 from typing import NamedTuple
 
+#: The EtherNet/IP port, TCP and UDP (Vol. 2, 2-2).
+ENIP_PORT = 44818
 HEADER = struct.Struct("<HHII8sI")
 HEADER_SIZE = HEADER.size  # 24
 

@@ -13,7 +13,9 @@ from enip_farm.cip.admission import Originator
 from enip_farm.cip.budget import CyclicBudget
 from enip_farm.device.device import Device
 from enip_farm.device.profile import DeviceProfile
+from enip_farm.protocol.cip import ClassCode
 from enip_farm.protocol.connection import (
+    IO_PORT,
     ConnectionTriad,
     ConnectionType,
     ForwardOpenRequest,
@@ -39,7 +41,7 @@ def _scratch_connection(profile: DeviceProfile) -> tuple[Device, int] | None:
         return None
     device = Device(profile)
     config = profile.assembly("configuration")
-    path = (encode_logical(LogicalType.CLASS_ID, 4)
+    path = (encode_logical(LogicalType.CLASS_ID, ClassCode.ASSEMBLY)
             + (encode_logical(LogicalType.INSTANCE_ID, config.instance_id) if config is not None else b"")
             + encode_logical(LogicalType.CONNECTION_POINT, output.instance_id)
             + encode_logical(LogicalType.CONNECTION_POINT, inputs.instance_id))
@@ -56,7 +58,7 @@ def _scratch_connection(profile: DeviceProfile) -> tuple[Device, int] | None:
 
 def _device_cost_ns(device: Device, connection_id: int, size: int) -> float:
     packets = [encode_io_packet(connection_id, n, n, b"\x01\x00\x00\x00" + bytes(size)) for n in range(1, _PACKETS + 1)]
-    source = ("127.0.0.1", 2222)
+    source = ("127.0.0.1", IO_PORT)
     sent: list[bytes] = []
 
     def send(packet: bytes, _: tuple[str, int]) -> None:

@@ -46,13 +46,13 @@ import time
 
 from enip_farm.device.device import Device
 from enip_farm.device.events import Event
+from enip_farm.protocol.connection import IO_PORT
 from enip_farm.server.batch import Datagrams, Message, sockaddr
 from enip_farm.server.limits import RateLimitedLog
 from enip_farm.server.udp import udp_socket
 from enip_farm.server.waits import os_wait_ns
 
 log = logging.getLogger(__name__)
-IO_PORT = 2222
 _RETRY_NS = 10_000_000  # a device whose service raised is serviced again this much later
 #: A wake-up this late is an overload of the farm, not a slow originator.
 OVERLOAD_LAG_NS = 5_000_000

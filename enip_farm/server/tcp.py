@@ -24,7 +24,7 @@ import struct
 import time
 
 from enip_farm.device.device import Device
-from enip_farm.device.faults import FaultKind
+from enip_farm.device.faults import DROP, Disconnect
 from enip_farm.protocol.encapsulation import command_name, describe_encapsulation_status
 from enip_farm.protocol.session import EncapsulationSession
 from enip_farm.server.limits import TcpLimits
@@ -83,17 +83,17 @@ class EncapsulationProtocol(asyncio.Protocol):
         device.counters["tcp_connections"] += 1
         device.record("tcp connected", f"{peer[0]}:{peer[1]}" if peer else "")
         self._arm_inactivity(device.encapsulation_inactivity_timeout_s or _RECHECK_S)
-        kind = device.faults.connection_fault
-        if kind is not None:
-            self.kill(kind)
+        end = device.faults.on_tcp_connection()
+        if end is not None:
+            self.kill(end)
 
-    def kill(self, kind: FaultKind) -> None:
+    def kill(self, kind: Disconnect) -> None:
         """Close (FIN) or reset (RST) this connection, as an injected fault (or the farm's stop) asks."""
         transport = self.transport
         if transport is None:
             return
         self._closed_by_us = True
-        if kind is FaultKind.RESET:
+        if kind is Disconnect.RESET:
             sock = transport.get_extra_info("socket")
             if sock is not None:
                 sock.setsockopt(socket.SOL_SOCKET, socket.SO_LINGER, _LINGER_RESET)
@@ -135,17 +135,17 @@ class EncapsulationProtocol(asyncio.Protocol):
         if replies:
             out = replies[0] if len(replies) == 1 else b"".join(replies)
             faults = self.device.faults
-            fault = faults.reply_fault if faults.active else None
-            if fault is None:
+            hold_ns = faults.on_reply() if faults.active else None
+            if hold_ns is None:
                 recorder = self.device.recorder
                 if recorder is not None:  # recorded first: a farm killed in between leaves the reply on file
                     recorder.tcp_data(self, False, out)
                 transport.write(out)  # type: ignore[union-attr]
                 self.device.traffic.sent(len(out))
                 self.device.latency.observe(time.perf_counter() - started)
-            elif fault.kind is FaultKind.DELAY:
+            elif hold_ns != DROP:
                 loop = asyncio.get_running_loop()
-                when = max(loop.time() + os_wait_s(fault.reply_delay()), self._not_before)
+                when = max(loop.time() + os_wait_s(hold_ns / 1e9), self._not_before)
                 self._not_before = when
                 loop.call_at(when, self._write_late, out, closing)
                 closing = False  # closed after the late write

@@ -13,7 +13,8 @@ import random
 import socket
 import struct
 
-from enip_farm.device.device import ENIP_PORT, Device
+from enip_farm.device.device import Device
+from enip_farm.protocol.encapsulation import ENIP_PORT
 from enip_farm.protocol.session import handle_datagram
 from enip_farm.server.waits import os_wait_s
 
@@ -56,7 +57,7 @@ class DeviceDatagramProtocol(asyncio.DatagramProtocol):
 
     def answer(self, data: bytes, addr: tuple[str, int]) -> None:
         device = self.device
-        if device.faults.offline or device.resetting:
+        if not device.faults.answers_udp or device.resetting:
             device.traffic.discarded()
             return
         reply = handle_datagram(device, data)

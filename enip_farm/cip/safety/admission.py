@@ -37,6 +37,7 @@ from enip_farm.cip.safety.segment import (
 )
 from enip_farm.cip.safety.state import SafetyState
 from enip_farm.cip.safety.validator import SafetyConsumer, SafetyProducer
+from enip_farm.protocol.cip import ClassCode
 from enip_farm.protocol.connection import ConnectionType, ForwardOpenRequest, NetworkParameters, encode_forward_open
 from enip_farm.protocol.epath import DataSegment, ElectronicKey, LogicalSegment, LogicalType, SafetyNetworkSegment
 from enip_farm.protocol.status import ExtendedStatus as X
@@ -50,7 +51,6 @@ _MAX_CONNECTION_TIMEOUT_MULTIPLIER = 7
 _MAX_CONSUMERS_MULTICAST = 15
 _MIN_RPI_US, _MAX_RPI_BASE_US, _MAX_RPI_EXTENDED_US = 1_000, 100_000, 1_000_000
 _MAX_RPI_TCOO_US = 10_000_000
-_ASSEMBLY = 0x04
 SCID_SIZE = 10
 
 
@@ -199,7 +199,7 @@ def admit_safety(request: ForwardOpenRequest, segments: list, route_size: int, p
 
 
 def _points(application: list) -> tuple[int, int, int] | None:
-    if not application or application[0] != LogicalSegment(LogicalType.CLASS_ID, _ASSEMBLY):
+    if not application or application[0] != LogicalSegment(LogicalType.CLASS_ID, ClassCode.ASSEMBLY):
         return None
     values = []
     for segment in application[1:]:

@@ -11,6 +11,7 @@ from collections.abc import Callable, Iterable
 from enip_farm.cip.connection import Connection
 from enip_farm.cip.object import Attribute, CipClass, CipInstance, constant
 from enip_farm.cip.safety.validator import SafetyConsumer
+from enip_farm.protocol.cip import ClassCode
 
 #: Safety Validator state (attribute 1): 0 unallocated, 1 initializing, 2 established, 3 failed.
 _INITIALIZING, _ESTABLISHED = 1, 2
@@ -19,7 +20,7 @@ _CONSUMER, _SINGLE_CAST = 0x80, 0x01
 
 
 class SafetyValidatorObject(CipClass):
-    class_id = 0x3A
+    class_id = ClassCode.SAFETY_VALIDATOR
     revision = 1
 
     def __init__(self, connections: Callable[[], Iterable[Connection]], fault_count: Callable[[], int]) -> None:

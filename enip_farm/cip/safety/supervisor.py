@@ -46,14 +46,14 @@ from enip_farm.cip.safety.state import (
     UNID_SIZE,
     UNSET_UNID,
 )
-from enip_farm.protocol.epath import RequestPath
+from enip_farm.protocol.cip import ClassCode
+from enip_farm.protocol.epath import RequestPath, encode_request_path
 from enip_farm.protocol.session import MessageContext
 from enip_farm.protocol.status import GeneralStatus
 
 SAFETY_RESET, PROPOSE_TUNID, APPLY_TUNID = 0x54, 0x56, 0x57
 #: Device status (attribute 11), Vol. 5 as Wireshark names the values.
 SELF_TESTING, IDLE, EXECUTING, ABORT, CRITICAL_FAULT, CONFIGURING, WAITING_FOR_TUNID = 1, 2, 4, 5, 6, 7, 8
-_ASSEMBLY_CLASS = 0x04
 _RESET_FIXED = 1 + PASSWORD_SIZE + UNID_SIZE  # type, password, TUNID
 
 
@@ -66,7 +66,7 @@ def _exact(data: bytes, size: int) -> int:
 
 
 class SafetySupervisor(CipClass):
-    class_id = 0x39
+    class_id = ClassCode.SAFETY_SUPERVISOR
     revision = 1
     optional_services = (SAFETY_RESET, PROPOSE_TUNID, APPLY_TUNID)
 
@@ -111,7 +111,7 @@ class SafetySupervisor(CipClass):
         owners = [c for c in self._safety_connections() if c.kind is ConnectionKind.SAFETY_OUTPUT]
         data = struct.pack("<H", len(owners))
         for connection in owners:
-            path = bytes((0x20, _ASSEMBLY_CLASS, 0x24, connection.o_t_point & 0xFF))
+            path = encode_request_path(ClassCode.ASSEMBLY, connection.o_t_point & 0xFF)
             data += (connection.ounid or NO_UNID).encode() + bytes((len(path),)) + path
         return data
 

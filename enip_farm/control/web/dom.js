@@ -1,0 +1,19 @@
+// The page's DOM helpers: a query, an element maker, a sleep, and the message line (#message) that
+// says what a request of the page answered.
+
+export const $ = (selector, root = document) => root.querySelector(selector);
+
+export const sleep = ms => new Promise(resolve => setTimeout(resolve, ms));
+
+export function el(tag, className, text) {
+  const element = document.createElement(tag);
+  if (className) element.className = className;
+  if (text !== undefined) element.textContent = text;
+  return element;
+}
+
+export function say(text, ok = false) {
+  const line = $('#message');
+  line.textContent = text;
+  line.className = ok ? 'ok' : '';
+}
