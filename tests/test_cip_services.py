@@ -332,10 +332,10 @@ def test_a_non_routing_model_answers_0x08_to_both_clients(make_farm, tmp_path: P
     assert routed.error == "Service not supported" and packet.error == "Service not supported"
     assert direct.value == b"\x01\x00"
     # cpppo raises the status of a failed Multiple Service Packet (0x8A) or Unconnected Send (0xD2) reply
-    with pytest.raises(cpppo_client.MSVCStatusError, match="status: 0x08"):
+    with pytest.raises(cpppo_client.MSVCStatusError, match="^Response EtherNet/IP Multiple Service status: 0x08$"):
         cpppo_replies(address, cpppo_op(0x0A, "@2/1", encode_multiple_service([inner])))
     routed_op = {"method": "service_code", "code": 0x0E, "path": "@1/1/1", "data_size": 2}  # through Unconnected Send
-    with pytest.raises(cpppo_client.SENDStatusError, match="status: 0x08"):
+    with pytest.raises(cpppo_client.SENDStatusError, match="^Response EtherNet/IP Un/Connected Send status: 0x08$"):
         cpppo_replies(address, routed_op)
     assert cpppo_replies(address, cpppo_op(0x0E, "@1/1/1")) == [(0x8E, 0, b"\x01\x00")]
 

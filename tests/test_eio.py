@@ -146,7 +146,8 @@ def test_entries_are_wrapped_as_robotware_writes_them() -> None:
         '      -Name "Feeder" -VendorName "ABB Robotics" -Address "192.168.125.30"\\',
         "      -VendorId 75 -ProductCode 1030 -DeviceType 7 -OutputAssembly 100\\",
         "      -Simulated -MaxLog 2.5"]
-    with pytest.raises(ValueError, match="double quote"):
+    with pytest.raises(ValueError, match='^-Label: \'say "hi"\' holds a double quote or a line break, which the format '
+                                         'cannot hold$'):
         format_entry([("Label", 'say "hi"')])
 
 

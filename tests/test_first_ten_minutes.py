@@ -147,9 +147,10 @@ def test_farm_takes_a_dict_or_a_path(tmp_path: Path) -> None:
     for config in (data, str(path), path, load_config(path)):
         farm = Farm(config)  # built, not started: no socket
         assert list(farm.devices) == ["io1"] and farm.config.discovery is False
-    with pytest.raises(ConfigError, match=r"device 'io1' \(devices\[0\]\), model: unknown base model"):
+    with pytest.raises(ConfigError, match=r"^<config>: device 'io1' \(devices\[0\]\), model: unknown base model "
+                                          r"'nope'; known: DSQC1030, DSQC1042, GenericAdapter$"):
         Farm({"devices": [{"name": "io1", "address": "127.0.0.5", "model": "nope"}]})
-    with pytest.raises(TypeError, match="a FarmConfig, a dict or a file path, not int"):
+    with pytest.raises(TypeError, match="^a configuration is a FarmConfig, a dict or a file path, not int$"):
         Farm(42)  # type: ignore[arg-type]
 
 

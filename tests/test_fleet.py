@@ -43,10 +43,12 @@ def test_count_shorthand() -> None:
     assert [(d.name, str(d.address)) for d in config.devices] == [
         ("io1", "127.0.100.254"), ("io2", "127.0.100.255"), ("io3", "127.0.101.0"), ("io4", "127.0.101.1"),
         ("x", "127.0.101.9")]
-    with pytest.raises(ConfigError, match=r"address: 127.0.101.1 is taken by device 'io4' \(devices\[0\]\)"):
+    with pytest.raises(ConfigError, match=r"^<config>: device 'x' \(devices\[1\]\), address: 127\.0\.101\.1 is taken "
+                                          r"by device 'io4' \(devices\[0\]\) \(here by 'x'\)$"):
         parse_config({"devices": [{"name": "io{n}", "address": "127.0.100.254", "count": 4, "model": "DSQC1030",
                                    **wide}, {"name": "x", "address": "127.0.101.1", "model": "DSQC1030"}]})
-    with pytest.raises(ConfigError, match="needs {n}"):
+    with pytest.raises(ConfigError, match=r"^<config>: device 'io' \(devices\[0\]\): name 'io' needs \{n\} to number 2 "
+                                          r"devices$"):
         parse_config({"devices": [{"name": "io", "address": "127.0.100.1", "count": 2, "model": "DSQC1030"}]})
 
 
@@ -241,7 +243,8 @@ def test_compose_refuses_more_shards_than_the_container_pool_holds(tmp_path: Pat
     thirteen = yaml.safe_load(compose_file(config, ROOT / "docker" / "cell.yaml", ROOT / "docker", 13, subnet,
                                            containers))
     assert len([s for s in thirteen["services"] if s.startswith("farm")]) == 13
-    with pytest.raises(ValueError, match="at most 13 shards"):
+    with pytest.raises(ValueError, match=r"^14 farm containers and the tester need 15 addresses; 192\.168\.125\.240/28 "
+                                         r"holds 14: at most 13 shards, or give a larger --container-range$"):
         compose_file(config, ROOT / "docker" / "cell.yaml", ROOT / "docker", 14, subnet, containers)
     wider = compose_file(config, ROOT / "docker" / "cell.yaml", ROOT / "docker", 14, subnet, "192.168.125.224/27")
     assert "farm14:" in wider
