@@ -81,7 +81,7 @@ def main() -> None:
             stats = originator.wait("stats", timeout=30)
             outputs = handle.outputs
             before = dict(handle.counters)
-            faults = [f"{e.monotonic - start:.3f} s {e.kind}: {e.detail}" for e in handle.events()
+            faults = [f"{e.monotonic_ns / 1e9 - start:.3f} s {e.kind}: {e.detail}" for e in handle.events()
                       if e.kind.startswith("safety") or e.kind in ("connection faulted", "connection timed out")]
             connections = [c for c in farm.devices["s1"].connections.values() if c.safety is not None]
             max_age = max((getattr(c.safety, "max_data_age", 0) for c in connections), default=0)
@@ -104,7 +104,7 @@ def main() -> None:
         "faults": faults,
         "t_o_period_at_originator": stats["rx_period"], "o_t_period_at_originator": stats["tx_period"],
         "o_t_max_data_age_ms": max_age * 0.128, "outputs_before_silence": outputs.hex(),
-        "safe_state_after_last_message_ms": round((safe_state.monotonic * 1e9 - silent["last_sent_ns"]) / 1e6, 3),
+        "safe_state_after_last_message_ms": round((safe_state.monotonic_ns - silent["last_sent_ns"]) / 1e6, 3),
         "safe_state_reason": safe_state.detail.split(": ", 1)[-1], "outputs_after": handle.outputs.hex(),
     }
     print(json.dumps(report, indent=1))

@@ -46,7 +46,7 @@ def main() -> None:
                 seen_at_once += reader.get(4, 101, 3).data == value
                 if time.monotonic() > deadline:
                     break
-        wired = [e.monotonic for e in robot.events.of_kind("wired")]
+        wired = [e.monotonic_ns / 1e9 for e in robot.events.of_kind("wired")]
     delays = sorted((w - a) * 1e3 for (a, _), w in zip(acks, wired, strict=False))
     print(f"writes {len(acks)}, wired events {len(wired)}")
     print(f"ack -> wired input, ms: p50 {statistics.median(delays):.3f}  "

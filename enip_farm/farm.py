@@ -39,6 +39,7 @@ from enip_farm.device.device import Device
 from enip_farm.device.events import Event
 from enip_farm.device.faults import Disconnect, FaultType
 from enip_farm.device.nonvolatile import load_state, save_state
+from enip_farm.device.reset import DeviceReset
 from enip_farm.eds.reader import eds_catalogue
 from enip_farm.protocol.connection import IO_PORT
 from enip_farm.protocol.encapsulation import ENIP_PORT
@@ -393,7 +394,7 @@ class Farm:
 
     def _on_device_event(self, device: Device, event: Event) -> None:
         """A device's observer (any thread): a reset is handled on the loop, after the reply."""
-        if event.kind == "reset" and self.loop is not None and self.running:
+        if type(event.detail) is DeviceReset and self.loop is not None and self.running:
             self.loop.call_soon_threadsafe(self._begin_reset, device)
 
     def _begin_reset(self, device: Device) -> None:

@@ -26,6 +26,7 @@ from contextlib import contextmanager
 from enip_farm.cip.admission import ConnectionPolicy, KeyIdentity, Originator
 from enip_farm.cip.assembly import AssemblyInstance
 from enip_farm.cip.connection import ConnectionKind
+from enip_farm.cip.connection_events import ConnectionEnded
 from enip_farm.cip.connection_table import ConnectionTable
 from enip_farm.config import parse_config
 from enip_farm.device.build import build_profiles
@@ -946,7 +947,7 @@ class TableFuzzer:
     def check(self) -> None:
         table = self.table
         for event in table.pop_events():
-            if event.kind in ("connection closed", "connection timed out"):
+            if isinstance(event, ConnectionEnded):
                 self.closed.add(event.connection.o_t_id)
         connections = table.connections
         expect(all(key == c.o_t_id and not c.closed and key not in self.closed for key, c in connections.items()),

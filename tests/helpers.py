@@ -103,8 +103,10 @@ def serving(args: list[str], table_rows: int, prefix: tuple[str, ...] = (), **po
 class RawClient:
     """A blocking TCP client that speaks frames through the project's codec."""
 
-    def __init__(self, host: str, timeout: float = 10.0) -> None:
-        self.sock = socket.create_connection((host, ENIP_PORT), timeout=timeout)
+    def __init__(self, host: str, timeout: float = 10.0, source: str | None = None) -> None:
+        """`source`: the local address to connect from (an originator of its own, 127.x)."""
+        self.sock = socket.create_connection((host, ENIP_PORT), timeout=timeout,
+                                             source_address=(source, 0) if source else None)
         self.framer = StreamFramer(max_length=65535)
         self.pending: list[Frame] = []
         self.session_handle = 0

@@ -12,6 +12,7 @@ import pytest
 from enip_farm.cip.admission import ConnectionPolicy, KeyIdentity, Originator, Refusal
 from enip_farm.cip.assembly import AssemblyInstance
 from enip_farm.cip.budget import CyclicBudget
+from enip_farm.cip.connection_events import ConnectionRefused
 from enip_farm.cip.connection_table import ConnectionTable, Opened
 from enip_farm.server.calibrate import UTILISATION, measure_budget
 from enip_farm.server.implicit import OVERLOAD_LAG_NS, Lag
@@ -52,7 +53,7 @@ def test_past_the_budget_a_forward_open_is_refused_0x0113_with_the_figures() -> 
     refused = third.forward_open(request(rpi_us=10_000, o_t_size=8), ORIGINATOR, T0)
     assert refused == Refusal(0x0113)
     assert budget.reserved == 400 and budget.refused == 1 and not third.connections
-    (event,) = [e for e in third.pop_events() if e.kind == "connection refused"]
+    (event,) = [e for e in third.pop_events() if type(e) is ConnectionRefused]
     assert event.reason.endswith("0x01/0x0113 connection failure: out of connections (class 1, O->T RPI 10000 us "
                                  "8 bytes, T->O RPI 10000 us 4 bytes, path 20 04 24 01 2c 64 2c 65): the farm's "
                                  "cyclic I/O budget is 450 datagrams/s per worker, 400 taken, this connection "

@@ -11,6 +11,12 @@ import pytest
 from enip_farm.cip.admission import ConnectionPolicy, KeyIdentity, Originator, Refusal
 from enip_farm.cip.assembly import AssemblyInstance
 from enip_farm.cip.connection import ConnectionKind
+from enip_farm.cip.connection_events import (
+    ConnectionClosed,
+    ConnectionRefused,
+    ConnectionShortData,
+    ConnectionTimedOut,
+)
 from enip_farm.cip.connection_table import ConnectionTable, Opened
 from enip_farm.protocol.connection import (
     ConnectionTriad,
@@ -81,7 +87,7 @@ def test_timeout_is_exactly_the_last_valid_packet_plus_rpi_times_multiplier() ->
     table.handle_timer(last + 40 * MS)
     assert connection.o_t_id not in table.connections
     (event,) = table.pop_events()
-    assert (event.kind, event.at) == ("connection timed out", last + 40 * MS)
+    assert (type(event), event.at, event.connection) == (ConnectionTimedOut, last + 40 * MS, connection)
     assert table.assemblies["output"].data == b"\x00\x00"  # the fault state: off
     assert table.status == 0x0030 and table.get_timer() is None
 
@@ -198,7 +204,7 @@ def test_sizes_that_cannot_be_honoured_are_refused(kwargs: dict, additional: tup
     assert not table.connections
     (event,) = table.pop_events()  # the refusal is told, with who asked and what was expected
     extended, size = additional
-    assert event.kind == "connection refused" and event.connection is None and event.at == T0
+    assert type(event) is ConnectionRefused and event.at == T0
     assert event.reason.startswith(f"Forward Open from {ORIGINATOR.host}: 0x01/0x{extended:04X} "
                                    f"connection failure: invalid {'O->T' if extended == 0x0127 else 'T->O'} "
                                    f"connection size, {size} bytes expected (class 1, O->T RPI ")
@@ -215,7 +221,7 @@ def test_variable_o_t_that_fits_and_a_shorter_packet() -> None:
     assert connection.last_received == T0 + MS  # but a valid packet: the watchdog is fed
     assert table.counters["o_t_short_data"] == 1
     (event,) = table.pop_events()
-    assert event.kind == "connection short data" and "3 of 4 bytes" in event.reason
+    assert type(event) is ConnectionShortData and event.reason == "3 of 4 bytes: not applied to the outputs"
     table.receive_datagram(o_t(connection.o_t_id, 3, b"\x09\x09"), "127.0.0.9", T0 + 2 * MS)
     assert table.pop_events() == [] and table.counters["o_t_short_data"] == 2  # one event per connection
 
@@ -254,7 +260,7 @@ def test_listen_only_closes_with_its_producer_and_shares_its_stream() -> None:
     assert len(table.datagrams_to_send(T0)) == 1  # one stream for both
     table.pop_events()
     table.forward_close(owner.connection.triad, T0 + MS)
-    assert [e.kind for e in table.pop_events()] == ["connection closed", "connection closed"]
+    assert [type(e) for e in table.pop_events()] == [ConnectionClosed, ConnectionClosed]
     assert not table.connections and not table.productions
 
 

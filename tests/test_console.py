@@ -210,8 +210,8 @@ def test_debug_tells_every_request_and_image_change(lines) -> None:
 def test_encapsulation_refusals_are_collected_for_the_server() -> None:
     _, device = _device()
     session = EncapsulationSession(device, SCANNER)
-    session.receive(encode_frame(Command.SEND_RR_DATA, b"\x00" * 16, 77))  # no session registered
-    session.receive(encode_frame(Command.REGISTER_SESSION, b"\x02\x00\x00\x00"))  # protocol version 2
+    session.receive(encode_frame(Command.SEND_RR_DATA, b"\x00" * 16, 77), 0)  # no session registered
+    session.receive(encode_frame(Command.REGISTER_SESSION, b"\x02\x00\x00\x00"), 0)  # protocol version 2
     assert session.refusals == [(Command.SEND_RR_DATA, 0x0064), (Command.REGISTER_SESSION, 0x0069)]
 
 

@@ -44,7 +44,7 @@ def session() -> EncapsulationSession:
     config = parse_config({"devices": [{"name": "d", "address": "127.0.0.5", "model": "DSQC1030",
                                         "addons": ["DSQC1031"]}]})
     session = EncapsulationSession(Device(build_profiles(config, shipped_catalogue())[0]))
-    session.receive(encode_frame(Command.REGISTER_SESSION, b"\x01\x00\x00\x00"))
+    session.receive(encode_frame(Command.REGISTER_SESSION, b"\x01\x00\x00\x00"), 0)
     return session
 
 
@@ -59,14 +59,14 @@ def _header_matches(ours: bytes, theirs: dotdict) -> None:
 
 def test_register_session_reply(session: EncapsulationSession) -> None:
     fresh = EncapsulationSession(session.target)
-    (reply,) = fresh.receive(encode_frame(Command.REGISTER_SESSION, b"\x01\x00\x00\x00", sender_context=b"12345678"))
+    (reply,) = fresh.receive(encode_frame(Command.REGISTER_SESSION, b"\x01\x00\x00\x00", sender_context=b"12345678"), 0)
     theirs = cpppo_decode(reply)
     _header_matches(reply, theirs)
     assert theirs.enip.CIP.register.protocol_version == 1 and theirs.enip.CIP.register.options == 0
 
 
 def test_list_identity_reply(session: EncapsulationSession) -> None:
-    (reply,) = session.receive(encode_frame(Command.LIST_IDENTITY))
+    (reply,) = session.receive(encode_frame(Command.LIST_IDENTITY), 0)
     theirs = cpppo_decode(reply)
     _header_matches(reply, theirs)
     ours = decode_identity_item(decode_items(decode_frame(reply).data)[0].data)
@@ -79,7 +79,7 @@ def test_list_identity_reply(session: EncapsulationSession) -> None:
 
 
 def test_list_services_reply(session: EncapsulationSession) -> None:
-    (reply,) = session.receive(encode_frame(Command.LIST_SERVICES))
+    (reply,) = session.receive(encode_frame(Command.LIST_SERVICES), 0)
     theirs = cpppo_decode(reply)
     _header_matches(reply, theirs)
     service = theirs.enip.CIP.list_services.CPF.item[0].communications_service
@@ -87,14 +87,14 @@ def test_list_services_reply(session: EncapsulationSession) -> None:
 
 
 def test_list_interfaces_reply(session: EncapsulationSession) -> None:
-    (reply,) = session.receive(encode_frame(Command.LIST_INTERFACES))
+    (reply,) = session.receive(encode_frame(Command.LIST_INTERFACES), 0)
     theirs = cpppo_decode(reply)
     _header_matches(reply, theirs)
     assert theirs.enip.CIP.list_interfaces.CPF.count == 0
 
 
 def test_encapsulation_error_reply(session: EncapsulationSession) -> None:
-    (reply,) = session.receive(encode_send_rr_data(b"\x0e\x01\x20\x01", 99))
+    (reply,) = session.receive(encode_send_rr_data(b"\x0e\x01\x20\x01", 99), 0)
     theirs = cpppo_decode(reply)
     _header_matches(reply, theirs)
     assert theirs.enip.status == 0x64
@@ -116,7 +116,7 @@ REQUESTS = {
 @pytest.mark.parametrize("kind", sorted(REQUESTS))
 def test_send_rr_data_replies(session: EncapsulationSession, kind: str, monkeypatch: pytest.MonkeyPatch) -> None:
     monkeypatch.setattr(cpppo_device, "dialect", logix.Logix)  # cpppo parses embedded replies by dialect
-    (reply,) = session.receive(encode_send_rr_data(REQUESTS[kind], 1, b"diff-ctx"))
+    (reply,) = session.receive(encode_send_rr_data(REQUESTS[kind], 1, b"diff-ctx"), 0)
     theirs = cpppo_decode(reply)
     _header_matches(reply, theirs)
     ours_items = decode_send_data(decode_frame(reply).data).items

@@ -31,6 +31,8 @@ from enip_farm.device.faults import FaultKind
 from enip_farm.device.signals import SignalMap
 from tests.helpers import CLI, ROOT, read_lines, wait_for
 
+MS = 1_000_000  # ns
+S = 1_000_000_000  # ns
 DEADLINE_S = 30.0  # generous: conditions end the waits as soon as they hold
 NAMED = [{"name": "diGripperClosed", "type": "DI", "device_map": "3"},
          {"name": "goProgramNo", "type": "GO", "device_map": "8-15"}]
@@ -42,8 +44,8 @@ def _diff(**device: object) -> SignalDiff:
     return SignalDiff(SignalMap(profile))
 
 
-def _change(device: str, role: str, old: str, new: str, at: float = 1.0) -> Event:
-    return Event(at, at + 1000, device, "image changed", ImageChange(role, bytes.fromhex(old), bytes.fromhex(new)))
+def _change(device: str, role: str, old: str, new: str, at: int = 1_000_000_000) -> Event:
+    return Event(at, at + 1000 * S, device, "image changed", ImageChange(role, bytes.fromhex(old), bytes.fromhex(new)))
 
 
 # -- signals by name (unit) -------------------------------------------------------------------------------
@@ -63,19 +65,19 @@ def test_signal_diff_names_numbered_and_named_signals() -> None:
 def test_coalesce_merges_each_devices_image_changes_into_one_io_event() -> None:
     diff = _diff(signals=NAMED)
     events = [
-        _change("a", "input", "0000", "0100", 1.0),
-        Event(1.1, 1001.1, "a", "fault injected", "drop"),
-        _change("a", "input", "0100", "0300", 1.2),
-        _change("b", "input", "0000", "0100", 1.3),
-        _change("a", "output", "0000", "0001", 1.4),
-        _change("b", "input", "0100", "0000", 1.5),  # b's DI1 set and cleared: no change in the end
-        _change("a", "input", "0300", "0200", 1.6),
+        _change("a", "input", "0000", "0100", 1_000 * MS),
+        Event(1_100 * MS, 1_001_100 * MS, "a", "fault injected", "drop"),
+        _change("a", "input", "0100", "0300", 1_200 * MS),
+        _change("b", "input", "0000", "0100", 1_300 * MS),
+        _change("a", "output", "0000", "0001", 1_400 * MS),
+        _change("b", "input", "0100", "0000", 1_500 * MS),  # b's DI1 set and cleared: no change in the end
+        _change("a", "input", "0300", "0200", 1_600 * MS),
     ]
     out = coalesce(events, lambda name: diff)
     assert [(e.device, e.kind) for e in out] == [("a", "fault injected"), ("a", "io"), ("a", "io")]
     output, inputs = out[1], out[2]
     assert output.detail == IoChange("output", {"DO9": (0, 1), "goProgramNo": (0, 1)}, 1)
-    assert inputs.detail == IoChange("input", {"DI2": (0, 1)}, 3) and inputs.monotonic == 1.6
+    assert inputs.detail == IoChange("input", {"DI2": (0, 1)}, 3) and inputs.monotonic_ns == 1_600 * MS
     assert str(inputs.detail) == "input DI2 0 -> 1"
     assert inputs.detail.as_dict(inputs) == {
         "time": 1001.6, "monotonic": 1.6, "device": "a", "kind": "io", "role": "input",

@@ -261,7 +261,7 @@ def test_subscriber_cap_and_a_freed_slot(enip_farm) -> None:
     second.close()
     third.close()
     assert wait_for(lambda: not hub.subscribers, timeout=DEADLINE_S), "every slot is free"
-    assert all(not device._observers or all(o != hub.deliver for o in device._observers)
+    assert all(not device.guard.observers or all(o != hub.deliver for o in device.guard.observers)
                for device in farm.devices.values())  # nobody listens: the devices carry no observer of the hub
 
 

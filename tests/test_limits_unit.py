@@ -39,7 +39,7 @@ def routed(message: bytes) -> bytes:
 
 
 def ask(device: Device, message: bytes) -> bytes:
-    return device.handle_unconnected(message, MessageContext("127.0.0.9"))[0]
+    return device.handle_unconnected(message, MessageContext("127.0.0.9", None, (), 0))[0]
 
 
 def test_nesting_is_bounded_with_a_status_reply() -> None:

@@ -60,7 +60,7 @@ def test_power_cycle_through_the_http_api_drops_everything_and_answers_again(eni
         except CommError:
             pass
     assert [e.kind for e in farm["io1"].events() if e.kind.startswith("reset")] == ["reset", "reset done"]
-    assert farm["io1"].events("reset")[0].detail == "type 0 (power cycle): not answering for 1 s"
+    assert farm["io1"].events("reset")[0].text == "type 0 (power cycle): not answering for 1 s"
     assert _identity_state(address) == b"\x03"
     shown = httpx.get(url.removesuffix("/reset")).json()
     assert shown["identity"]["state"] == 3 and shown["restarts"] == 1
@@ -84,10 +84,10 @@ def test_reset_type_2_from_the_cli_and_the_python_api_clears_the_safety_configur
                                        attribute=27, connected=False, route_path=False).value
     assert scid == bytes(10)  # the safety configuration is gone, the TUNID stays
     assert tunid == bytes.fromhex("000000000001") + node_address(address).to_bytes(4, "little")
-    assert farm["s1"].events("reset")[0].detail == (
+    assert farm["s1"].events("reset")[0].text == (
         "type 2 (out-of-box configuration but the communication parameters): not answering for 0.3 s")
     assert wait_for(lambda: farm["s1"].reset(0), timeout=10)  # the Python API, once answering again
-    assert farm["s1"].events("reset")[-1].detail == "type 0 (power cycle): not answering for 0.3 s"
+    assert farm["s1"].events("reset")[-1].text == "type 0 (power cycle): not answering for 0.3 s"
     failed = subprocess.run([*CLI, "reset", "s1", "--type", "5"], capture_output=True, text=True, env=env, timeout=60)
     assert failed.returncode == 2
 

@@ -10,7 +10,7 @@ import pytest
 from enip_farm import console
 from enip_farm.cip.safety import segment
 from enip_farm.config import parse_config
-from enip_farm.device import device as device_module
+from enip_farm.device import reset as device_reset
 from enip_farm.device.build import build_profiles
 from enip_farm.device.catalogue import shipped_catalogue
 from enip_farm.device.device import Device
@@ -148,7 +148,7 @@ def test_fuzzed_frames_never_raise() -> None:
             else:
                 frame.insert(position, rng.randrange(256))
         session = device_session(device)
-        for reply in session.receive(bytes(frame)):
+        for reply in session.receive(bytes(frame), 0):
             out = StreamFramer(65535).feed(reply)
             assert len(out) == 1 and type(out[0]) is Frame
 
@@ -157,7 +157,7 @@ def device_session(device: Device):
     from enip_farm.protocol.session import EncapsulationSession
 
     session = EncapsulationSession(device)
-    session.receive(encode_frame(Command.REGISTER_SESSION, b"\x01\x00\x00\x00"))
+    session.receive(encode_frame(Command.REGISTER_SESSION, b"\x01\x00\x00\x00"), 0)
     return session
 
 
@@ -165,7 +165,7 @@ def test_status_words_and_module_constants_are_read_only() -> None:
     assert status.describe_status(0x01, 0x0205) == (
         "0x01/0x0205 connection failure: parameter error in unconnected request service")  # Vol. 1, 3-5.33
     tables = (status.GENERAL_STATUS_TEXT, status.EXTENDED_STATUS_TEXT, segment.SIZE_WORDS, console._LEVELS,
-              encapsulation._COMMAND_NAMES, device_module._RESET_KINDS)
+              encapsulation._COMMAND_NAMES, device_reset.RESET_KINDS)
     for table in tables:
         with pytest.raises(TypeError, match="^'mappingproxy' object does not support item assignment$"):
             table[0x7FFF] = 0  # type: ignore[index]

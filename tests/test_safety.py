@@ -13,6 +13,15 @@ import pytest
 from enip_farm.cip.admission import ConnectionPolicy, KeyIdentity, Originator, Refusal
 from enip_farm.cip.assembly import AssemblyInstance
 from enip_farm.cip.connection import ConnectionKind
+from enip_farm.cip.connection_events import (
+    ConnectionClosed,
+    ConnectionFaulted,
+    ConnectionOpened,
+    ConnectionTimedOut,
+    SafeState,
+    SafetyCrcFault,
+    SafetyTimingFault,
+)
 from enip_farm.cip.connection_table import ConnectionTable, Opened
 from enip_farm.cip.safety.admission import SafetyPolicy
 from enip_farm.cip.safety.crc import Seeds, crc_s1, crc_s2, crc_s3, crc_s4, crc_s5
@@ -187,9 +196,10 @@ def safety_open(server: bool = True, extended: bool = False, rpi_us: int = 10_00
                 timeout_multiplier: int = 2, max_faults: int = 2, scid: bytes = bytes(10), tunid: Unid = TUNID,
                 points: tuple[int, int, int] | None = None, data_size: int | None = None, tcoo_size: int = 6,
                 key: bytes = b"", transport: int | None = None, cpcrc_delta: int = 0, configuration_data: bytes = b"",
-                ounid: Unid = OUNID, **changes: object) -> ForwardOpenRequest:
+                ounid: Unid = OUNID, multicast: bool = False, **changes: object) -> ForwardOpenRequest:
     """A SafetyOpen as an originator builds it (CPCRC over the fields, as cm-ethernetip computes it);
-    with `configuration_data`, a Type 1 SafetyOpen (the data in a simple data segment, 0x80)."""
+    with `configuration_data`, a Type 1 SafetyOpen (the data in a simple data segment, 0x80); with
+    `multicast`, a client's T->O multicast (the data message and its 6-byte time correction)."""
     configuration, consuming, producing = points or ((1, 100, 0) if server else (1, 0, 101))
     application = key + bytes((0x20, 0x04, 0x24, configuration, 0x2C, consuming, 0x2C, producing))
     if configuration_data:
@@ -198,8 +208,9 @@ def safety_open(server: bool = True, extended: bool = False, rpi_us: int = 10_00
         FORMAT_EXTENDED if extended else FORMAT_BASE, struct.unpack_from("<I", scid)[0], scid[4:], 0, 0, tunid, ounid,
         ping, 0, nte, timeout_multiplier, 1, 0, 0xFFFFFFFF, max_faults if extended else 0)
     segment = segment._replace(**changes)  # type: ignore[arg-type]
-    size = data_size if data_size is not None else wire_size(1 if server else 2)
-    data = NetworkParameters(False, ConnectionType.POINT_TO_POINT, 1, False, size)
+    size = data_size if data_size is not None else wire_size(1 if server else 2) + (6 if multicast else 0)
+    data = NetworkParameters(False, ConnectionType.MULTICAST if multicast else ConnectionType.POINT_TO_POINT, 1,
+                             False, size)
     tcoo = NetworkParameters(False, ConnectionType.POINT_TO_POINT, 1, False, tcoo_size)
     raw = encode_segment(segment)
     request = ForwardOpenRequest(0x05, 0x9C, 0, 0x10000000 | next(_serials), ConnectionTriad(next(_serials), 0x0001,
@@ -314,7 +325,8 @@ def test_server_applies_run_data_answers_pings_and_times_out_at_the_network_time
     # the consumer's initial 3, so a time coordination message answers at once
     now = T0 + 5 * MS
     assert _send(table, opened, encode_data(b"\x0f", mode_byte(False, 0), 0, pid, False), 1, now)
-    (packet, address), = table.pop_replies()
+    assert table.answers_queued
+    (packet, address), = table.datagrams_to_send(now)  # the one outbound queue
     io = decode_io_packet(packet)
     assert io is not None and io.connection_id == request.t_o_connection_id and address == ("127.0.0.9", 2222)
     cid = Seeds.of(VENDOR, SERIAL, opened.connection.instance)
@@ -323,7 +335,7 @@ def test_server_applies_run_data_answers_pings_and_times_out_at_the_network_time
     # run data, timestamped in the consumer's time base
     now += 10 * MS
     assert _send(table, opened, encode_data(b"\x05", mode_byte(True, 0), ticks(now) - 3, pid, False), 2, now)
-    assert output.data == b"\x05" and output.owned and not table.pop_replies()
+    assert output.data == b"\x05" and output.owned and not table.answers_queued and table.datagrams_to_send(now) == []
     last = now
     deadline = last + 781 * TICK_NS
     assert table.get_timer() == deadline
@@ -332,7 +344,7 @@ def test_server_applies_run_data_answers_pings_and_times_out_at_the_network_time
     table.handle_timer(deadline)
     assert output.data == b"\x00" and not output.owned and not table.connections
     events = table.pop_events()
-    assert [e.kind for e in events] == ["connection opened", "connection timed out", "safe state"]
+    assert [type(e) for e in events] == [ConnectionOpened, ConnectionTimedOut, SafeState]
     assert events[1].reason == "safety timeout: no valid data for the network time expectation, 99.968 ms"
     assert table.counters["safety_timeouts"] == 1
 
@@ -346,8 +358,8 @@ def test_base_format_crc_fault_is_counted_not_applied_and_faults_the_connection(
     assert not _send(table, opened, bytes(bad), 2, now + 10 * MS)
     assert table.assemblies["output"].data == b"\x00"  # not applied; the connection faulted: safe state
     assert table.counters["safety_crc_faults"] == 1 and not table.connections
-    kinds = [e.kind for e in table.pop_events()]
-    assert kinds == ["connection opened", "safety crc fault", "connection faulted", "safe state"]
+    kinds = [type(e) for e in table.pop_events()]
+    assert kinds == [ConnectionOpened, SafetyCrcFault, ConnectionFaulted, SafeState]
 
 
 def test_extended_format_discards_up_to_max_fault_number_then_faults() -> None:
@@ -378,7 +390,7 @@ def test_timing_faults(delta_ticks: int, age_ticks: int, detail: str) -> None:
     stamp = (first + delta_ticks) & 0xFFFF
     arrival = (now - 800 * TICK_NS) + (delta_ticks + age_ticks) * TICK_NS
     assert not _send(table, opened, encode_data(b"\x0a", mode_byte(True, 0), stamp, pid, False), 2, arrival)
-    faults = [e for e in table.pop_events() if e.kind == "safety timing fault"]
+    faults = [e for e in table.pop_events() if type(e) is SafetyTimingFault]
     assert len(faults) == 1 and faults[0].reason.startswith(detail)
     assert table.assemblies["output"].data == b"\x00" and table.counters["safety_timing_faults"] == 1
 
@@ -396,7 +408,7 @@ def test_forward_close_puts_the_safe_outputs_in_the_safe_state() -> None:
     assert _send(table, opened, encode_data(b"\x0f", mode_byte(True, 0), ticks(now), pid, False), 1, now)
     table.forward_close(request.triad, now)
     assert table.assemblies["output"].data == b"\x00"
-    assert [e.kind for e in table.pop_events()][-2:] == ["connection closed", "safe state"]
+    assert [type(e) for e in table.pop_events()][-2:] == [ConnectionClosed, SafeState]
 
 
 # -- the client (safe inputs): production, pings, time correction, rollover, its timeout ---------------
@@ -450,7 +462,7 @@ def test_client_pings_and_times_out_after_timeout_multiplier_plus_2_ping_interva
     assert table.connections
     table.handle_timer(deadline)
     assert not table.connections and not table.productions
-    assert [e.reason for e in table.pop_events() if e.kind == "connection timed out"] == [
+    assert [e.reason for e in table.pop_events() if type(e) is ConnectionTimedOut] == [
         "safety timeout: no time coordination for 4 ping intervals"]
 
 
@@ -498,10 +510,11 @@ def test_time_coordination_held_back_by_the_min_multiplier_is_counted_when_sent(
     table, opened, pid, request = _open_server(time_coord_msg_min_multiplier=100)  # 100 x 128 us = 12.8 ms
     first = T0 + 5 * MS
     assert _send(table, opened, encode_data(b"\x00", mode_byte(False, 0), 0, pid, False), 1, first)
-    assert len(table.pop_replies()) == 1  # the first answers at once
+    assert table.answers_queued and len(table.datagrams_to_send(first)) == 1  # the first answers at once
     assert table.counters["safety_time_coordination_sent"] == 1 and table.counters["t_o_packets"] == 1
     assert _send(table, opened, encode_data(b"\x00", mode_byte(False, 1), 0, pid, False), 2, first + MS)
-    assert not table.pop_replies()  # the next ping count change: held back until 12.8 ms after the first
+    # the next ping count change: held back until 12.8 ms after the first
+    assert not table.answers_queued and table.datagrams_to_send(first + MS) == []
     due = first + 100 * TICK_NS
     assert table.datagrams_to_send(due - 1) == []
     (packet, address), = table.datagrams_to_send(due)

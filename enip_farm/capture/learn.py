@@ -33,6 +33,7 @@ appended; with several devices each name also carries the device's address.
 from __future__ import annotations
 
 import struct
+import time
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from types import MappingProxyType
@@ -386,7 +387,7 @@ def _replay_table(name: str, shell: dict, pairs: list[tuple[bytes, bytes]],
     """Captured requests the model would not implement, with their captured replies."""
     learning = catalogue.with_models(Catalogue.from_document({"models": {name: shell}}).models, "learning")
     device = Device(resolve(DeviceConfig(name="learning", address="127.0.0.1", model=name), learning))
-    context = MessageContext("127.0.0.1", object())
+    context = MessageContext("127.0.0.1", object(), (), time.monotonic_ns())  # offline: the time matters not
     table, seen = [], set()
     for request, captured in pairs:
         modelled, _ = device.handle_unconnected(request, context)

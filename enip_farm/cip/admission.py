@@ -109,15 +109,19 @@ class Originator(NamedTuple):
 
 
 class Refusal(NamedTuple):
-    """A Forward Open refused: general status, extended status, and for sizes the expected size."""
+    """A Forward Open refused: general status, extended status (None: none), for sizes the expected
+    size, and any further additional status words."""
 
-    extended: int
+    extended: int | None
     expected_size: int | None = None
     general: int = GeneralStatus.CONNECTION_FAILURE
+    more: tuple[int, ...] = ()
 
     @property
     def additional_status(self) -> tuple[int, ...]:
-        return (self.extended,) if self.expected_size is None else (self.extended, self.expected_size)
+        if self.extended is None:
+            return ()
+        return ((self.extended,) if self.expected_size is None else (self.extended, self.expected_size)) + self.more
 
 
 def _data_segments(connection_path: bytes) -> list[DataSegment]:
@@ -129,7 +133,7 @@ def _data_segments(connection_path: bytes) -> list[DataSegment]:
 
 class _Refused(Exception):
     def __init__(self, refusal: Refusal) -> None:
-        super().__init__(hex(refusal.extended))
+        super().__init__(refusal.additional_status)
         self.refusal = refusal
 
 
@@ -187,9 +191,9 @@ class Admission:
             request, segments, route, policy, self._check_key, (len(output.data), len(inputs.data)), originator.host,
             self._point_to_point_address(originator), now, connections, lambda: self._new_connection_id(taken_ids),
             lambda: next(i for i in range(1, len(used) + 2) if i not in used), self.policy.first_watchdog_ns,
-            self._initial_rc_offset)
+            self._initial_rc_offset, (self.policy.multicast_group, IO_PORT))
         if not isinstance(result, SafetyOpen):
-            raise _refuse(result.extended, result.expected_size)
+            raise _Refused(Refusal(*result))
         return result
 
     def _new_connection_id(self, taken_ids: Callable[[int], bool]) -> int:

@@ -1,6 +1,6 @@
 """Assembly object, class 0x04 (CIP Networks Library Vol. 1, 5-5): attribute 3 is the instance's
 data (the device's I/O image, shared with every other view of it), attribute 4 its size in bytes.
-The device holds its lock around every read and write of the bytes (device/device.py)."""
+The device holds its lock around every read and write of the bytes (device/guard.py)."""
 
 from __future__ import annotations
 

@@ -12,6 +12,7 @@ from dataclasses import dataclass, field
 from enum import Enum
 
 from enip_farm.cip.budget import Reservation
+from enip_farm.cip.safety.multicast import MulticastConsumer, MulticastProducer
 from enip_farm.cip.safety.segment import Unid
 from enip_farm.cip.safety.validator import SafetyConsumer, SafetyProducer
 from enip_farm.protocol.connection import ConnectionTriad
@@ -58,7 +59,7 @@ class Connection:
     run: bool = False
     closed: bool = False
     last_reply: tuple[int, bytes, tuple] | None = None  # class 3: (sequence count, reply, items) for duplicates
-    safety: SafetyConsumer | SafetyProducer | None = None  # CIP Safety: the connection's Safety Validator
+    safety: SafetyConsumer | SafetyProducer | MulticastConsumer | None = None  # CIP Safety: its Safety Validator
     instance: int = 0  # CIP Safety: the Safety Validator instance id
     ounid: Unid | None = None  # CIP Safety: the originator's UNID
     t_o_sequence: int = 0  # CIP Safety server: the sequence of its time coordination messages
@@ -102,7 +103,7 @@ class Production:
     sequence: int = 0
     users: int = 1
     late: int = 0  # periods skipped because the producer fell a whole period behind
-    safety: SafetyProducer | None = None  # CIP Safety client: the SafetyProducer that encodes each packet (class 0)
+    safety: SafetyProducer | MulticastProducer | None = None  # CIP Safety client: encodes each packet (class 0)
     point: int | None = None  # the produced assembly (an EDS's connections); None: the input assembly
     header: bytes = b""  # the 32-bit run/idle header before the data (an EDS's T->O format 4)
     heartbeat: bool = False  # no data, the sequence count only (an EDS's heartbeat format)

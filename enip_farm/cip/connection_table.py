@@ -4,19 +4,21 @@ Vol. 2, 3-2 and 3-3), in the style of aioquic's `QuicConnection`:
 - Forward Open (admitted or refused by cip/admission.py, then within the I/O thread's budget,
   cip/budget.py: past it 0x01/0x0113), Forward Close, and the close cascade of listen-only
   connections;
-- consumption of O->T packets (`receive_datagram`): originator, sequence window, run/idle, size;
-- production of T->O packets on absolute deadlines (`datagrams_to_send`);
+- consumption of O->T packets (`receive_datagram`) and production of T->O packets on absolute
+  deadlines (`datagrams_to_send`, `produce`): cip/class1_io.py, a part of the table in its own module;
 - supervision (`get_timer`, `handle_timer`): the first watchdog, then exactly the last valid
   packet + RPI x 2^(2 + multiplier);
 - CIP Safety connections (Vol. 5): a server consumes the safe outputs through its Safety Validator
-  (integrity, sequence and age checks; its time coordination answers go out with
-  `pop_replies`), a client produces the safe inputs on the T->O schedule; their supervision is
-  the validator's (network time expectation; time coordination), and the end of a server
-  connection, whatever ends it, puts the safe outputs in the safe state (all off).
+  (integrity, sequence and age checks; its time coordination answers go out with the T->O
+  packets: one outbound queue, `datagrams_to_send(now)`), a client produces the safe inputs on
+  the T->O schedule; their supervision is the validator's (network time expectation; time
+  coordination), and the end of a server connection, whatever ends it, puts the safe outputs in
+  the safe state (all off).
 
 Time is always a parameter (integer nanoseconds of a monotonic clock), never read here. The
 caller holds the device lock around every call: the table reads and writes the assemblies' bytes.
-What happened is returned (`pop_events`), never called back.
+What happened is returned (`pop_events`: one typed event per kind, cip/connection_events.py), never
+called back.
 """
 
 from __future__ import annotations
@@ -26,36 +28,31 @@ from collections import Counter
 from collections.abc import Callable, Mapping
 from typing import NamedTuple
 
-from enip_farm.cip.admission import (
-    RUN_IDLE_HEADER_SIZE,
-    Admission,
-    ConnectionPolicy,
-    KeyIdentity,
-    Originator,
-    Refusal,
-)
+from enip_farm.cip.admission import Admission, ConnectionPolicy, KeyIdentity, Originator, Refusal
 from enip_farm.cip.assembly import AssemblyInstance
 from enip_farm.cip.budget import CyclicBudget
+from enip_farm.cip.class1_io import ClassOneIo, Datagram
 from enip_farm.cip.connection import Connection, ConnectionKind, Production
-from enip_farm.cip.safety.admission import SafetyOpen
-from enip_farm.cip.safety.validator import SafetyConsumer, SafetyProducer
-from enip_farm.protocol.commands import SocketAddress, encode_sockaddr
-from enip_farm.protocol.connection import (
-    IO_HEADER_SIZE,
-    ConnectionTriad,
-    ForwardOpenRequest,
-    IoPacket,
-    class0_data,
-    encode_class0_packet,
-    encode_io_packet,
-    unpack_io_header,
+from enip_farm.cip.connection_events import (
+    ConnectionClosed,
+    ConnectionEnded,
+    ConnectionEvent,
+    ConnectionOpened,
+    ConnectionRefused,
+    ConnectionTimedOut,
+    SafeState,
+    refused_open,
 )
+from enip_farm.cip.safety.admission import SafetyOpen
+from enip_farm.cip.safety.multicast import MulticastConsumer
+from enip_farm.cip.safety.validator import SafetyConsumer
+from enip_farm.protocol.commands import SocketAddress, encode_sockaddr
+from enip_farm.protocol.connection import ConnectionTriad, ForwardOpenRequest
 from enip_farm.protocol.cpf import ItemType
 from enip_farm.protocol.session import ReplyItems
 from enip_farm.protocol.status import ExtendedStatus as X
 from enip_farm.protocol.status import GeneralStatus, describe_status
 
-_HALF = 0x80000000
 #: Identity status (Vol. 1, table 5-2.4): bit 0 owned; bits 4-7 extended device status.
 _OWNED = 0x0001
 _NO_IO = 0x0030  # no I/O connection established
@@ -82,17 +79,10 @@ class Opened(NamedTuple):
     application_reply: bytes = b""  # a SafetyOpen's (Vol. 5, 3-5.4.2)
 
 
-class ConnectionEvent(NamedTuple):
-    kind: str  # "connection opened", "connection closed", "connection timed out", "connection refused"
-    connection: Connection | None  # None for a refusal: no connection came of it
-    reason: str  # for a refusal: the request, who sent it and the status it got
-    at: int  # ns
-
-
 _RUN_HEADER = b"\x01\x00\x00\x00"  # a T->O 32-bit run/idle header: run
 
 
-class ConnectionTable:
+class ConnectionTable(ClassOneIo):
     """The CIP connections of one device. Every method takes the time, none reads a clock."""
 
     def __init__(self, assemblies: Mapping[str, AssemblyInstance], policy: ConnectionPolicy,
@@ -112,7 +102,7 @@ class ConnectionTable:
         self._by_triad: dict[ConnectionTriad, Connection] = {}
         self._events: list[ConnectionEvent] = []
         self._short_data_reported: set[int] = set()
-        self._replies: list[tuple[bytes, tuple[str, int]]] = []  # CIP Safety time coordination, to send now
+        self._outbox: list[Datagram] = []  # to send at once (CIP Safety time coordination): datagrams_to_send
         self._safety_connections = 0
 
     # -- what the table says -------------------------------------------------------------------
@@ -169,8 +159,7 @@ class ConnectionTable:
     def forward_open(self, request: ForwardOpenRequest, originator: Originator, now: int) -> Opened | Refusal:
         connection = self.admission.admit(request, originator, now, self.connections.values(), self._id_taken)
         if type(connection) is Refusal:
-            self._events.append(ConnectionEvent("connection refused", None, _refused_open(request, originator,
-                                                                                          connection), now))
+            self._events.append(ConnectionRefused(now, refused_open(request, originator, connection)))
             return connection
         if type(connection) is SafetyOpen:
             refusal = self._reserve(connection.connection, request, originator, now)
@@ -198,9 +187,8 @@ class ConnectionTable:
                     connection.t_o_id, connection.t_o_address, connection.t_o_rpi * 1000, now,  # type: ignore[arg-type]
                     point=connection.t_o_point if self.policy.declared else None,
                     header=_RUN_HEADER if connection.t_o_run_idle_header else b"", heartbeat=connection.t_o_heartbeat)
-            if connection.multicast:
-                items = ((ItemType.SOCKADDR_T_O, encode_sockaddr(SocketAddress(*connection.t_o_address))),)  # type: ignore[misc]
-        self._events.append(ConnectionEvent("connection opened", connection, "", now))
+            items = _multicast_items(connection)
+        self._events.append(ConnectionOpened(now, connection))
         return Opened(connection, items)
 
     def _reserve(self, connection: Connection, request: ForwardOpenRequest, originator: Originator,
@@ -216,9 +204,9 @@ class ConnectionTable:
         if connection.reservation is not None:
             return None
         refusal = Refusal(X.OUT_OF_CONNECTIONS)
-        self._events.append(ConnectionEvent("connection refused", None, _refused_open(request, originator, refusal) + (
+        self._events.append(ConnectionRefused(now, refused_open(request, originator, refusal) + (
             f": the farm's cyclic I/O budget is {budget.datagrams_per_s:.0f} datagrams/s per worker, "
-            f"{budget.reserved:.0f} taken, this connection needs {rate:.0f}"), now))
+            f"{budget.reserved:.0f} taken, this connection needs {rate:.0f}")))
         return refusal
 
     def _safety_opened(self, opened: SafetyOpen, now: int) -> Opened:
@@ -228,22 +216,19 @@ class ConnectionTable:
         if connection.kind is ConnectionKind.SAFETY_OUTPUT:
             self.assemblies["output"].owned = True
         else:
-            self.productions[(connection.t_o_id, connection.t_o_address)] = Production(  # type: ignore[index]
-                connection.t_o_id, connection.t_o_address, connection.t_o_rpi * 1000, now,  # type: ignore[arg-type]
-                safety=connection.safety)  # type: ignore[arg-type]
+            key = (connection.t_o_id, connection.t_o_address)
+            production = self.productions.get(key)  # type: ignore[arg-type]
+            if production is not None:  # another consumer of a multicast producer (cip/safety/multicast.py)
+                production.users += 1
+            else:
+                safety = connection.safety
+                self.productions[key] = Production(  # type: ignore[index]
+                    connection.t_o_id, connection.t_o_address, connection.t_o_rpi * 1000, now,  # type: ignore[arg-type]
+                    safety=safety.producer if type(safety) is MulticastConsumer else safety)  # type: ignore[arg-type]
         self.counters["safety_connections"] += 1
         self._safety_connections += 1
-        self._events.append(ConnectionEvent("connection opened", connection, "", now))
-        return Opened(connection, (), opened.application_reply)
-
-    @property
-    def has_replies(self) -> bool:
-        return bool(self._replies)
-
-    def pop_replies(self) -> list[tuple[bytes, tuple[str, int]]]:
-        """Datagrams to send at once (CIP Safety time coordination answering a ping)."""
-        replies, self._replies = self._replies, []
-        return replies
+        self._events.append(ConnectionOpened(now, connection))
+        return Opened(connection, _multicast_items(connection), opened.application_reply)
 
     def forward_close(self, triad: ConnectionTriad, now: int, host: str = "") -> Connection | None:
         """Close the connection of this triad; None if there is none (0x0107). `host`: who asked."""
@@ -251,11 +236,11 @@ class ConnectionTable:
         if connection is not None:
             self.close(connection, "forward close", now)
         else:
-            self._events.append(ConnectionEvent("connection refused", None, (
+            self._events.append(ConnectionRefused(now, (
                 f"Forward Close from {host or '?'}: "
                 f"{describe_status(GeneralStatus.CONNECTION_FAILURE, X.CONNECTION_NOT_FOUND)} "
                 f"(connection serial 0x{triad.connection_serial:04X}, vendor {triad.originator_vendor_id}, "
-                f"originator serial 0x{triad.originator_serial:08X})"), now))
+                f"originator serial 0x{triad.originator_serial:08X})")))
         return connection
 
     def session_closed(self, session: object, now: int) -> None:
@@ -263,8 +248,9 @@ class ConnectionTable:
         for connection in [c for c in self.connections.values() if c.owner is session]:
             self.close(connection, "TCP connection closed", now)
 
-    def close(self, connection: Connection, reason: str, now: int, timed_out: bool = False,
-              kind: str | None = None) -> None:
+    def close(self, connection: Connection, reason: str, now: int,
+              ended: type[ConnectionEnded] = ConnectionClosed) -> None:
+        """Close a connection; `ended` says how (a timeout or a fault applies the fault state)."""
         if connection.closed:
             return
         connection.closed = True
@@ -273,6 +259,8 @@ class ConnectionTable:
             connection.reservation = None
         if connection.safety is not None:
             self._safety_connections -= 1
+            if type(connection.safety) is MulticastConsumer:  # only this consumer leaves the producer
+                connection.safety.leave()
         self.connections.pop(connection.o_t_id, None)
         self._by_triad.pop(connection.triad, None)
         self._short_data_reported.discard(connection.o_t_id)
@@ -286,15 +274,14 @@ class ConnectionTable:
         if connection.kind is ConnectionKind.EXCLUSIVE_OWNER:
             output = self._consumed(connection)
             output.owned = False
-            if self.policy.outputs_off_on_fault if timed_out else self.policy.outputs_off_on_idle:
+            if self.policy.outputs_off_on_idle if ended is ConnectionClosed else self.policy.outputs_off_on_fault:
                 output.data[:] = bytes(len(output.data))
-        kind = kind or ("connection timed out" if timed_out else "connection closed")
-        self._events.append(ConnectionEvent(kind, connection, reason, now))
+        self._events.append(ended(now, connection, reason))
         if connection.kind is ConnectionKind.SAFETY_OUTPUT:  # whatever ends it: the safe state
             output = self.assemblies["output"]
             output.owned = False
             output.data[:] = bytes(len(output.data))
-            self._events.append(ConnectionEvent("safe state", connection, f"safe outputs off: {reason}", now))
+            self._events.append(SafeState(now, connection, f"safe outputs off: {reason}"))
         if connection.multicast and connection.kind is not ConnectionKind.LISTEN_ONLY and not any(
                 c.multicast and c.t_o_point == connection.t_o_point and c.kind is not ConnectionKind.LISTEN_ONLY
                 for c in self.connections.values()):
@@ -314,203 +301,12 @@ class ConnectionTable:
                 reason = (f"safety timeout: no valid data for the network time expectation, "
                           f"{safety.nte_ns / 1e6:g} ms" if safety.last_valid is not None else
                           f"safety timeout: no valid data within {(safety.deadline - safety.opened_at) / 1e6:g} ms")
-            elif type(safety) is SafetyProducer:
+            elif safety is not None:  # a producer, single-cast or one multicast consumer
                 self.counters["safety_timeouts"] += 1
                 reason = f"safety timeout: no time coordination for {(safety.timeout_pi + 2)} ping intervals"
             else:
                 reason = f"no packet for {connection.timeout_ns / 1e6:g} ms"
-            self.close(connection, reason, now, timed_out=True)
-
-    # -- class-1 consumption and production --------------------------------------------------------
-
-    def receive_datagram(self, data: bytes, host: str, now: int, port: int | None = None) -> bool:
-        """An O->T datagram on UDP 2222 (Vol. 2, 3-2) from `host`:`port`: True if it was a valid
-        packet of one of the table's connections. O->T is taken only from the originator's address
-        and, once a first valid packet came, only from that packet's port (a forger on another port
-        of the same host cannot advance the sequence). Every other datagram is counted by why it
-        was not taken."""
-        fields = unpack_io_header(data)
-        if fields is None:
-            return self._drop("malformed")
-        connection_id, sequence, sequence_count = fields
-        connection = self.connections.get(connection_id)
-        if connection is None or connection.kind is ConnectionKind.EXPLICIT:
-            return self._drop("unknown_connection")
-        if host != connection.originator_host:
-            return self._drop("wrong_originator")
-        if port is not None and connection.o_t_port is not None and port != connection.o_t_port:
-            return self._drop("wrong_port")
-        last = connection.last_sequence
-        if last is not None and not 0 < (sequence - last) & 0xFFFFFFFF < _HALF:
-            return self._drop("stale")  # a duplicate or older than what was consumed (Vol. 2, 3-2.1)
-        if connection.safety is not None:
-            return self._receive_safety(connection, IoPacket(connection_id, sequence, sequence_count,
-                                                             data[IO_HEADER_SIZE:]), now, port)
-        payload = data[IO_HEADER_SIZE:]
-        output = self._consumed(connection)
-        if connection.o_t_run_idle_header:
-            if len(payload) < RUN_IDLE_HEADER_SIZE:
-                return self._drop("wrong_size")
-            run = bool(payload[0] & 1)
-            image = payload[RUN_IDLE_HEADER_SIZE:]
-            if len(image) != len(output.data) and not (connection.o_t_variable and len(image) < len(output.data)):
-                return self._drop("wrong_size")
-        elif connection.o_t_modeless:  # data without a header; no data: idle (zero-length format)
-            run, image = bool(payload), payload or None
-            if payload and len(payload) != len(output.data) and not (
-                    connection.o_t_variable and len(payload) < len(output.data)):
-                return self._drop("wrong_size")
-        elif payload and len(payload) != RUN_IDLE_HEADER_SIZE:  # a heartbeat: nothing, or a run/idle header
-            return self._drop("wrong_size")
-        else:
-            run = not payload or bool(payload[0] & 1)
-            image = None
-        connection.last_sequence = sequence
-        if connection.o_t_port is None:
-            connection.o_t_port = port
-        connection.last_received = now
-        connection.received += 1
-        connection.run = run
-        self.counters["o_t_packets"] += 1
-        if image is None:
-            if not run and connection.o_t_modeless and self.policy.outputs_off_on_idle:
-                output.data[:] = bytes(len(output.data))
-            return True
-        if not run:
-            if self.policy.outputs_off_on_idle:
-                output.data[:] = bytes(len(output.data))
-        elif len(image) == len(output.data):
-            output.data[:] = image
-        else:  # variable size, shorter than the assembly: the assembly takes whole images only
-            self.counters["o_t_short_data"] += 1
-            if connection.o_t_id not in self._short_data_reported:
-                self._short_data_reported.add(connection.o_t_id)
-                self._events.append(ConnectionEvent(
-                    "connection short data", connection,
-                    f"{len(image)} of {len(output.data)} bytes: not applied to the outputs", now))
-        return True
-
-    def _receive_safety(self, connection: Connection, packet: IoPacket, now: int, port: int | None) -> bool:
-        """A class-0 CIP Safety packet: safe output data on a server connection, a time
-        coordination message on a client connection (Vol. 5, 2-4.6 and 2-4.7). The sequence and
-        the originator's port are taken from packets the Safety Validator accepted only: a forged
-        datagram cannot pin another port or push the sequence past the real packets'."""
-        safety = connection.safety
-        result = safety.receive(class0_data(packet), now)  # type: ignore[union-attr]
-        if result.fault is not None:
-            self.counters[f"safety_{result.fault}_faults"] += 1
-            self._events.append(ConnectionEvent(f"safety {result.fault} fault", connection, result.detail, now))
-            if result.faulted:
-                self.counters["safety_faulted"] += 1
-                self.close(connection, f"safety {result.fault} fault: {result.detail}", now, timed_out=True,
-                           kind="connection faulted")
-            return False
-        connection.last_sequence = packet.sequence
-        if connection.o_t_port is None:
-            connection.o_t_port = port
-        connection.last_received = now
-        connection.received += 1
-        self.counters["safety_packets_consumed"] += 1
-        if type(safety) is SafetyConsumer:
-            connection.run = result.run
-            output = self.assemblies["output"]
-            if result.run:
-                output.data[:] = result.data  # type: ignore[index]
-            else:
-                output.data[:] = bytes(len(output.data))  # idle: the safe state
-            answer = safety.time_coordination(now)
-            if answer is not None:
-                connection.t_o_sequence += 1
-                self._replies.append((encode_class0_packet(connection.t_o_id, connection.t_o_sequence, answer),
-                                      connection.t_o_address))  # type: ignore[arg-type]
-                self.counters["safety_time_coordination_sent"] += 1
-                self.counters["t_o_packets"] += 1
-        else:
-            connection.run = True
-        return True
-
-    def _consumed(self, connection: Connection) -> AssemblyInstance:
-        """The assembly a connection's O->T data goes to: its consumed point's, else the output."""
-        return self._points.get(connection.o_t_point, self.assemblies.get("output"))  # type: ignore[arg-type,return-value]
-
-    def _produced(self, production: Production) -> bytes:
-        """The T->O data of a stream of an EDS's connection: its run/idle header and point's bytes."""
-        if production.heartbeat:
-            return b""
-        assembly = self._points.get(production.point)  # type: ignore[arg-type]
-        return production.header + (bytes(assembly.data) if assembly is not None else b"")
-
-    def _drop(self, reason: str) -> bool:
-        self.counters[f"o_t_dropped_{reason}"] += 1
-        return False
-
-    def datagrams_to_send(self, now: int) -> list[tuple[bytes, tuple[str, int]]]:
-        """The T->O packets due by `now`, one per stream; a stream that fell a whole period behind
-        skips the missed periods rather than bursting."""
-        return self.produce(now)[0]
-
-    def produce(self, now: int, horizon: int | None = None) -> tuple[list[tuple[bytes, tuple[str, int]]], int | None]:
-        """`datagrams_to_send(now)` and then `get_timer()`, in one pass over the streams (the cyclic
-        I/O thread's call, once per stream and period). With `horizon`, the packets due up to it are
-        produced now (the thread serves what falls due within its next turn: a packet leaves at
-        most `horizon - now` before its deadline; deadlines stay absolute, so no period drifts)."""
-        out = self._pending_time_coordination(now) if self._safety_connections and self._safety_pending else []
-        data = None
-        earliest = None
-        until = now if horizon is None or horizon < now else horizon
-        for production in self.productions.values():
-            due = production.start + production.count * production.period_ns
-            if due <= until:
-                if data is None:
-                    data = bytes(self.assemblies["input"].data)
-                production.sequence += 1
-                if production.safety is None:
-                    payload = data if production.point is None else self._produced(production)
-                    out.append((encode_io_packet(production.connection_id, production.sequence, production.sequence,
-                                                 payload), production.address))
-                else:
-                    message = production.safety.produce(data, now)
-                    out.append((encode_class0_packet(production.connection_id, production.sequence, message),
-                                production.address))
-                    self.counters["safety_packets_produced"] += 1
-                production.count += 1
-                behind = now - due - production.period_ns
-                if behind >= 0:  # the next one is already due: skip to the first deadline after now
-                    skipped = behind // production.period_ns + 1
-                    production.count += skipped
-                    production.late += skipped
-                due = production.start + production.count * production.period_ns
-            if earliest is None or due < earliest:
-                earliest = due
-        if out:
-            self.counters["t_o_packets"] += len(out)
-        for connection in self.connections.values():
-            deadline = connection.deadline
-            if earliest is None or deadline < earliest:
-                earliest = deadline
-            safety = connection.safety
-            if type(safety) is SafetyConsumer and safety.tcoo_due is not None and safety.tcoo_due < earliest:
-                earliest = safety.tcoo_due
-        return out, earliest
-
-    @property
-    def _safety_pending(self) -> bool:
-        return any(type(c.safety) is SafetyConsumer and c.safety.tcoo_due is not None
-                   for c in self.connections.values())
-
-    def _pending_time_coordination(self, now: int) -> list[tuple[bytes, tuple[str, int]]]:
-        """Time coordination messages held back by the min multiplier and due by `now`."""
-        out = []
-        for connection in self.connections.values():
-            safety = connection.safety
-            if type(safety) is SafetyConsumer:
-                answer = safety.time_coordination(now)
-                if answer is not None:
-                    connection.t_o_sequence += 1
-                    out.append((encode_class0_packet(connection.t_o_id, connection.t_o_sequence, answer),
-                                connection.t_o_address))  # type: ignore[arg-type]
-        self.counters["safety_time_coordination_sent"] += len(out)
-        return out
+            self.close(connection, reason, now, ConnectionTimedOut)
 
     # -- class-3 consumption -----------------------------------------------------------------------
 
@@ -524,14 +320,9 @@ class ConnectionTable:
         connection.received += 1
         return connection
 
-    # -- admission -------------------------------------------------------------------------------
 
-
-def _refused_open(request: ForwardOpenRequest, originator: Originator, refusal: Refusal) -> str:
-    """One line on a refused Forward Open: who asked for what, and the status it got."""
-    o_t, t_o = request.o_t_parameters, request.t_o_parameters
-    expected = f", {refusal.expected_size} bytes expected" if refusal.expected_size is not None else ""
-    return (f"{'Large ' if request.large else ''}Forward Open from {originator.host}: "
-            f"{describe_status(refusal.general, refusal.extended)}{expected} "
-            f"(class {request.transport_class}, O->T RPI {request.o_t_rpi} us {o_t.size} bytes, "
-            f"T->O RPI {request.t_o_rpi} us {t_o.size} bytes, path {request.connection_path.hex(' ')})")
+def _multicast_items(connection: Connection) -> ReplyItems:
+    """The T->O socket address item of a multicast connection's reply: its group (Vol. 2, 3-3.9.4)."""
+    if not connection.multicast:
+        return ()
+    return ((ItemType.SOCKADDR_T_O, encode_sockaddr(SocketAddress(*connection.t_o_address))),)  # type: ignore[misc]

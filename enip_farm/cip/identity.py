@@ -6,14 +6,15 @@ Reset's request data is an optional USINT, the reset type: 0 (the default, no da
 power cycle; 1 returns to the out-of-box configuration, then emulates a power cycle; 2 returns to
 the out-of-box configuration except the communication link parameters (TCP/IP Interface and
 Ethernet Link settings), then emulates a power cycle. Other types get 0x20 (invalid parameter);
-more than one byte gets 0x15. The object only takes the request: it calls `reset(type)` and answers
-success; the device performs the reset once the reply is built, and the server sends that reply
-before it ends the device's sessions (device/device.py, farm.py)."""
+more than one byte gets 0x15. The object only takes the request: it answers success with the effect
+`ResetRequested(type)` (cip/object.py `Effect`), which the device performs once the reply is built
+(device/reset.py); the server sends that reply before it ends the device's sessions (farm/reset.py)."""
 
 from __future__ import annotations
 
 import struct
 from collections.abc import Callable
+from dataclasses import dataclass
 
 from enip_farm.cip.object import (
     UDINT,
@@ -21,6 +22,7 @@ from enip_farm.cip.object import (
     Attribute,
     CipClass,
     CipInstance,
+    Effect,
     ServiceResult,
     constant,
     short_string,
@@ -41,6 +43,14 @@ STATE_OPERATIONAL = 3
 RESET_POWER_CYCLE = 0
 RESET_OUT_OF_BOX = 1
 RESET_KEEP_COMMUNICATION = 2
+RESET_TYPES = (RESET_POWER_CYCLE, RESET_OUT_OF_BOX, RESET_KEEP_COMMUNICATION)
+
+
+@dataclass(frozen=True, slots=True)
+class ResetRequested(Effect):
+    """The effect of an accepted Reset (5-2.4.1): restart as reset type `type` (0, 1 or 2) says."""
+
+    type: int
 
 
 class IdentityObject(CipClass):
@@ -50,10 +60,8 @@ class IdentityObject(CipClass):
 
     def __init__(self, *, vendor_id: int, device_type: int, product_code: Callable[[], int], revision: tuple[int, int],
                  serial_number: int, product_name: str, status: Callable[[], int],
-                 state: Callable[[], int] = lambda: STATE_OPERATIONAL,
-                 reset: Callable[[int], None] | None = None) -> None:
+                 state: Callable[[], int] = lambda: STATE_OPERATIONAL) -> None:
         super().__init__()
-        self._reset = reset
         self.instances[1] = CipInstance(
             {
                 1: constant(UINT.pack(vendor_id)),
@@ -71,12 +79,11 @@ class IdentityObject(CipClass):
 
     def reset(self, instance: CipInstance, path: RequestPath, data: bytes,
               context: MessageContext) -> ServiceResult:
-        if path.instance_id == 0 or self._reset is None:  # an instance service
+        if path.instance_id == 0:  # an instance service
             return ServiceResult(GeneralStatus.SERVICE_NOT_SUPPORTED)
         if len(data) > 1:
             return ServiceResult(GeneralStatus.TOO_MUCH_DATA)
         kind = data[0] if data else RESET_POWER_CYCLE
-        if kind not in (RESET_POWER_CYCLE, RESET_OUT_OF_BOX, RESET_KEEP_COMMUNICATION):
+        if kind not in RESET_TYPES:
             return ServiceResult(GeneralStatus.INVALID_PARAMETER)
-        self._reset(kind)
-        return ServiceResult(GeneralStatus.SUCCESS)
+        return ServiceResult(GeneralStatus.SUCCESS, effects=(ResetRequested(kind),))

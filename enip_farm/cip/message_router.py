@@ -16,6 +16,7 @@ from enip_farm.cip.object import (
     Attribute,
     CipClass,
     CipInstance,
+    Effect,
     Reply,
     ReplyItems,
     ServiceResult,
@@ -62,6 +63,7 @@ class MessageRouter(CipClass):
         self.forced_status: dict[int, int] = {}  # fault injection: service -> general status
         self.request_counts: Counter[tuple[int, int]] = Counter()  # (service, general status)
         self.handled: list[Handled] = []  # since pop_handled
+        self.effects: list[Effect] = []  # what the services answered since pop_effects asked of the device
         self.replay: dict[tuple[int, bytes, bytes], bytes] = {}  # a learned profile's replay table
         self._paths: dict[bytes, RequestPath | int] = {}
         if multiple_service_packet:
@@ -105,6 +107,11 @@ class MessageRouter(CipClass):
         handled, self.handled = self.handled, []
         return handled
 
+    def pop_effects(self) -> list[Effect]:
+        """The effects the services returned since the last call, embedded requests' too, in order."""
+        effects, self.effects = self.effects, []
+        return effects
+
     def _dispatch(self, message: bytes, context: MessageContext) -> tuple[bytes, ReplyItems]:
         try:
             service, path_bytes, data = decode_request(message)
@@ -140,6 +147,8 @@ class MessageRouter(CipClass):
             return encode_reply(service, GeneralStatus.VENDOR_SPECIFIC), ()
         if type(result) is Reply:
             return result
+        if result[4]:
+            self.effects.extend(result[4])
         return encode_reply(service, result[0], result[1], result[2]), result[3]
 
     def multiple_service_packet(self, instance: CipInstance, path: RequestPath, data: bytes,

@@ -45,11 +45,20 @@ class Attribute(NamedTuple):
         return len(self.get()) if self.size is None else self.size(data)
 
 
+class Effect:
+    """What a service asks of its device beyond the reply (the Identity object's `ResetRequested`):
+    a value the service returns, which the message router queues (`MessageRouter.pop_effects`) and
+    the device carries out once the reply is built, never a call into the device."""
+
+    __slots__ = ()
+
+
 class ServiceResult(NamedTuple):
     status: int
     data: bytes = b""
     additional_status: tuple[int, ...] = ()
     items: ReplyItems = ()
+    effects: tuple[Effect, ...] = ()
 
 
 class Reply(NamedTuple):

@@ -32,8 +32,8 @@ class IoChange(NamedTuple):
         return f"{self.role} " + ", ".join(f"{name} {old} -> {new}" for name, (old, new) in self.signals.items())
 
     def as_dict(self, event: Event) -> dict[str, Any]:
-        return {"time": event.wall, "monotonic": event.monotonic, "device": event.device, "kind": IO_KIND,
-                "role": self.role, "signals": {name: {"old": old, "new": new}
+        return {"time": event.wall_ns / 1e9, "monotonic": event.monotonic_ns / 1e9, "device": event.device,
+                "kind": IO_KIND, "role": self.role, "signals": {name: {"old": old, "new": new}
                                                for name, (old, new) in self.signals.items()},
                 "changes": self.changes, "detail": str(self)}
 
@@ -94,5 +94,5 @@ def coalesce(events: Iterable[Event], diff_of: Any) -> list[Event]:
             (device, role), (old, new, count, _) = last[index]
             signals = diff_of(device).changes(role, old, new) if len(old) == len(new) else {}
             if signals:
-                out.append(Event(event.monotonic, event.wall, device, IO_KIND, IoChange(role, signals, count)))
+                out.append(Event(event.monotonic_ns, event.wall_ns, device, IO_KIND, IoChange(role, signals, count)))
     return out

@@ -1,7 +1,9 @@
-"""The device event log: what happened to a device, with monotonic and wall-clock timestamps.
+"""The device event log: what happened to a device, with monotonic and wall-clock timestamps in
+integer nanoseconds (the core's one time unit); the JSON form (`as_dict`) says seconds, as the API,
+the event stream and the dashboard always have.
 
 Request events keep their raw (service, path, status) and are formatted only when read, so that
-logging every request stays cheap. The device tells its observers (device.py, `Device.observe`);
+logging every request stays cheap. The device tells its observers (guard.py, `Device.observe`);
 the log only keeps what happened.
 """
 
@@ -25,8 +27,8 @@ class ImageChange(NamedTuple):
 
 
 class Event(NamedTuple):
-    monotonic: float
-    wall: float
+    monotonic_ns: int  # when it happened, ns of the monotonic clock the core is given
+    wall_ns: int  # the same moment, ns since the epoch
     device: str
     kind: str
     detail: Any  # a string; a dict (faults); for "request" the router's (service, path, status, extended, relayed)
@@ -49,8 +51,8 @@ class Event(NamedTuple):
     def as_dict(self) -> dict[str, Any]:
         """The event as JSON takes it: a dict detail (a fault's parameters) stays a dict."""
         detail = self.detail
-        return {"time": self.wall, "monotonic": self.monotonic, "device": self.device, "kind": self.kind,
-                "detail": dict(detail) if isinstance(detail, dict) else self.text}
+        return {"time": self.wall_ns / 1e9, "monotonic": self.monotonic_ns / 1e9, "device": self.device,
+                "kind": self.kind, "detail": dict(detail) if isinstance(detail, dict) else self.text}
 
 
 class EventLog:
@@ -60,28 +62,35 @@ class EventLog:
 
     def __init__(self, device: str, size: int = 10000) -> None:
         self.device = device
-        self._entries: deque[tuple[float, str, Any]] = deque(maxlen=size)
-        self._wall_offset = time.time() - time.monotonic()
+        self._entries: deque[tuple[int, str, Any]] = deque(maxlen=size)
+        self._wall_offset_ns = time.time_ns() - time.monotonic_ns()  # monotonic -> wall clock
 
-    def record(self, kind: str, detail: Any = "", at: float | None = None) -> Event:
-        """Keep an event; `at` is its monotonic time in seconds (default: now)."""
-        entry = (time.monotonic() if at is None else at, kind, detail)
+    @property
+    def wall_offset_ns(self) -> int:
+        """Wall-clock time minus monotonic time (ns): an Event's `wall_ns` is its `monotonic_ns` plus this."""
+        return self._wall_offset_ns
+
+    def record(self, kind: str, detail: Any, now: int) -> Event:
+        """Keep an event that happened at `now` (ns, monotonic)."""
+        entry = (now, kind, detail)
         self._entries.append(entry)
         return self._event(entry)
 
-    def request(self, handled: tuple) -> tuple[float, str, Any]:
-        """One explicit request, as the message router answered it (its `Handled` tuple); the raw
-        entry (`event` makes it an Event), so that logging a request costs no more than a tuple."""
-        entry = (time.monotonic(), "request", handled)
+    def request(self, handled: tuple, now: int) -> tuple[int, str, Any]:
+        """One explicit request answered at `now` (ns), as the message router answered it (its
+        `Handled` tuple); the raw entry (`event` makes it an Event), so that logging a request costs
+        no more than a tuple."""
+        entry = (now, "request", handled)
         self._entries.append(entry)
         return entry
 
-    def event(self, entry: tuple[float, str, Any]) -> Event:
+    def event(self, entry: tuple[int, str, Any]) -> Event:
+        """An Event of an entry (now, kind, detail), whether kept in the log or not."""
         return self._event(entry)
 
-    def _event(self, entry: tuple[float, str, Any]) -> Event:
-        monotonic, kind, detail = entry
-        return Event(monotonic, monotonic + self._wall_offset, self.device, kind, detail)
+    def _event(self, entry: tuple[int, str, Any]) -> Event:
+        monotonic_ns, kind, detail = entry
+        return Event(monotonic_ns, monotonic_ns + self._wall_offset_ns, self.device, kind, detail)
 
     def __iter__(self) -> Iterator[Event]:
         return iter([self._event(entry) for entry in list(self._entries)])

@@ -1,10 +1,35 @@
-"""The reset window of a device (Identity Reset, CIP Networks Library Vol. 1, 5-2.4.1), sans-IO: a
-reset device does not answer (no TCP listener, UDP dropped) until its reset time has passed since
-the reset, then answers again. Time is a parameter (int ns of a monotonic clock), never read here:
-the farm asks `due()` when to look again and calls `end(now)`, which ends the window at its
-deadline, not a nanosecond before."""
+"""A device's reset (Identity Reset, CIP Networks Library Vol. 1, 5-2.4.1), sans-IO: what a restart
+does to the device's state, and its reset window.
+
+The Identity object answers an accepted Reset with the effect `ResetRequested(type)`; the device
+performs it right after the request that asked for it has been answered (its reply is built; the
+server sends it before anything else of the device's), and the API's reset performs the same
+without a request: every class-1 and class-3 connection closes, the output and configuration images
+go to their power-up state (all zero), the input image keeps what the field (the API, wires, rules)
+holds, the link counters clear, a type-1 reset also restores the configured TCP/IP and Ethernet
+Link settings, a safety target's types 1 and 2 clear its safety configuration, and a "reset" event
+is recorded whose detail is a `DeviceReset` (the request and the quiet time): the farm matches it
+by type (farm_reset.py) and closes the device's TCP connections and listener.
+
+A reset device does not answer (no TCP listener, UDP dropped) until its reset time has passed since
+the reset, then answers again (`restarts` moves on: a session of an earlier count has ended). Time
+is a parameter (int ns of a monotonic clock), never read here: the farm asks `due()` when to look
+again and calls `end(now)`, which ends the window at its deadline, not a nanosecond before."""
 
 from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass
+from types import MappingProxyType
+
+from enip_farm.cip.identity import RESET_OUT_OF_BOX, ResetRequested
+from enip_farm.device.guard import DeviceGuard
+from enip_farm.device.objects import ObjectModel
+from enip_farm.device.sessions import SessionHandles
+
+#: What each reset type does, as the events say it.
+RESET_KINDS: Mapping[int, str] = MappingProxyType({
+    0: "power cycle", 1: "out-of-box configuration", 2: "out-of-box configuration but the communication parameters"})
 
 
 class ResetWindow:
@@ -37,4 +62,78 @@ class ResetWindow:
         if self.deadline is None or now < self.deadline:
             return False
         self.deadline = None
+        return True
+
+
+@dataclass(frozen=True, slots=True)
+class DeviceReset:
+    """The detail of a device's "reset" event: the reset it performs and how long it does not answer."""
+
+    request: ResetRequested
+    quiet_s: float
+
+    def __str__(self) -> str:
+        kind = self.request.type
+        return f"type {kind} ({RESET_KINDS[kind]}): not answering for {self.quiet_s:g} s"
+
+
+class Resets:
+    """Runs one device's resets, requested by its Identity object or from outside CIP."""
+
+    def __init__(self, objects: ObjectModel, guard: DeviceGuard, sessions: SessionHandles, reset_time_s: float) -> None:
+        self.objects = objects
+        self.guard = guard
+        self.sessions = sessions
+        self.quiet_s = reset_time_s
+        self.window = ResetWindow(round(reset_time_s * 1e9))
+
+    def perform(self, request: ResetRequested, now: int) -> None:
+        """Under the device lock: what a restart does to the device's state; `announce` after the lock."""
+        kind = request.type
+        objects = self.objects
+        table = objects.table
+        for connection in list(table.connections.values()):
+            table.close(connection, f"identity reset (type {kind})", now)
+        for role in ("output", "configuration"):  # power-up state; the inputs are the field's
+            assembly = objects.assemblies.get(role)
+            if assembly is not None:
+                assembly.data[:] = bytes(len(assembly.data))
+        if kind == RESET_OUT_OF_BOX:
+            objects.tcpip.restore_defaults()
+            objects.link.restore_defaults()
+        if table.policy.safety is not None:
+            table.policy.safety.state.identity_reset(kind)
+        objects.link.clear_counters()
+        self.sessions.restart()
+        self.window.start(now)
+
+    def announce(self, request: ResetRequested) -> None:
+        """After the lock: the "reset" event, whose `DeviceReset` detail the farm acts on."""
+        self.guard.record("reset", DeviceReset(request, self.quiet_s))
+
+    def reset(self, kind: int, now: int) -> bool:
+        """A reset from outside CIP (a test engineer's power switch or reset button): as an Identity
+        Reset of type `kind`, without a request to answer. False if the device is in its reset window
+        already (nothing happens); ValueError for an unknown type."""
+        if kind not in RESET_KINDS:
+            raise ValueError(f"reset type {kind}: one of {', '.join(map(str, RESET_KINDS))}")
+        request = ResetRequested(kind)
+        guard = self.guard
+        with guard.lock:
+            if self.window.active:
+                return False
+            before = guard.snapshot()
+            self.perform(request, now)
+            connections = self.objects.table.pop_events()
+            after = guard.snapshot()
+        guard.publish(before, after, now, (), connections)
+        self.announce(request)
+        return True
+
+    def end(self, now: int) -> bool:
+        """End the reset window if its deadline has come (never before): True if the device
+        answers again from now, with a "reset done" event."""
+        if not self.window.end(now):
+            return False
+        self.guard.record("reset done", "answering again", now)
         return True

@@ -50,9 +50,9 @@ class MessageContext(NamedTuple):
     carry are returned with the reply, never stored here."""
 
     peer_host: str
-    session: object | None = None
-    items: tuple[CpfItem, ...] = ()
-    now: int = 0
+    session: object | None
+    items: tuple[CpfItem, ...]
+    now: int  # ns, monotonic: required, the caller's clock
     depth: int = 0  # how deep in Multiple Service Packets / Unconnected Sends this request is
 
     def nested(self) -> MessageContext:
@@ -129,7 +129,7 @@ class EncapsulationSession:
         self.refusals: list[tuple[int, int]] = []
         self._life = target.restarts  # the target's restart count when this connection began
 
-    def receive(self, data: bytes, now: int = 0, limit: int | None = None) -> list[bytes]:
+    def receive(self, data: bytes, now: int, limit: int | None = None) -> list[bytes]:
         """Bytes from the stream, received at `now` (ns, monotonic): the whole replies to send.
         At most `limit` frames are handled; the rest wait for `receive(b"", now, limit)` (see
         `backlog`), so that one busy connection takes its turn like the others."""
@@ -158,11 +158,12 @@ class EncapsulationSession:
         """Whole frames received and not handled yet (receive was given a limit)."""
         return not self.closing and self.framer.has_frame
 
-    def connection_lost(self, now: int = 0) -> None:
+    def connection_lost(self, now: int) -> None:
+        """The TCP connection ended at `now` (ns): the session ends, its class-3 connections with it."""
         if self.session_handle:
             self.target.unregister_session(self.session_handle)
             self.session_handle = 0
-            self.target.session_closed(self, now or self._now)
+            self.target.session_closed(self, now)
 
     def handle_frame(self, frame: Frame) -> bytes | None:
         header, data = frame
@@ -181,7 +182,7 @@ class EncapsulationSession:
             return self._register_session(header, data)
         if command == Command.UNREGISTER_SESSION:
             if header.session_handle and header.session_handle == self.session_handle:
-                self.connection_lost()
+                self.connection_lost(self._now)
                 self.closing = True
                 return None
             return _reply(header, status=EncapsulationStatus.INVALID_SESSION_HANDLE)

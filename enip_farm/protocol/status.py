@@ -41,6 +41,7 @@ class ExtendedStatus(IntEnum):
     CONNECTION_NOT_FOUND = 0x0107
     INVALID_CONNECTION_TYPE = 0x0108
     RPI_NOT_SUPPORTED = 0x0111
+    RPI_NOT_ACCEPTABLE = 0x0112  # followed by the acceptable RPI types and the O->T, T->O RPIs
     OUT_OF_CONNECTIONS = 0x0113
     VENDOR_OR_PRODUCT_MISMATCH = 0x0114
     DEVICE_TYPE_MISMATCH = 0x0115
@@ -76,6 +77,9 @@ class ExtendedStatus(IntEnum):
     TUNID_NOT_SET = 0x080D
     TUNID_MISMATCH = 0x080E
     CONFIGURATION_OPERATION_NOT_ALLOWED = 0x080F
+    MULTICAST_PING_INTERVAL_EPI_MULTIPLIER = 0x0815  # a multicast join: not the producer's
+    MULTICAST_MAX_CONSUMER_NUMBER = 0x0816
+    MULTICAST_SAFETY_FORMAT = 0x0817
 
 
 #: General status in words (Vol. 1, appendix B-1), for logs and messages.
@@ -132,6 +136,7 @@ EXTENDED_STATUS_TEXT: Mapping[int, str] = MappingProxyType({
     0x0109: "invalid connection size",
     0x0110: "target for connection not configured",
     0x0111: "RPI not supported",
+    0x0112: "RPI values not acceptable",
     0x0113: "out of connections",
     0x0114: "vendor id or product code mismatch",
     0x0115: "device type mismatch",
@@ -162,6 +167,9 @@ EXTENDED_STATUS_TEXT: Mapping[int, str] = MappingProxyType({
     0x080C: "SCID mismatch",
     0x080D: "TUNID not set",
     0x080E: "TUNID mismatch",
+    0x0815: "invalid ping interval EPI multiplier on multicast join",
+    0x0816: "invalid max consumer number on multicast join",
+    0x0817: "invalid safety network segment format on multicast join",
 })
 
 

@@ -45,7 +45,6 @@ import threading
 import time
 
 from enip_farm.device.device import Device
-from enip_farm.device.events import Event
 from enip_farm.protocol.connection import IO_PORT
 from enip_farm.server.batch import Datagrams, Message, sockaddr
 from enip_farm.server.limits import RateLimitedLog
@@ -255,11 +254,11 @@ class DeviceIo:
         self.source = socket.inet_aton(device.profile.address)
         self._address = (device.profile.address, IO_PORT)
         self._destinations: dict[tuple[str, int], tuple[bytes, bool]] = {}  # -> (sockaddr, unicast)
-        self._unsubscribe = device.observe(self._observe)
+        device.timer_moved = self._timer_moved
 
-    def _observe(self, event: Event) -> None:
-        if event.kind == "connection opened":  # a new stream and a new watchdog: the timer moved
-            self.thread.reschedule(self)
+    def _timer_moved(self) -> None:
+        """A connection opened (a new stream and a new watchdog): the device's timer may be earlier."""
+        self.thread.reschedule(self)
 
     def take(self, data: bytes, host: str, port: int, now: int) -> None:
         """In the I/O thread: one O->T datagram from host:port, read at `now`, to the device."""
@@ -320,7 +319,8 @@ class DeviceIo:
         log.debug("%s: a T->O packet could not be sent", self.device.name)
 
     def close(self) -> None:
-        self._unsubscribe()
+        if self.device.timer_moved == self._timer_moved:
+            self.device.timer_moved = None
 
 
 class ImplicitIo:

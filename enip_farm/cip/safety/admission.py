@@ -12,20 +12,30 @@ held cannot be applied while other safety connections are open (0x080F). Admitte
 the configuration owner (CFUNID) and the SCID and data are stored. A Type 2 (no data) configures
 nothing: a non-zero SCID must equal the one held (0x080C); a zero SCID asks for no check.
 
-Two single-cast connection types (transport type/trigger, class 0, application triggered):
-0xA0 "server": the target consumes safe outputs O->T and answers with time coordination T->O;
-0x20 "client": the target produces safe inputs T->O and consumes time coordination O->T.
+Two connection types (transport type/trigger, class 0, application triggered):
+0xA0 "server": the target consumes safe outputs O->T and answers with time coordination T->O
+(single-cast: max consumer number 1);
+0x20 "client": the target produces safe inputs T->O and consumes time coordination O->T, single-cast
+or multicast (T->O multicast, max consumer number 1..15, the time correction appended to each data
+message: time correction network parameters 0; the time correction EPI and connection id are not
+checked). A multicast client SafetyOpen for a point already produced joins that producer (same
+T->O connection id, group and Safety Validator instance) when its ping interval EPI multiplier
+(0x0815), max consumer number (0x0816), format (0x0817) and RPIs (0x0112, with the producer's RPIs)
+match, and gets the lowest free consumer number; none free: general status 0x02, no extended
+status (as the HMS target stack answers). cip/safety/multicast.py produces it.
 """
 
 from __future__ import annotations
 
+import struct
 from collections.abc import Callable, Collection
 from dataclasses import dataclass, field
 from typing import NamedTuple
 
 from enip_farm.cip.connection import Connection, ConnectionKind
 from enip_farm.cip.safety.crc import Seeds, crc_s4
-from enip_farm.cip.safety.messages import TCOO_SIZE, data_length, wire_size
+from enip_farm.cip.safety.messages import TCOO_SIZE, TIME_CORRECTION_SIZE, data_length, wire_size
+from enip_farm.cip.safety.multicast import MAX_CONSUMERS, MulticastProducer
 from enip_farm.cip.safety.segment import (
     NOT_USED,
     TIME_CORRECTION_NOT_USED,
@@ -41,6 +51,7 @@ from enip_farm.protocol.cip import ClassCode
 from enip_farm.protocol.connection import ConnectionType, ForwardOpenRequest, NetworkParameters, encode_forward_open
 from enip_farm.protocol.epath import DataSegment, ElectronicKey, LogicalSegment, LogicalType, SafetyNetworkSegment
 from enip_farm.protocol.status import ExtendedStatus as X
+from enip_farm.protocol.status import GeneralStatus
 
 SERVER, CLIENT = 0xA0, 0x20  # transport type/trigger of a safety connection (Vol. 5, 3-5.4)
 _HIGH, _SCHEDULED = 1, 2  # network connection priority of a safety connection
@@ -48,9 +59,9 @@ _MAX_PIEM = 999
 _MAX_TCOO_MIN_MULTIPLIER = 7813  # 1 s in 128 us ticks
 _MAX_NTE_MULTIPLIER = 45313  # 5.8 s
 _MAX_CONNECTION_TIMEOUT_MULTIPLIER = 7
-_MAX_CONSUMERS_MULTICAST = 15
 _MIN_RPI_US, _MAX_RPI_BASE_US, _MAX_RPI_EXTENDED_US = 1_000, 100_000, 1_000_000
 _MAX_RPI_TCOO_US = 10_000_000
+_REQUIRED = 4  # acceptable RPI type of extended status 0x0112: the RPI required
 SCID_SIZE = 10
 
 
@@ -82,8 +93,10 @@ class SafetyPolicy:
 
 
 class SafetyRefusal(NamedTuple):
-    extended: int
+    extended: int | None  # None: no extended status
     expected_size: int | None = None
+    general: int = GeneralStatus.CONNECTION_FAILURE
+    more: tuple[int, ...] = ()  # further additional status words (0x0112: the RPIs)
 
 
 class SafetyOpen(NamedTuple):
@@ -99,10 +112,11 @@ def admit_safety(request: ForwardOpenRequest, segments: list, route_size: int, p
                  check_key: Callable[[ElectronicKey], None], sizes: tuple[int, int], originator_host: str,
                  t_o_address: tuple[str, int], now: int, connections: Collection[Connection],
                  new_id: Callable[[], int], instance_id: Callable[[], int], first_watchdog_ns: int,
-                 initial_rc_offset: int) -> SafetyOpen | SafetyRefusal:
+                 initial_rc_offset: int,
+                 multicast_address: tuple[str, int] = ("0.0.0.0", 0)) -> SafetyOpen | SafetyRefusal:
     """`segments`: the connection path after the route to this device (`route_size` bytes);
     `sizes`: the output and input images' sizes; `check_key` raises the admission's refusal for a
-    key mismatch."""
+    key mismatch; `t_o_address`: where single-cast T->O goes, `multicast_address` multicast."""
     raw = safety_segment_of(segments)
     assert raw is not None
     application = segments[:segments.index(raw)]
@@ -163,15 +177,25 @@ def admit_safety(request: ForwardOpenRequest, segments: list, route_size: int, p
         return SafetyRefusal(X.SCID_MISMATCH)
     if server and any(c.kind is ConnectionKind.SAFETY_OUTPUT for c in safety):
         return SafetyRefusal(X.OWNERSHIP_CONFLICT)  # one owner of the safe outputs
-    if len(safety) >= policy.max_connections:
+    multicast = is_multicast(request)
+    shared = next((c for c in safety if c.multicast and c.t_o_point == producing), None) if multicast else None
+    if shared is not None:
+        refusal = _join_refusal(shared, request, segment)
+        if refusal is not None:
+            return refusal
+    elif len({c.instance for c in safety}) >= policy.max_connections:  # Safety Validator instances
         return SafetyRefusal(X.OUT_OF_CONNECTIONS)
+    originator = Seeds.of(request.triad.originator_vendor_id, request.triad.originator_serial,
+                          request.triad.connection_serial)
+    if multicast:
+        return _multicast(request, segment, shared, policy, sizes[1], originator, consuming, producing,
+                          originator_host, multicast_address, now, new_id, instance_id, first_watchdog_ns,
+                          configuration_data)
     if configuration_data is not None:  # admitted: the originator owns the configuration
         state.configure(segment.ounid, segment.scid, configuration_data)
 
     instance = instance_id()
     target = Seeds.of(policy.vendor_id, policy.serial_number, instance)
-    originator = Seeds.of(request.triad.originator_vendor_id, request.triad.originator_serial,
-                          request.triad.connection_serial)
     if server:
         validator: SafetyConsumer | SafetyProducer = SafetyConsumer(
             segment, sizes[0], pid=originator, cid=target, now=now, first_watchdog_ns=first_watchdog_ns,
@@ -184,16 +208,67 @@ def admit_safety(request: ForwardOpenRequest, segments: list, route_size: int, p
     # application reply (Vol. 5, 3-5.4.2): consumer number (0xFFFF: single-cast), target vendor id,
     # serial number and connection serial number (the Safety Validator instance); extended format:
     # initial timestamp and initial rollover value
-    reply = (0xFFFF).to_bytes(2, "little") + policy.vendor_id.to_bytes(2, "little") + \
-        policy.serial_number.to_bytes(4, "little") + instance.to_bytes(2, "little")
-    if segment.extended:
-        reply += initial[0].to_bytes(2, "little") + initial[1].to_bytes(2, "little")
+    reply = _application_reply(0xFFFF, policy, instance, initial if segment.extended else None)
     connection = Connection(
         kind=ConnectionKind.SAFETY_OUTPUT if server else ConnectionKind.SAFETY_INPUT, triad=request.triad,
         o_t_id=new_id(), t_o_id=request.t_o_connection_id, o_t_rpi=request.o_t_rpi, t_o_rpi=request.t_o_rpi,
         timeout_multiplier=request.timeout_multiplier, originator_host=originator_host, opened_at=now,
         first_watchdog_ns=first_watchdog_ns, t_o_address=t_o_address, o_t_point=consuming, t_o_point=producing,
         o_t_run_idle_header=False, safety=validator, instance=instance, ounid=segment.ounid,
+    )
+    return SafetyOpen(connection, reply)
+
+
+def _application_reply(consumer_number: int, policy: SafetyPolicy, instance: int,
+                       initial: tuple[int, int] | None) -> bytes:
+    """Vol. 5, 3-5.4.2: consumer number (0xFFFF: single-cast), target vendor id, serial number and
+    connection serial number (the Safety Validator instance); extended format: initial timestamp
+    and initial rollover value."""
+    reply = struct.pack("<HHIH", consumer_number, policy.vendor_id, policy.serial_number, instance)
+    return reply + (struct.pack("<HH", *initial) if initial is not None else b"")
+
+
+def _join_refusal(shared: Connection, request: ForwardOpenRequest, segment: SafetySegment) -> SafetyRefusal | None:
+    """A multicast SafetyOpen joining a producer must ask for what it produces (the checks and
+    statuses of the HMS target stack): ping interval EPI multiplier, max consumer number, format,
+    then the RPIs (0x0112 with the acceptable RPI types, 4 = required, and the producer's RPIs)."""
+    producer = shared.safety.producer  # type: ignore[union-attr]
+    if segment.ping_interval_epi_multiplier != producer.ping_interval_epi_multiplier:
+        return SafetyRefusal(X.MULTICAST_PING_INTERVAL_EPI_MULTIPLIER)
+    if segment.max_consumer_number != producer.max_consumers:
+        return SafetyRefusal(X.MULTICAST_MAX_CONSUMER_NUMBER)
+    if segment.extended != producer.extended:
+        return SafetyRefusal(X.MULTICAST_SAFETY_FORMAT)
+    if (request.o_t_rpi, request.t_o_rpi) != (shared.o_t_rpi, shared.t_o_rpi):
+        types = (_REQUIRED if request.o_t_rpi != shared.o_t_rpi else 0) | (
+            _REQUIRED << 8 if request.t_o_rpi != shared.t_o_rpi else 0)
+        return SafetyRefusal(X.RPI_NOT_ACCEPTABLE, more=(types, *struct.unpack("<HHHH", struct.pack(
+            "<II", shared.o_t_rpi, shared.t_o_rpi))))
+    return None
+
+
+def _multicast(request: ForwardOpenRequest, segment: SafetySegment, shared: Connection | None, policy: SafetyPolicy,
+               length: int, originator: Seeds, consuming: int, producing: int, originator_host: str,
+               address: tuple[str, int], now: int, new_id: Callable[[], int], instance_id: Callable[[], int],
+               first_watchdog_ns: int, configuration_data: bytes | None) -> SafetyOpen | SafetyRefusal:
+    """A consumer of the multicast producer of the safe inputs: a new producer, or `shared`'s."""
+    if shared is not None:
+        producer, instance, t_o_id = shared.safety.producer, shared.instance, shared.t_o_id  # type: ignore[union-attr]
+    else:
+        instance, t_o_id = instance_id(), new_id()
+        producer = MulticastProducer(segment, length, Seeds.of(policy.vendor_id, policy.serial_number, instance),
+                                     request.t_o_rpi * 1000, now, first_watchdog_ns)
+    consumer = producer.join(segment, originator, now)
+    if consumer is None:  # every consumer number taken
+        return SafetyRefusal(None, general=GeneralStatus.RESOURCE_UNAVAILABLE)
+    if configuration_data is not None:
+        policy.state.configure(segment.ounid, segment.scid, configuration_data)
+    reply = _application_reply(consumer.number, policy, instance, producer.initial_values if segment.extended else None)
+    connection = Connection(
+        kind=ConnectionKind.SAFETY_INPUT, triad=request.triad, o_t_id=new_id(), t_o_id=t_o_id, o_t_rpi=request.o_t_rpi,
+        t_o_rpi=request.t_o_rpi, timeout_multiplier=request.timeout_multiplier, originator_host=originator_host,
+        opened_at=now, first_watchdog_ns=first_watchdog_ns, t_o_address=address, multicast=True, o_t_point=consuming,
+        t_o_point=producing, o_t_run_idle_header=False, safety=consumer, instance=instance, ounid=segment.ounid,
     )
     return SafetyOpen(connection, reply)
 
@@ -210,10 +285,18 @@ def _points(application: list) -> tuple[int, int, int] | None:
     return (values[0], values[1], values[2]) if len(values) == 3 else None
 
 
-def _network_ok(p: NetworkParameters, size: int | None) -> bool:
-    """Point to point, high or scheduled priority, fixed size (Vol. 5, 3-5.4.1)."""
-    return (p.connection_type == ConnectionType.POINT_TO_POINT and p.priority in (_HIGH, _SCHEDULED)
+def _network_ok(p: NetworkParameters, size: int | None, multicast: bool = False) -> bool:
+    """Point to point (a multicast client's data: multicast), high or scheduled priority, fixed
+    size (Vol. 5, 3-5.4.1)."""
+    kind = ConnectionType.MULTICAST if multicast else ConnectionType.POINT_TO_POINT
+    return (p.connection_type == kind and p.priority in (_HIGH, _SCHEDULED)
             and not p.variable and not p.redundant_owner and (size is None or p.size == size))
+
+
+def is_multicast(request: ForwardOpenRequest) -> bool:
+    """A client SafetyOpen whose safe input data goes T->O multicast."""
+    return (request.transport_type_trigger == CLIENT
+            and request.t_o_parameters.connection_type == ConnectionType.MULTICAST)
 
 
 def _parameters(request: ForwardOpenRequest, segment: SafetySegment, sizes: tuple[int, int]) -> SafetyRefusal | None:
@@ -224,25 +307,27 @@ def _parameters(request: ForwardOpenRequest, segment: SafetySegment, sizes: tupl
     if transport not in (SERVER, CLIENT):
         return SafetyRefusal(X.TRANSPORT_TRIGGER_NOT_SUPPORTED)
     server = transport == SERVER
+    multicast = is_multicast(request)
     data, tcoo = (request.o_t_parameters, request.t_o_parameters) if server else (
         request.t_o_parameters, request.o_t_parameters)
-    if not _network_ok(data, None) or not _network_ok(tcoo, TCOO_SIZE):
+    if not _network_ok(data, None, multicast) or not _network_ok(tcoo, TCOO_SIZE):
         return SafetyRefusal(X.INVALID_CONNECTION_TYPE)
-    if segment.time_correction_parameters != 0:
+    if segment.time_correction_parameters != 0:  # multicast too: no separate time correction connection
         return SafetyRefusal(X.INVALID_TIME_CORRECTION_PARAMETERS)
-    length = data_length(data.size)
+    appended = TIME_CORRECTION_SIZE if multicast else 0  # each multicast data message ends with one
+    length = data_length(data.size - appended)
     if length is None:
         return SafetyRefusal(X.INVALID_SAFETY_CONNECTION_SIZE)
     expected = sizes[0] if server else sizes[1]
     if length != expected:
-        return SafetyRefusal(X.INVALID_O_T_SIZE if server else X.INVALID_T_O_SIZE, wire_size(expected))
+        return SafetyRefusal(X.INVALID_O_T_SIZE if server else X.INVALID_T_O_SIZE, wire_size(expected) + appended)
     data_rpi, tcoo_rpi = (request.o_t_rpi, request.t_o_rpi) if server else (request.t_o_rpi, request.o_t_rpi)
     max_rpi = _MAX_RPI_EXTENDED_US if segment.extended else _MAX_RPI_BASE_US
     if not (_MIN_RPI_US <= data_rpi <= max_rpi and _MIN_RPI_US <= tcoo_rpi <= _MAX_RPI_TCOO_US):
         return SafetyRefusal(X.RPI_NOT_SUPPORTED)
-    if segment.time_correction_epi != 0:
+    if segment.time_correction_epi != 0 and not multicast:
         return SafetyRefusal(X.MISCELLANEOUS)
-    piem_min = min(segment.timeout_multiplier, 4) * segment.max_consumer_number + _MAX_CONSUMERS_MULTICAST
+    piem_min = min(segment.timeout_multiplier, 4) * segment.max_consumer_number + MAX_CONSUMERS
     if not piem_min <= segment.ping_interval_epi_multiplier <= _MAX_PIEM or (
             data_rpi * segment.ping_interval_epi_multiplier > 100_000_000):
         return SafetyRefusal(X.INVALID_PING_INTERVAL_EPI_MULTIPLIER)
@@ -252,13 +337,14 @@ def _parameters(request: ForwardOpenRequest, segment: SafetySegment, sizes: tupl
         return SafetyRefusal(X.INVALID_NETWORK_TIME_EXPECTATION_MULTIPLIER)
     if segment.timeout_multiplier < 1 or (not segment.extended and segment.timeout_multiplier > 4):
         return SafetyRefusal(X.INVALID_SAFETY_TIMEOUT_MULTIPLIER)
-    if segment.max_consumer_number != 1:
+    if not 1 <= segment.max_consumer_number <= (MAX_CONSUMERS if multicast else 1):
         return SafetyRefusal(X.INVALID_MAX_CONSUMER_NUMBER)
-    if segment.time_correction_connection_id != TIME_CORRECTION_NOT_USED:
+    if not multicast and segment.time_correction_connection_id != TIME_CORRECTION_NOT_USED:
         return SafetyRefusal(X.INVALID_TIME_CORRECTION_CONNECTION_ID)
     if segment.extended:
         if segment.max_fault_number > 255:
             return SafetyRefusal(X.MISCELLANEOUS)
-        if server and (segment.initial_timestamp, segment.initial_rollover_value) != (NOT_USED, NOT_USED):
+        if (server or multicast) and (segment.initial_timestamp, segment.initial_rollover_value) != (
+                NOT_USED, NOT_USED):  # the producer of a multicast picks them
             return SafetyRefusal(X.PARAMETER_ERROR)
     return None

@@ -157,3 +157,43 @@ def decode_time_coordination(message: bytes, cid: Seeds, extended: bool) -> Time
     if encode_time_coordination(reply.ping_count_reply, reply.consumer_time, cid, extended) != bytes(message):
         return None
     return reply
+
+
+# -- time correction (multicast) --------------------------------------------------------------------
+
+TIME_CORRECTION_SIZE = 6
+#: Mcast byte (Wireshark's field layout): bits 3-0 consumer number, bit 5 multicast active/idle,
+#: bit 7 even parity.
+_MULTICAST_ACTIVE = 0x20
+
+
+class TimeCorrection(NamedTuple):
+    consumer_number: int  # 0: a null section (no consumer)
+    active: bool
+    value: int  # Time_Correction_Value, 128 us ticks
+
+
+def _parity(byte: int) -> int:
+    return byte | 0x80 if bin(byte).count("1") % 2 else byte
+
+
+def encode_time_correction(correction: TimeCorrection, pid: Seeds, extended: bool) -> bytes:
+    """A time correction section, producer to consumers (Vol. 5, 2-4.4.4): what a multicast
+    producer appends to its data message on EtherNet/IP. Mcast byte, Time_Correction_Value, then
+    Mcast byte 2 and CRC-S3 (base) or CRC-S5, 3 bytes (extended), seeded with the producer's PID."""
+    mcast = _parity((correction.consumer_number & 0x0F) | (_MULTICAST_ACTIVE if correction.active else 0))
+    head = bytes((mcast,)) + _U16.pack(correction.value & 0xFFFF)
+    if extended:
+        s5 = crc_s5(head, pid.s5)
+        return head + bytes((s5 & 0xFF, s5 >> 8 & 0xFF, s5 >> 16))
+    mcast2 = ((mcast ^ 0xFF) & 0x55) | (mcast & 0xAA)
+    return head + bytes((mcast2,)) + _U16.pack(crc_s3(head, pid.s3))
+
+
+def decode_time_correction(section: bytes, pid: Seeds, extended: bool) -> TimeCorrection | None:
+    """None unless the section is 6 bytes with even parity, no reserved bit and a right CRC."""
+    if len(section) != TIME_CORRECTION_SIZE or section[0] & 0x50 or bin(section[0]).count("1") % 2:
+        return None
+    correction = TimeCorrection(section[0] & 0x0F, bool(section[0] & _MULTICAST_ACTIVE),
+                                _U16.unpack_from(section, 1)[0])
+    return correction if encode_time_correction(correction, pid, extended) == bytes(section) else None

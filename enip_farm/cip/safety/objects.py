@@ -15,8 +15,9 @@ from enip_farm.protocol.cip import ClassCode
 
 #: Safety Validator state (attribute 1): 0 unallocated, 1 initializing, 2 established, 3 failed.
 _INITIALIZING, _ESTABLISHED = 1, 2
-#: Safety Validator type (attribute 2): bit 7 consumer (1) / producer (0), bits 0-6 1 = single-cast.
-_CONSUMER, _SINGLE_CAST = 0x80, 0x01
+#: Safety Validator type (attribute 2): bit 7 consumer (1) / producer (0), bits 0-6 1 = single-cast,
+#: 2 = multicast (all consumers of a multicast producer share its instance).
+_CONSUMER, _SINGLE_CAST, _MULTICAST = 0x80, 0x01, 0x02
 
 
 class SafetyValidatorObject(CipClass):
@@ -43,7 +44,8 @@ class SafetyValidatorObject(CipClass):
         state = _ESTABLISHED if (safety.init_complete if consumer else safety.consumer_active) else _INITIALIZING  # type: ignore[union-attr]
         attributes = {
             1: constant(bytes((state,))),
-            2: constant(bytes(((_CONSUMER if consumer else 0) | _SINGLE_CAST,))),
+            2: constant(bytes(((_CONSUMER if consumer else 0)
+                               | (_MULTICAST if connection.multicast else _SINGLE_CAST),))),
         }
         if consumer:
             attributes[12] = constant(struct.pack("<H", safety.max_data_age))  # type: ignore[union-attr]

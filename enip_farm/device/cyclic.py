@@ -1,0 +1,76 @@
+"""One device's class-1 cyclic I/O, the cyclic I/O thread's side (CIP Networks Library Vol. 2, 3-2
+and 3-3; Vol. 1, 3-4.4): O->T datagrams to the connection table, supervision (watchdogs) and T->O
+production. The table is read and written under the device lock; what it hands out to send (T->O
+packets, CIP Safety time coordination replies) is computed under the lock and sent after it, so a
+socket write never holds the lock. A `stop-io` fault or the reset window drops O->T and withholds T->O.
+"""
+
+from __future__ import annotations
+
+from collections import Counter
+from collections.abc import Callable
+
+from enip_farm.device.faults import DeviceFaults
+from enip_farm.device.guard import DeviceGuard
+from enip_farm.device.reset import ResetWindow
+
+#: Sends one datagram (the server's socket): data, destination.
+SendDatagram = Callable[[bytes, tuple[str, int]], None]
+
+
+class CyclicIo:
+    """Moves one device's class-1 datagrams between the I/O thread and its connection table."""
+
+    def __init__(self, guard: DeviceGuard, faults: DeviceFaults, window: ResetWindow, counters: Counter[str]) -> None:
+        self.guard = guard
+        self.table = guard.table
+        self.faults = faults
+        self.window = window
+        self.counters = counters
+
+    def receive_io(self, data: bytes, source: tuple[str, int], now: int, send: SendDatagram) -> bool:
+        """An O->T datagram from `source` (host, port), received at `now`: True if a connection took it.
+        What must answer it at once (CIP Safety time coordination) goes out through `send`, after the lock."""
+        if self.faults.io_stopped:
+            self.counters["o_t_dropped_io_stopped"] += 1
+            return False
+        if self.window.active:
+            self.counters["o_t_dropped_resetting"] += 1
+            return False
+        guard, table, output = self.guard, self.table, self.guard.output
+        with guard.lock:  # O->T changes the outputs only: the inputs need no snapshot
+            old = bytes(output.data) if output is not None else b""
+            taken = table.receive_datagram(data, source[0], now, source[1])
+            replies = table.datagrams_to_send(now) if table.answers_queued else ()  # the one way out
+            connections = table.pop_events() if table.has_events else ()
+            changed = output is not None and output.data != old
+            new = bytes(output.data) if changed else old
+        for packet, address in replies:
+            send(packet, address)
+        if connections or changed:
+            guard.publish((old, b""), (new, b""), now, (), connections)
+        return taken
+
+    def service_io(self, now: int, send: SendDatagram, horizon: int | None = None) -> int | None:
+        """Supervise the connections at `now` and hand `send` the T->O packets due by `now` (or by
+        `horizon`, the end of the I/O thread's turn), after the lock; the next time something is due."""
+        guard, table = self.guard, self.table
+        with guard.lock:
+            expiring = table.supervision_due(now)
+            if expiring:  # a timeout may change the outputs: look before and after
+                before = guard.snapshot()
+                table.handle_timer(now)
+            due, timer = table.produce(now, horizon)
+            if expiring:
+                connections = table.pop_events()
+                after = guard.snapshot()
+        if due and not self.faults.io_stopped:
+            for packet, address in due:
+                send(packet, address)
+        if expiring and connections:
+            guard.publish(before, after, now, (), connections)
+        return timer
+
+    def get_timer(self) -> int | None:
+        with self.guard.lock:
+            return self.table.get_timer()
