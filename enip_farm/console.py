@@ -50,9 +50,11 @@ _TOLD_ELSEWHERE: frozenset[tuple[int, int]] = frozenset({
 
 def configure_logging(level: str = "info", quiet: bool = False) -> None:
     """Log lines of `serve` to stderr: `level` (debug, info, warning, error), or warnings and
-    errors only with `quiet`. The HTTP server's own chatter stays at warnings."""
+    errors only with `quiet`. The HTTP server's own chatter, and the HTTP client's (a line per
+    request the fleet's router forwards), stay at warnings."""
     logging.basicConfig(level=logging.WARNING if quiet else level.upper(), format=LOG_FORMAT, force=True)
-    logging.getLogger("uvicorn.error").setLevel(max(logging.WARNING, logging.getLogger().level))
+    for chatty in ("uvicorn.error", "httpx", "httpcore"):
+        logging.getLogger(chatty).setLevel(max(logging.WARNING, logging.getLogger().level))
 
 
 def service_name(service: int) -> str:

@@ -1,5 +1,6 @@
 """Splitting a cell across processes and hosts: `serve --workers N` and `--shard I/N`; and
-FleetClient, the device handle's calls for a farm or fleet that runs elsewhere (its HTTP API).
+FleetClient, the device handle's calls for a farm or fleet that runs elsewhere (its HTTP API,
+through control/client.py).
 
 Devices joined by wires or rules stay in one slice (they are applied in one process); otherwise
 slices are balanced by device count, in configuration order.
@@ -12,9 +13,8 @@ from collections.abc import Callable
 from typing import Any
 from urllib.parse import quote
 
-import httpx
-
 from enip_farm.config import FarmConfig
+from enip_farm.control.client import ApiClient, ApiError
 
 
 def _groups(config: FarmConfig) -> list[list[str]]:
@@ -99,9 +99,9 @@ class RemoteDevice:
         RobotWare names them; KeyError naming it if the device has no such signal."""
         try:
             return self._client.request("GET", f"/devices/{self.name}/io/{quote(name, safe='')}")["value"]
-        except httpx.HTTPStatusError as error:
-            if error.response.status_code == 404:
-                raise KeyError(error.response.json().get("detail", name)) from None
+        except ApiError as error:
+            if error.status == 404:
+                raise KeyError(error.detail) from None
             raise
 
     def set(self, values: dict[str, int | float | list[int]] | None = None,
@@ -134,13 +134,11 @@ class FleetClient:
     container's published port) as a Python client: `FleetClient(url, token)["io1"].set(DI3=1)`."""
 
     def __init__(self, api: str, token: str | None = None, timeout: float = 10.0) -> None:
-        headers = {"Authorization": f"Bearer {token}"} if token else {}
-        self._http = httpx.Client(base_url=api.rstrip("/"), headers=headers, timeout=timeout)
+        self._api = ApiClient(api, token, timeout)
 
     def request(self, method: str, path: str, **options: Any) -> Any:
-        response = self._http.request(method, path, **options)
-        response.raise_for_status()
-        return response.json()
+        """The reply's JSON; ApiError for an error status, Unreachable when the API does not answer."""
+        return self._api.request(method, path, **options)
 
     def names(self) -> list[str]:
         return [device["name"] for device in self.request("GET", "/devices")]
@@ -149,7 +147,7 @@ class FleetClient:
         return RemoteDevice(self, name)
 
     def close(self) -> None:
-        self._http.close()
+        self._api.close()
 
     def __enter__(self) -> FleetClient:
         return self

@@ -20,8 +20,9 @@ from starlette.requests import Request
 from starlette.responses import JSONResponse, Response, StreamingResponse
 from starlette.routing import Route
 
+from enip_farm.control.client import merge_events
 from enip_farm.control.guard import Guard
-from enip_farm.control.http import bind_problem, listening_socket
+from enip_farm.control.http import bind_problem, listening_socket, no_such_device
 
 _START_TIMEOUT = 120.0
 _FORWARD_TIMEOUT = 30.0
@@ -95,7 +96,7 @@ def create_router(owners: dict[str, int], apis: list[str]) -> Starlette:
     async def device(request: Request) -> Response:
         name = request.path_params["name"]
         if name not in owners:
-            return JSONResponse({"detail": f"no device named {name!r}"}, status_code=404)
+            return JSONResponse({"detail": no_such_device(name, owners)}, status_code=404)
         return await forward(request, owners[name])
 
     async def metrics(request: Request) -> Response:
@@ -109,7 +110,7 @@ def create_router(owners: dict[str, int], apis: list[str]) -> Starlette:
         names = request.query_params.getlist("device")
         for name in names:
             if name not in owners:
-                return JSONResponse({"detail": f"no device named {name!r}"}, status_code=404)
+                return JSONResponse({"detail": no_such_device(name, owners)}, status_code=404)
         kinds = [(key, value) for key, value in request.query_params.multi_items()
                  if key in ("kind", "exclude_kind")]
         workers = sorted({owners[name] for name in names}) if names else list(range(len(apis)))
@@ -124,13 +125,13 @@ def create_router(owners: dict[str, int], apis: list[str]) -> Starlette:
                 for opened in streams:
                     await opened.aclose()
                 return response_of(reply)
-        return StreamingResponse(merged_events(streams), media_type="text/event-stream")
+        return StreamingResponse(merge_events(streams), media_type="text/event-stream")
 
     async def state(request: Request) -> Response:
         names = request.query_params.getlist("device")
         for name in names:
             if name not in owners:
-                return JSONResponse({"detail": f"no device named {name!r}"}, status_code=404)
+                return JSONResponse({"detail": no_such_device(name, owners)}, status_code=404)
         workers = sorted({owners[name] for name in names}) if names else list(range(len(apis)))
         replies = await asyncio.gather(*(client().get(apis[i] + "/state", headers=headers_of(request), params=[
             ("device", name) for name in names if owners[name] == i]) for i in workers))
@@ -177,44 +178,17 @@ def create_router(owners: dict[str, int], apis: list[str]) -> Starlette:
     ], lifespan=lifespan)
 
 
-async def merged_events(streams: list[httpx.Response]) -> AsyncIterator[bytes]:
-    """Server-sent events of several workers as one stream, event by event (blank-line framed)."""
-    merged: asyncio.Queue[bytes | None] = asyncio.Queue()
-
-    async def pump(stream: httpx.Response) -> None:
-        buffer = b""
-        try:
-            async for chunk in stream.aiter_bytes():
-                buffer += chunk
-                while b"\n\n" in buffer:
-                    event, buffer = buffer.split(b"\n\n", 1)
-                    await merged.put(event + b"\n\n")
-        finally:
-            await merged.put(None)
-
-    tasks = [asyncio.ensure_future(pump(stream)) for stream in streams]
-    try:
-        yield b": enip-farm fleet event stream\n\n"
-        running = len(tasks)
-        while running:
-            item = await merged.get()
-            if item is None:
-                running -= 1
-            elif not item.startswith(b": enip-farm event stream"):
-                yield item
-    finally:
-        for task in tasks:
-            task.cancel()
-        for stream in streams:
-            await stream.aclose()
-
-
 class RouterServer(uvicorn.Server):
     """uvicorn in a thread of the parent; the parent, not uvicorn, owns the process's signals."""
 
     @contextlib.contextmanager
     def capture_signals(self) -> Iterator[None]:
         yield
+
+    async def shutdown(self, sockets: list | None = None) -> None:
+        await super().shutdown(sockets)
+        if self.force_exit:  # uvicorn skips the app's lifespan then, which ends cancelled, with a traceback
+            await self.lifespan.shutdown()
 
 
 @contextlib.contextmanager

@@ -23,8 +23,10 @@ from starlette.responses import JSONResponse, Response, StreamingResponse
 from starlette.routing import Route
 
 from enip_farm.config import FarmConfig
+from enip_farm.control.client import merge_events
+from enip_farm.control.http import no_such_device
 from enip_farm.fleet import split
-from enip_farm.fleet_api import merge_metrics, merged_events
+from enip_farm.fleet_api import merge_metrics
 
 _PROBE_TIMEOUT = 3.0
 _FORWARD_TIMEOUT = 30.0
@@ -164,7 +166,7 @@ def create_shard_router(config: FarmConfig, shards: int, discover: Discover, tok
         return response_of(reply)
 
     def unknown(name: str) -> Response:
-        return JSONResponse({"detail": f"no device named {name!r}"}, status_code=404)
+        return JSONResponse({"detail": no_such_device(name, view.order)}, status_code=404)
 
     def unavailable(shard: Shard) -> Response:
         return JSONResponse({"detail": view.down(shard)}, status_code=503)
@@ -260,7 +262,7 @@ def create_shard_router(config: FarmConfig, shards: int, discover: Discover, tok
                 for opened in streams:
                     await opened.aclose()
                 return response_of(reply)
-        return StreamingResponse(merged_events(streams), media_type="text/event-stream")
+        return StreamingResponse(merge_events(streams), media_type="text/event-stream")
 
     async def other(request: Request) -> Response:  # the dashboard's page, /docs: every shard has the same
         up = [shard for shard in (await refresh(force=False)).shards if shard.up]

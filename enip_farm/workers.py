@@ -28,7 +28,7 @@ from enip_farm.console import Console, configure_logging
 from enip_farm.control.guard import needs_token
 from enip_farm.farm import BindError, Farm, freeze_heap, new_event_loop, until_stopped_or_failed
 from enip_farm.fleet import split
-from enip_farm.fleet_api import RouterServer, create_router, router_port, serving_router
+from enip_farm.fleet_api import create_router, router_port, serving_router
 from enip_farm.table import TABLE_HEADER, device_table
 
 _START_TIMEOUT = 120.0
@@ -72,8 +72,10 @@ def _worker(index: int, config_data: dict[str, Any], http: bool, token: str | No
 
 
 def serve_workers(config: FarmConfig, count: int, http: tuple[str, int] | None, token: str | None,
-                  log_level: str = "info", quiet: bool = False, heartbeat: str | Path | None = None) -> int:
-    """Run the workers (and the fleet's HTTP API if `http`) until a signal; the exit status for the CLI."""
+                  log_level: str = "info", quiet: bool = False, heartbeat: str | Path | None = None,
+                  banner: Callable[[str | None], list[str]] = lambda url: []) -> int:
+    """Run the workers (and the fleet's HTTP API if `http`) until a signal; the exit status for the CLI.
+    `banner(url)`: what to say once all listen, given the fleet API's URL (None without one)."""
     if http and needs_token(http[0]) and not token:
         click.echo(f"the HTTP API on {http[0]} needs a token (--token or ENIP_FARM_TOKEN); "
                    "only loopback (localhost, 127.x.y.z, ::1) is served without one", err=True)
@@ -127,20 +129,19 @@ def serve_workers(config: FarmConfig, count: int, http: tuple[str, int] | None, 
                         click.echo(error.strerror or str(error), err=True)
                         status = 1
                 if status == 0:
-                    status = _run(config, processes, tables, http, router, lambda: stopping, budgets)
+                    url = f"http://{http[0]}:{router_port(router)}" if http and router is not None else None
+                    status = _run(processes, tables, banner(url), lambda: stopping, budgets)
     finally:
         status = _stop(processes, previous, status)
     return status
 
 
-def _run(config: FarmConfig, processes: list, tables: dict[int, str], http: tuple[str, int] | None,
-         router: RouterServer | None, stopping: Callable[[], bool], budgets: dict[int, str]) -> int:
-    """Every worker listens: print the table and wait for a signal or a worker's end."""
+def _run(processes: list, tables: dict[int, str], banner: list[str], stopping: Callable[[], bool],
+         budgets: dict[int, str]) -> int:
+    """Every worker listens: print the table and the banner, wait for a signal or a worker's end."""
     click.echo("\n".join([TABLE_HEADER, *(tables[i] for i in sorted(tables))]))
-    click.echo(f"{len(config.devices)} devices in {len(processes)} workers. Ctrl-C to stop.", err=True)
-    if http and router is not None:
-        click.echo(f"HTTP API on http://{http[0]}:{router_port(router)} (the devices of all {len(processes)} "
-                   "workers)", err=True)
+    for line in banner:
+        click.echo(line, err=True)
     for index in sorted(budgets):
         click.echo(f"worker {index} cyclic I/O budget: {budgets[index]}", err=True)
     while not stopping() and all(p.is_alive() for p in processes):

@@ -327,7 +327,7 @@ def test_serve_talks(free_address: AddressPool, tmp_path: Path) -> None:
         banner = log.read_text().splitlines()
         api = banner[1].split()[-1]
         assert banner[:3] == [
-            f"1 devices listening on TCP and UDP 44818, from {config}. Ctrl-C to stop.",
+            f"1 device listening on TCP and UDP 44818, from {config}. Ctrl-C to stop.",
             f"HTTP API on {api}",
             f"dashboard on {api}/ and API docs on {api}/docs; `enip-farm io` and `enip-farm fault` use this API "
             f"with --api {api}"]

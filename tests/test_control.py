@@ -3,7 +3,6 @@ rules end to end, the HTTP API (with its token) and the CLI client against a run
 
 from __future__ import annotations
 
-import json
 import os
 import socket
 import subprocess
@@ -16,6 +15,7 @@ import pytest
 from pycomm3 import CIPDriver, CommError, Services
 
 from enip_farm.config import ConfigError, parse_config
+from enip_farm.control.client import ApiClient
 from enip_farm.device.build import build_profiles
 from enip_farm.device.catalogue import shipped_catalogue
 from enip_farm.protocol.encapsulation import Command, decode_frame, encode_frame
@@ -353,16 +353,13 @@ def test_http_event_stream(enip_farm) -> None:
     farm = enip_farm(name="io", model="DSQC1030", http=True)
     base = f"http://127.0.0.1:{farm.http.port}"
     received = []
-    with httpx.stream("GET", f"{base}/events", params={"kind": ["request", "fault injected"]}, timeout=5) as stream:
-        lines = stream.iter_lines()
-        assert next(lines).startswith(":")
-        with RawClient(farm["io"].address) as c:
+    with ApiClient(base, timeout=5) as client, client.events({"kind": ["request", "fault injected"]}, 5) as events:
+        with RawClient(farm["io"].address) as c:  # the stream is open (subscribed) once its headers are in
             c.register()
             c.get(1, 1, 7)
         farm["io"].inject("drop", duration_s=0.1)
-        for line in lines:
-            if line.startswith("data: "):
-                received.append(json.loads(line[6:]))
+        for event in events:
+            received.append(event.json())
             if len(received) == 2:
                 break
     assert received[0]["kind"] == "request" and received[0]["detail"].startswith("service 0x0E path 20 01 24 01")
@@ -397,7 +394,7 @@ def test_cli_drives_a_running_farm(free_address: AddressPool, tmp_path) -> None:
     config.write_text(f"devices:\n  - {{name: io1, address: {address}, model: DSQC1030}}\ndiscovery: false\n")
     # port 0: the system picks a free port, the farm says which (no probe-then-reuse race)
     with serving(["serve", "--config", str(config), "--http", "0"], table_rows=1) as (server, _):
-        said = read_lines(server.stderr, 2)  # "1 devices listening ...", "HTTP API on http://127.0.0.1:PORT"
+        said = read_lines(server.stderr, 2)  # "1 device listening ...", "HTTP API on http://127.0.0.1:PORT"
         (api,) = [line.split()[-1] for line in said if line.startswith("HTTP API on ")]
         assert api.startswith("http://127.0.0.1:") and not api.endswith(":0"), said
         _drive_with_the_cli(address, api)

@@ -6,7 +6,6 @@ driven in a real browser in tests/test_dashboard_browser.py."""
 from __future__ import annotations
 
 import asyncio
-import json
 import re
 import signal
 import socket
@@ -20,6 +19,7 @@ import httpx
 import pytest
 
 from enip_farm.config import parse_config
+from enip_farm.control.client import ApiClient
 from enip_farm.control.dashboard import WEB
 from enip_farm.control.guard import public
 from enip_farm.control.io_changes import IoChange, SignalDiff, coalesce
@@ -157,16 +157,13 @@ def test_public_paths_are_the_pages_gets_only() -> None:
 # -- the HTTP API (integration) ----------------------------------------------------------------------------
 
 
-def _stream_lines(base: str, params: dict, count: int, act, headers: dict | None = None) -> list[dict]:
+def _stream_lines(base: str, params: dict, count: int, act) -> list[dict]:
     """`count` data events of GET /events, `act()` called once the stream is open."""
     received: list[dict] = []
-    with httpx.stream("GET", f"{base}/events", params=params, headers=headers, timeout=DEADLINE_S) as stream:
-        lines = stream.iter_lines()
-        assert next(lines).startswith(":")
-        act()
-        for line in lines:
-            if line.startswith("data: "):
-                received.append(json.loads(line[6:]))
+    with ApiClient(base, timeout=DEADLINE_S) as client, client.events(params, DEADLINE_S) as events:
+        act()  # the stream is open (subscribed) once its headers are in
+        for event in events:
+            received.append(event.json())
             if len(received) == count:
                 break
     return received
@@ -198,20 +195,17 @@ def test_a_1khz_change_rate_is_coalesced_to_one_event_per_tick(enip_farm) -> Non
     base, io, hub = f"http://127.0.0.1:{farm.http.port}", farm["io"], farm.http.hub
     changes = 1000
     received: list[dict] = []
-    with httpx.stream("GET", f"{base}/events", params={"kind": "io"}, timeout=DEADLINE_S) as stream:
-        lines = stream.iter_lines()
-        assert next(lines).startswith(":")
+    with ApiClient(base, timeout=DEADLINE_S) as client, client.events({"kind": "io"}, DEADLINE_S) as events:
         started = time.monotonic()
         for i in range(changes):  # about 1 kHz: DI1 toggles, DI2 follows every tenth change
             io.set({"DI1": (i + 1) % 2, "DI2": (i // 10 + 1) % 2})
             time.sleep(0.001)
         elapsed = time.monotonic() - started
         io.set(DI16=1)  # the end marker
-        for line in lines:
-            if line.startswith("data: "):
-                received.append(json.loads(line[6:]))
-                if "DI16" in received[-1]["signals"]:
-                    break
+        for event in events:
+            received.append(event.json())
+            if "DI16" in received[-1]["signals"]:
+                break
     # coalesced: call_later(tick_s) after each tick, so no more events than ticks went by, however
     # fast the changes came (about 1 kHz, 20 a tick: the bound holds whatever time.sleep really slept)
     ticks = (time.monotonic() - started) / hub.tick_s + 2
@@ -352,13 +346,16 @@ def test_io_watch_says_what_went_wrong(enip_farm) -> None:
     api = f"http://127.0.0.1:{farm.http.port}"
     unknown = subprocess.run([*CLI, "io", "watch", "nobody", "--api", api], capture_output=True, text=True,
                              timeout=DEADLINE_S)
-    assert unknown.returncode == 1 and unknown.stderr == "GET /events: 404 no device named 'nobody'\n"
+    assert unknown.returncode == 1 and unknown.stderr == "GET /events: 404 no device named 'nobody'; known: io\n"
     with socket.socket() as closed:
         closed.bind(("127.0.0.1", 0))
         port = closed.getsockname()[1]
     refused = subprocess.run([*CLI, "io", "watch", "io", "--api", f"http://127.0.0.1:{port}"], capture_output=True,
                              text=True, timeout=DEADLINE_S)
-    assert refused.returncode == 1 and refused.stderr.startswith(f"cannot reach the farm at http://127.0.0.1:{port}")
+    assert (refused.returncode, refused.stderr) == (1, (  # the words of every client command (cli/api.py)
+        f"cannot reach the farm's HTTP API at http://127.0.0.1:{port} (Connection refused): is the farm running with "
+        f"its HTTP API? Start it with `enip-farm serve --http {port}`, or give the API's address with --api (or "
+        "ENIP_FARM_API).\n"))
 
 
 @pytest.mark.system

@@ -18,6 +18,7 @@ import yaml
 from enip_farm.config import parse_config
 from enip_farm.device.build import build_profiles
 from enip_farm.device.catalogue import shipped_catalogue
+from enip_farm.device.profile_file import write_profile
 from enip_farm.eds.reader import EdsError, _eds_pie_messages, eds_profile, parse_eds, read_eds
 from enip_farm.eds.writer import model_profile, write_eds
 from enip_farm.protocol.epath import LogicalSegment, LogicalType, decode_epath
@@ -172,8 +173,7 @@ def test_import_refuses_what_it_cannot_serve() -> None:
 
 
 def _write_profile(path: Path, document: dict) -> Path:
-    path.write_text(yaml.safe_dump(document, sort_keys=False))
-    return path
+    return write_profile(path, document, "a test's profile")
 
 
 def test_imported_vendor_profile_is_served_as_the_eds_says(enip_farm, tmp_path: Path) -> None:
@@ -290,7 +290,7 @@ def test_eds_commands(tmp_path: Path) -> None:
     assert list(yaml.safe_load(profile.read_text())["models"]) == ["DSQC1030_eds"]
     for args, message in (
             (["export", "DSQC9", "-o", str(tmp_path / "x.eds")],
-             "eds export: device 'eds' (devices[0]), model: unknown base model 'DSQC9'; known: DSQC1030, DSQC1042"),
+             "eds export: unknown model 'DSQC9'; known: DSQC1030, DSQC1042"),
             (["import", str(ROOT / "README.md"), "-o", str(tmp_path / "x.yaml")],
              f"{ROOT / 'README.md'}:1: not an EDS"),
             (["import", str(tmp_path / "missing.eds"), "-o", str(tmp_path / "x.yaml")],

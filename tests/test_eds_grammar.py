@@ -10,8 +10,8 @@ import struct
 from pathlib import Path
 
 import pytest
-import yaml
 
+from enip_farm.device.profile_file import write_profile
 from enip_farm.eds.grammar import decode_eds_bytes, parse_eds_text
 from enip_farm.eds.reader import EdsError, eds_profile, read_eds
 from tests.helpers import RawClient, forward_open_message
@@ -137,7 +137,7 @@ def test_a_device_without_class_1_entries_is_explicit_only(enip_farm, tmp_path: 
     assert notes == ["no class-1 connection entry the farm serves: an explicit-only device (identity and its "
                      "assemblies)"]
     profile = tmp_path / "bridge.yaml"
-    profile.write_text(yaml.safe_dump(document, sort_keys=False, allow_unicode=True))
+    write_profile(profile, document, "made from bridge.eds by the test", notes)
     farm = enip_farm(name="bridge", model=str(profile))
     with RawClient(farm["bridge"].address) as client:
         client.register()

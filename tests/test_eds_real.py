@@ -13,6 +13,7 @@ import pytest
 import yaml
 
 from enip_farm.device.catalogue import Catalogue
+from enip_farm.device.profile_file import write_profile
 from enip_farm.eds.grammar import decode_eds_bytes, parse_eds_text
 from enip_farm.eds.reader import EdsDevice, eds_profile, read_eds
 from enip_farm.protocol.cip import encode_request
@@ -115,7 +116,7 @@ def _close(client: RawClient, triad: ConnectionTriad, path: bytes) -> None:
 def _served_farm(enip_farm, tmp_path: Path, name: str):
     device, model_name, document, _ = _read(name)
     profile = tmp_path / "profile.yaml"
-    profile.write_text(yaml.safe_dump(document, sort_keys=False))
+    write_profile(profile, document, f"made from {name} by the test")
     farm = enip_farm(name="dev", model=str(profile), implicit={"first_watchdog_s": 30})
     return device, document["models"][model_name], farm
 

@@ -6,7 +6,6 @@ real (CI)."""
 
 from __future__ import annotations
 
-import json
 import os
 import shutil
 import socket
@@ -21,6 +20,7 @@ import yaml
 from prometheus_client.parser import text_string_to_metric_families
 
 from enip_farm.config import load_config, parse_config
+from enip_farm.control.client import ApiClient
 from enip_farm.fleet import shard, split
 from enip_farm.fleet_api import merge_metrics, serving_router
 from enip_farm.k8s import manifests
@@ -175,7 +175,8 @@ def test_the_fleet_api_finds_routes_merges_and_shows_a_shard_down(enip_farm) -> 
         down_names = [d.name for d in parts[2].devices]
         assert refused.status_code == 503 and refused.json() == {
             "detail": f"shard 3/3 (devices {down_names[0]}..{down_names[-1]}) is down"}
-        assert api.get("/devices/nope").status_code == 404
+        known = ", ".join(f"io{n}" for n in range(1, 7))
+        assert api.get("/devices/nope").json() == {"detail": f"no device named 'nope'; known: {known}"}
         assert api.post(f"/devices/{first}/faults", json={"kind": "delay", "delay_ms": 1}).status_code == 201
         assert [f["kind"] for f in farms[0][first].faults] == ["delay"]
         up = {}
@@ -187,15 +188,13 @@ def test_the_fleet_api_finds_routes_merges_and_shows_a_shard_down(enip_farm) -> 
         state = api.get("/state", params={"device": [third, second]}).json()
         assert [(d["name"], d["shard_up"]) for d in state] == [(third, False), (second, True)]
         assert state[0]["connections"] == [] and state[0]["signals"] == []  # the shape the dashboard reads
-        with api.stream("GET", "/events", params={"kind": "fault injected"}) as stream:  # both shards' streams
-            lines = stream.iter_lines()
-            assert next(lines).startswith(": ")
+        with ApiClient(str(api.base_url), timeout=10) as client, \
+                client.events({"kind": "fault injected"}, STARTUP_S) as events:  # both shards' streams, merged
             for name in (second, first):
                 assert api.post(f"/devices/{name}/faults", json={"kind": "delay", "delay_ms": 2}).status_code == 201
             seen = set()
-            for text in lines:  # bounded by the client's timeout; ends once both were seen
-                if text.startswith("data: "):
-                    seen.add(json.loads(text[6:])["device"])
+            for event in events:  # bounded by the client's timeout; ends once both were seen
+                seen.add(event.json()["device"])
                 if seen == {first, second}:
                     break
             assert seen == {first, second}

@@ -219,9 +219,12 @@ def test_a_digital_value_is_0_or_1_on_every_path(enip_farm) -> None:
                                       "--service 0x0E --status 0x08)"),
     (["drop", "--duration", "-1"], "fault io1 drop: --duration: must be > 0, got -1"),
 ])
-def test_fault_errors_are_one_line_naming_the_flag(args: list[str], expected: str) -> None:
-    result = CliRunner().invoke(main, ["fault", "io1", *args, "--api", "http://127.0.0.1:9"])  # never contacted
+@pytest.mark.integration
+def test_fault_errors_are_one_line_naming_the_flag(enip_farm, args: list[str], expected: str) -> None:
+    farm = enip_farm(name="io1", model="DSQC1030", http=True)  # the kinds and their checks are the farm's
+    result = CliRunner().invoke(main, ["fault", "io1", *args, "--api", f"http://127.0.0.1:{farm.http.port}"])
     assert result.exit_code == 2 and result.output == expected + "\n", result.output
+    assert farm["io1"].faults == []
 
 
 @pytest.mark.integration

@@ -5,7 +5,6 @@ for real inside a network namespace this test creates)."""
 from __future__ import annotations
 
 import ipaddress
-import json
 import os
 import shutil
 import signal
@@ -19,9 +18,11 @@ import httpx
 import psutil
 import pytest
 import yaml
+from prometheus_client.parser import text_string_to_metric_families
 
 from enip_farm.compose import compose_file, pool_size
 from enip_farm.config import ConfigError, load_config, parse_config
+from enip_farm.control.client import ApiClient
 from enip_farm.fleet import FleetClient, shard, split
 from enip_farm.protocol.encapsulation import Command, encode_frame
 from enip_farm.pytest_plugin import AddressPool
@@ -139,33 +140,31 @@ def test_one_http_port_drives_the_devices_of_every_worker(free_address: AddressP
         with httpx.Client(base_url=api, headers=auth, timeout=STARTUP_S) as client:
             assert [d["name"] for d in client.get("/devices").json()] == names
             assert all(client.get(f"/devices/{n}/io").json()["signals"]["DI"][2] == 1 for n in names)
-            assert client.get("/devices/nope").status_code == 404
+            unknown = client.get("/devices/nope")
+            assert unknown.json() == {"detail": f"no device named 'nope'; known: {', '.join(names)}"}
             state = client.get("/state", params={"device": ["io6", "io1"]}).json()  # merged, in the asked order
             assert [d["name"] for d in state] == ["io6", "io1"] and all(d["signals"][2]["value"] == 1 for d in state)
             assert [d["name"] for d in client.get("/state").json()] == names
             assert client.get("/state", params={"device": "nope"}).status_code == 404
             metrics = client.get("/metrics").text
             assert metrics.count("# HELP enip_farm_tcp_connections_total") == 1
+            assert [f.name for f in text_string_to_metric_families(metrics)].count("enip_farm_tcp_connections") == 1
             assert metric_samples(metrics, "enip_farm_tcp_connections_total") == {(("device", n),): 0.0 for n in names}
-            with client.stream("GET", "/events", params={"kind": "fault injected"}) as stream:
-                lines = stream.iter_lines()
-                assert next(lines).startswith(": ")
+            with ApiClient(api, "s3cret") as reader, reader.events({"kind": "fault injected"}, STARTUP_S) as events:
                 for name in ("io1", "io6"):
                     injected = client.post(f"/devices/{name}/faults", json={"kind": "delay", "delay_ms": 1})
                     assert injected.status_code == 201
                 seen = set()
-                for text in lines:  # bounded by the client's timeout; ends once both were seen
-                    if text.startswith("data: "):
-                        seen.add(json.loads(text[6:])["device"])
+                for event in events:  # bounded by the read timeout; ends once both were seen
+                    seen.add(event.json()["device"])
                     if seen == {"io1", "io6"}:
                         break
                 assert seen == {"io1", "io6"}
-            with client.stream("GET", "/events", params={"device": "io4", "exclude_kind": "fault injected"}) as stream:
-                lines = stream.iter_lines()
-                assert next(lines).startswith(": ")
+            with ApiClient(api, "s3cret") as reader, \
+                    reader.events({"device": "io4", "exclude_kind": "fault injected"}, STARTUP_S) as events:
                 assert client.post("/devices/io4/faults", json={"kind": "delay", "delay_ms": 1}).status_code == 201
                 assert client.put("/devices/io4/io", json={"signals": {"DI5": 1}}).status_code == 200
-                event = json.loads(next(text for text in lines if text.startswith("data: "))[6:])
+                event = next(events).json()
                 assert (event["kind"], event["signals"]) == ("io", {"DI5": {"old": 0, "new": 1}})
             assert client.put("/devices/io4/io", json={"signals": {"DI5": 0}}).status_code == 200
             assert client.delete("/devices/io4/faults").status_code == 200

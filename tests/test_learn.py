@@ -19,6 +19,7 @@ from pycomm3 import CIPDriver, Services
 from enip_farm.capture.learn import LearnError, learn
 from enip_farm.capture.packets import CaptureError
 from enip_farm.config import parse_config
+from enip_farm.device.profile_file import write_profile
 from enip_farm.farm import Farm
 from enip_farm.protocol.encapsulation import Command, encode_frame
 from enip_farm.pytest_plugin import AddressPool
@@ -57,7 +58,7 @@ def test_reads_of_100_and_101_learn_sizes_not_roles(free_address: AddressPool, t
         "identity.product_name", "assemblies.output", "assemblies.input", "assemblies.configuration",
         "sizes.configuration", "io layout"]
     clone = tmp_path / "clone.yaml"
-    clone.write_text(yaml.safe_dump(profile.document))
+    write_profile(clone, profile.document, "learned by the test", profile.notes)
     clone_address = free_address()
     with Farm(parse_config({"devices": [{"name": "clone", "address": clone_address, "model": str(clone)}],
                             "discovery": False})).running_in_thread():

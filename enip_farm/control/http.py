@@ -23,7 +23,7 @@ import errno
 import math
 import socket
 import time
-from collections.abc import Iterator
+from collections.abc import Iterable, Iterator
 from typing import Annotated, Any
 
 import uvicorn
@@ -88,6 +88,13 @@ class FaultKindInfo(BaseModel):
 class ResetRequest(BaseModel):
     type: int = Field(0, ge=0, le=2, description="0 power cycle, 1 out-of-box configuration, "
                       "2 out-of-box configuration but the communication parameters (Identity Reset types)")
+
+
+def no_such_device(name: str, known: Iterable[str], shown: int = 20) -> str:
+    """A 404's detail: the name asked for and the names there are (the first `shown` of many)."""
+    names = list(known)
+    listed = ", ".join(names[:shown]) + (f", ... ({len(names)} in all)" if len(names) > shown else "")
+    return f"no device named {name!r}; known: {listed or 'none'}"
 
 
 def _io(farm: FarmControl, name: str) -> dict[str, Any]:
@@ -157,7 +164,7 @@ def create_app(farm: FarmControl, hub: EventHub | None = None, overview: Overvie
 
     def known(name: str) -> str:
         if name not in farm.devices:
-            raise HTTPException(404, f"no device named {name!r}")
+            raise HTTPException(404, no_such_device(name, farm.devices))
         return name
 
     @app.get("/devices")

@@ -26,7 +26,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from types import MappingProxyType
 
-from enip_farm.config import parse_config
+from enip_farm.config import ConfigError, is_profile_path, parse_config
 from enip_farm.device.build import build_profiles
 from enip_farm.device.catalogue import Catalogue
 from enip_farm.device.profile import AssemblySpec, DeviceProfile
@@ -337,6 +337,13 @@ def _declared_sections(profile: DeviceProfile) -> list[str]:
 def model_profile(model: str, addons: Sequence[str], catalogue: Catalogue, base_dir: str | Path = ".") -> DeviceProfile:
     """The profile a device of `model` (a catalogue model or a profile file) with `addons` gets.
     Raises ConfigError (one line per problem) for an unknown model or add-on."""
+    problems = [] if is_profile_path(model) or model in catalogue.bases() else [
+        f"eds export: unknown model {model!r}; known: {', '.join(catalogue.bases())}, or a profile file "
+        "(PROFILE.yaml, FILE.eds)"]
+    problems += [f"eds export: unknown add-on {addon!r}; known: {', '.join(catalogue.addons())}"
+                 for addon in addons if addon not in catalogue.addons()]
+    if problems:
+        raise ConfigError("\n".join(problems))
     device = {"name": "eds", "address": "127.0.0.1", "model": model, "addons": list(addons)}
     config = parse_config({"devices": [device]}, "eds export", base_dir)
     (profile,) = build_profiles(config, catalogue)

@@ -11,7 +11,8 @@ the sans-IO encapsulation session and writing each batch of whole replies with o
   over a cap is closed at once.
 - Encapsulation inactivity timeout (TCP/IP Interface attribute 13): a connection with no whole
   request for that long is closed, whether it sent nothing or half a header.
-Injected faults (device/faults.py) delay or drop replies, and close or reset connections. A device
+Injected faults act through their hooks (device/fault_type.py): `on_reply` holds replies back or
+drops them, `on_tcp_connection` closes or resets a new connection. A device
 in its reset window (Identity Reset) takes no connection. Every read and write is counted in the
 device's interface counters (Ethernet Link attribute 4)."""
 

@@ -1,36 +1,16 @@
 """`enip-farm stack`, `enip-farm k8s` and `enip-farm fleet-api`: a cell beyond one host, on an
-existing engine (Docker Swarm, Kubernetes). The CLI (cli.py) registers these commands."""
+existing engine (Docker Swarm, Kubernetes)."""
 
 from __future__ import annotations
 
-import signal
 import sys
-import threading
 from pathlib import Path
+from typing import NoReturn
 
 import click
 
-from enip_farm.config import ConfigError, FarmConfig, load_config
-from enip_farm.control.guard import needs_token
-from enip_farm.device.build import build_profiles
-from enip_farm.device.catalogue import shipped_catalogue
-from enip_farm.fleet_api import router_port, serving_router
-from enip_farm.k8s import manifests
-from enip_farm.shard_api import create_shard_router, dns_discovery, static_discovery
-from enip_farm.stack import stack_file
 
-
-def _cell(path: Path) -> FarmConfig:
-    try:
-        config = load_config(path)
-        build_profiles(config, shipped_catalogue())
-    except ConfigError as error:
-        click.echo(str(error), err=True)
-        sys.exit(2)
-    return config
-
-
-def _refuse(command: str, error: ValueError) -> None:
+def _refuse(command: str, error: ValueError) -> NoReturn:
     click.echo(f"{command}: {error}", err=True)
     sys.exit(2)
 
@@ -52,9 +32,13 @@ def stack(config_path: Path, shards: int, subnet: str, container_range: str, par
           output: Path | None) -> None:
     """Write a Docker Swarm stack: a farm service of SHARDS replicas (task slot I serves slice I/N), the
     fleet's HTTP API, a one-shot tester."""
+    from enip_farm.cli.cell import load_cell
+    from enip_farm.stack import stack_file
+
     stack_dir = output.resolve().parent if output else Path.cwd()
     try:
-        text = stack_file(_cell(config_path), config_path, stack_dir, shards, subnet, container_range, parent, api_port)
+        text = stack_file(load_cell(config_path), config_path, stack_dir, shards, subnet, container_range, parent,
+                          api_port)
     except ValueError as error:
         _refuse("stack", error)
     if output:
@@ -78,8 +62,11 @@ def k8s(config_path: Path, shards: int, subnet: str, node_range: str, image: str
         output: Path) -> None:
     """Write Kubernetes manifests: StatefulSet (pod K serves slice K+1/N), ConfigMap, Secret, headless
     Service, the fleet's HTTP API, a tester Job."""
+    from enip_farm.cli.cell import load_cell
+    from enip_farm.k8s import manifests
+
     try:
-        files = manifests(_cell(config_path), config_path.read_text(), shards, subnet, node_range, image, iface)
+        files = manifests(load_cell(config_path), config_path.read_text(), shards, subnet, node_range, image, iface)
     except ValueError as error:
         _refuse("k8s", error)
     output.mkdir(parents=True, exist_ok=True)
@@ -101,7 +88,16 @@ def k8s(config_path: Path, shards: int, subnet: str, node_range: str, image: str
 def fleet_api(config_path: Path, shards: int, discover: str | None, urls: tuple[str, ...], http: str,
               token: str | None) -> None:
     """Serve one HTTP API for the shards of a cell wherever they run."""
-    config = _cell(config_path)
+    import signal
+    import threading
+
+    from enip_farm.cli.cell import load_cell
+    from enip_farm.control.guard import needs_token
+    from enip_farm.fleet_api import router_port, serving_router
+    from enip_farm.shard_api import create_shard_router, dns_discovery, static_discovery
+    from enip_farm.words import plural
+
+    config = load_cell(config_path)
     host, _, port_text = http.rpartition(":")
     if not port_text.isdigit() or not host:
         raise click.BadParameter(f"{http!r}: expected HOST:PORT", param_hint="--http")
@@ -126,8 +122,9 @@ def fleet_api(config_path: Path, shards: int, discover: str | None, urls: tuple[
         signal.signal(sig, lambda *_: stop.set())
     try:
         with serving_router(app, host, int(port_text), token) as server:
-            click.echo(f"fleet HTTP API on http://{host}:{router_port(server)} for {len(config.devices)} devices "
-                       f"in {shards} shards ({discover or ', '.join(urls)})", err=True)
+            click.echo(f"fleet HTTP API on http://{host}:{router_port(server)} for "
+                       f"{plural(len(config.devices), 'device')} in {plural(shards, 'shard')} "
+                       f"({discover or ', '.join(urls)})", err=True)
             while not stop.wait(0.5) and server.started and not server.should_exit:
                 pass
     except OSError as error:

@@ -1,0 +1,189 @@
+"""A new user's first hour with the CLI (issue 23): each friction they met, now fixed, one test each;
+and the CLI's shape: commands that import their heavy modules only when they run."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+from pathlib import Path
+
+import httpx
+import pytest
+import yaml
+from click.testing import CliRunner
+
+from enip_farm.cli import main
+from enip_farm.control.client import ApiClient, encode_event
+from enip_farm.device.catalogue import shipped_catalogue
+from enip_farm.pytest_plugin import AddressPool
+from enip_farm.words import plural
+from tests.helpers import CLI, ROOT, STARTUP_S, serving, wait_for
+
+SEED = ROOT / "captures" / "dsqc1030_explicit_session.pcap"
+
+
+def _cell(tmp_path: Path, *addresses: str) -> Path:
+    path = tmp_path / "cell.yaml"
+    path.write_text(yaml.safe_dump({"devices": [{"name": f"io{i}", "address": address, "model": "DSQC1030"}
+                                                for i, address in enumerate(addresses, 1)], "discovery": False}))
+    return path
+
+
+@pytest.mark.system
+def test_ctrl_c_on_workers_with_http_is_quiet_and_the_banner_shows_the_dashboard(free_address: AddressPool,
+                                                                                 tmp_path: Path) -> None:
+    config = _cell(tmp_path, free_address(), free_address())
+    log = tmp_path / "serve.log"
+    with log.open("w") as stderr, serving(["serve", "--config", str(config), "--workers", "2", "--http", "0"],
+                                          table_rows=2, stderr=stderr, start_new_session=True) as (server, _):
+        assert wait_for(lambda: "dashboard on " in log.read_text(), timeout=STARTUP_S), log.read_text()
+        banner = log.read_text().splitlines()
+        api = banner[1].split()[3]
+        assert banner[:3] == [
+            f"2 devices listening on TCP and UDP 44818 in 2 workers, from {config}. Ctrl-C to stop.",
+            f"HTTP API on {api} (the devices of all 2 workers)",
+            f"dashboard on {api}/ and API docs on {api}/docs; `enip-farm io` and `enip-farm fault` use this API "
+            f"with --api {api}"]
+        for _ in range(3):  # proxied requests: none of them is a console line
+            assert httpx.get(f"{api}/devices/io2/io", timeout=STARTUP_S).status_code == 200
+        with httpx.stream("GET", f"{api}/events", timeout=STARTUP_S) as stream:  # open at Ctrl-C
+            assert stream.status_code == 200
+            os.killpg(server.pid, signal.SIGINT)  # what a terminal's Ctrl-C does: the whole group
+            assert server.wait(timeout=STARTUP_S) == 0
+    said = log.read_text()
+    assert "Traceback" not in said and "CancelledError" not in said and "HTTP Request" not in said, said
+    assert len(said.splitlines()) == 5, said  # the banner and the two workers' budgets: nothing else
+
+
+@pytest.mark.integration
+def test_golden_beside_a_running_farm_hints_at_address(enip_farm, tmp_path: Path) -> None:
+    farm = enip_farm(name="io1", model="DSQC1030")
+    address = farm["io1"].address
+    result = CliRunner().invoke(main, ["golden", str(SEED), "--config", str(_cell(tmp_path, address))])
+    assert result.exit_code == 1
+    assert result.output.splitlines() == [
+        f"device 'io1': cannot bind TCP {address}:44818: the port is already in use there (another farm or "
+        "EtherNet/IP stack?).",
+        "golden starts its own farm (the default cell, or --config); to replay against a farm that is already "
+        "running, give the device's address: --address ADDRESS"]
+
+
+@pytest.mark.integration
+def test_an_unknown_device_is_answered_with_the_known_ones(enip_farm) -> None:
+    farm = enip_farm(name="io1", model="DSQC1030", http=True)
+    api = f"http://127.0.0.1:{farm.http.port}"
+    reply = httpx.get(f"{api}/devices/io9/io", timeout=10)
+    assert (reply.status_code, reply.json()) == (404, {"detail": "no device named 'io9'; known: io1"})
+    result = CliRunner().invoke(main, ["io", "get", "io9", "--api", api])
+    assert (result.exit_code, result.output) == (1, "GET /devices/io9/io: 404 no device named 'io9'; known: io1\n")
+
+
+def test_no_such_device_lists_the_first_twenty_of_many() -> None:
+    from enip_farm.control.http import no_such_device
+
+    names = [f"io{i}" for i in range(1, 31)]
+    assert no_such_device("x", names) == (f"no device named 'x'; known: {', '.join(names[:20])}, ... (30 in all)")
+    assert no_such_device("x", []) == "no device named 'x'; known: none"
+
+
+def test_io_set_says_which_values_are_accepted() -> None:
+    result = CliRunner().invoke(main, ["io", "set", "io1", "DI3=yes", "--api", "http://127.0.0.1:9"])  # not asked
+    assert result.exit_code == 2
+    assert result.output.splitlines()[-1] == (
+        "Error: Invalid value for SIGNAL=VALUE: 'DI3=yes': expected SIGNAL=VALUE, VALUE being a number: 0 or 1 for a "
+        "digital signal (DI3=1), an integer for a group or analog one (goProgramNo=5, AI1=0x4B0), a decimal for a "
+        "scaled one (AI1=2.5), or integers separated by commas for a range (DI1-4=1,0,1,1)")
+
+
+@pytest.mark.integration
+def test_io_set_takes_a_range_as_a_list(enip_farm) -> None:
+    farm = enip_farm(name="io1", model="DSQC1030", http=True)
+    result = CliRunner().invoke(main, ["io", "set", "io1", "DI1-4=1,0,1,1", "--api",
+                                       f"http://127.0.0.1:{farm.http.port}"])
+    assert result.exit_code == 0, result.output
+    assert farm["io1"].get("DI1-4") == [1, 0, 1, 1] and farm["io1"].inputs == b"\x0d\x00"
+
+
+def test_eio_export_to_dash_writes_standard_output(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.chdir(tmp_path)
+    plain = CliRunner().invoke(main, ["eio", "export"])
+    dashed = CliRunner().invoke(main, ["eio", "export", "-o", "-"])
+    assert plain.exit_code == dashed.exit_code == 0
+    assert dashed.output == plain.output and dashed.output.startswith("EIO:CFG_")
+    assert list(tmp_path.iterdir()) == []  # no file named "-"
+
+
+def test_one_device_is_one_device(tmp_path: Path) -> None:
+    config = _cell(tmp_path, "127.0.0.5")
+    result = CliRunner().invoke(main, ["validate", str(config)])
+    assert (result.exit_code, result.output) == (0, f"{config}: 1 device, valid\n")
+    assert [plural(n, "device") for n in (0, 1, 2)] == ["0 devices", "1 device", "2 devices"]
+    assert plural(1, "replay entry", "replay entries") == "1 replay entry"
+    assert plural(3, "replay entry", "replay entries") == "3 replay entries"
+
+
+def test_eds_export_of_an_unknown_model_names_the_model_and_the_known_ones() -> None:
+    result = CliRunner().invoke(main, ["eds", "export", "DSQC1300", "-o", "-"])
+    known = ", ".join(shipped_catalogue().bases())
+    assert (result.exit_code, result.output) == (2, (
+        f"eds export: unknown model 'DSQC1300'; known: {known}, or a profile file (PROFILE.yaml, FILE.eds)\n"))
+    addon = CliRunner().invoke(main, ["eds", "export", "DSQC1030", "--addons", "DSQC9999", "-o", "-"])
+    assert (addon.exit_code, addon.output) == (2, (
+        f"eds export: unknown add-on 'DSQC9999'; known: {', '.join(shipped_catalogue().addons())}\n"))
+
+
+@pytest.mark.integration
+def test_fault_kinds_come_from_the_farm(enip_farm) -> None:
+    farm = enip_farm(name="io1", model="DSQC1030", http=True)
+    api = f"http://127.0.0.1:{farm.http.port}"
+    kinds = httpx.get(f"{api}/fault-kinds", timeout=10).json()
+    listed = CliRunner().invoke(main, ["fault", "--list", "--api", api])
+    assert listed.exit_code == 0
+    names = [line.split()[0] for line in listed.output.splitlines() if not line.startswith(" ")]
+    assert names == [kind["kind"] for kind in kinds]
+    assert "    delay_ms=VALUE (--delay-ms): ms to hold each reply, 0..60000" in listed.output.replace(
+        " " * (max(map(len, names)) + 2), "", 1)  # under its kind, indented past the names
+    given = CliRunner().invoke(main, ["fault", "io1", "delay", "delay_ms=5", "--duration", "30", "--api", api])
+    assert (given.exit_code, given.output) == (0, "io1: active faults: delay\n")
+    assert [(f["kind"], f["delay_ms"]) for f in farm["io1"].faults] == [("delay", 5.0)]
+    stray = CliRunner().invoke(main, ["fault", "io1", "drop", "delay_ms=5", "--api", api])
+    assert (stray.exit_code, stray.output) == (2, "fault io1 drop: delay_ms: not a parameter of drop (it takes no "
+                                                  "parameter, and --duration)\n")
+
+
+def test_an_event_written_again_reads_the_same() -> None:
+    from httpx_sse import ServerSentEvent
+    from httpx_sse._decoders import SSEDecoder
+
+    for event in (ServerSentEvent("message", json.dumps({"device": "io1"})), ServerSentEvent("lost", '{"lost": 3}'),
+                  ServerSentEvent("message", "two\nlines", id="7", retry=100)):
+        decoder = SSEDecoder()
+        decoded = [decoder.decode(line) for line in encode_event(event).decode().splitlines()]
+        (again,) = [item for item in decoded if item is not None]
+        assert (again.event, again.data, again.id, again.retry) == (event.event, event.data, event.id, event.retry)
+    assert encode_event(ServerSentEvent("message", "{}")) == b"data: {}\n\n"
+
+
+@pytest.mark.integration
+def test_the_client_reads_the_event_stream(enip_farm) -> None:
+    farm = enip_farm(name="io1", model="DSQC1030", http=True)
+    with ApiClient(f"http://127.0.0.1:{farm.http.port}") as client, \
+            client.events({"device": "io1", "kind": "io"}, 10) as events:
+        assert wait_for(lambda: farm.http.hub.subscribers, timeout=10)
+        farm["io1"].set(DI2=1)
+        event = next(events)
+    assert (event.event, event.json()["device"], event.json()["signals"]) == ("message", "io1",
+                                                                              {"DI2": {"old": 0, "new": 1}})
+
+
+@pytest.mark.system
+def test_the_cli_imports_only_click_until_a_command_runs() -> None:
+    code = ("import sys; import enip_farm.cli; print(sorted({m.split('.')[0] for m in sys.modules} & "
+            "{'httpx', 'pydantic', 'fastapi', 'starlette', 'uvicorn', 'yaml', 'dpkt', 'lark', 'prometheus_client'}))")
+    loaded = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60, cwd=ROOT)
+    assert (loaded.returncode, loaded.stdout) == (0, "[]\n"), loaded.stderr
+    helped = subprocess.run([*CLI, "--help"], capture_output=True, text=True, timeout=60)
+    assert helped.returncode == 0 and "serve " in helped.stdout and "fault " in helped.stdout
