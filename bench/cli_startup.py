@@ -1,8 +1,10 @@
 """How long the CLI takes to answer: `enip-farm --help`, and `enip-farm io get io1` against a farm
-with its HTTP API (one device, in a subprocess on 127.0.0.1). Each command runs `--runs` times as
-the installed `enip-farm` script would run it (a fresh interpreter each time); the median and the
-spread are printed, and a JSON line. Issue 23's goal: both under 0.25 s. `--tree PATH` measures
-another checkout (e.g. main before the CLI's lazy imports) the same way. Where the time goes:
+with its HTTP API (one device on a free 127.x address, in a subprocess). Each command runs `--runs` times as
+the installed `enip-farm` script would run it (a fresh interpreter each time), and so does
+`python -c pass`, the floor; the median and the spread of the wall-clock time, and the median CPU
+time (the steadier figure on a busy machine), are printed, and a JSON line. Issue 23's goal: both
+under 0.25 s. `--tree PATH` measures another checkout (e.g. main before the CLI's lazy imports) the
+same way. Where the time goes:
 `python -X importtime -m enip_farm --help 2> imports.txt`.
 
     python bench/cli_startup.py [--runs 15] [--tree PATH]
@@ -86,7 +88,8 @@ def main() -> None:
                 raise SystemExit(f"the farm did not start: {farm.stderr.read().decode() if farm.stderr else ''}")
             api = f"http://127.0.0.1:{port}"
             tree = args.tree.resolve()
-            results = {"help": _timed([*cli, "--help"], env, tree, args.runs),
+            results = {"python": _timed([sys.executable, "-c", "pass"], env, tree, args.runs),  # the floor
+                       "help": _timed([*cli, "--help"], env, tree, args.runs),
                        "io get": _timed([*cli, "io", "get", "io1", "--api", api], env, tree, args.runs)}
         finally:
             farm.terminate()
@@ -94,7 +97,8 @@ def main() -> None:
     figures = {}
     for name, (walls, cpus) in results.items():
         figures[name] = {"wall": round(statistics.median(walls), 4), "cpu": round(statistics.median(cpus), 4)}
-        print(f"enip-farm {name:7}  median {statistics.median(walls) * 1000:6.1f} ms wall-clock (min "
+        label = "python -c pass" if name == "python" else f"enip-farm {name}"
+        print(f"{label:16}  median {statistics.median(walls) * 1000:6.1f} ms wall-clock (min "
               f"{min(walls) * 1000:.1f}, max {max(walls) * 1000:.1f}), {statistics.median(cpus) * 1000:6.1f} ms CPU; "
               f"{len(walls)} runs")
     print(json.dumps({"bench": "cli_startup", "tree": str(args.tree), "runs": args.runs, "median_s": figures}))

@@ -53,30 +53,56 @@ def merge_metrics(texts: list[str], labels: list[dict[str, str]] | None = None,
     return generate_latest(registry).decode()
 
 
+class Upstream:
+    """A router's HTTP client toward the farms behind it (fleet_api.py, shard_api.py), made on the
+    router's own event loop at its first use: a request goes on with its client's headers but the
+    hop-by-hop ones (Authorization too: the farms check the token), and an answer comes back as it came."""
+
+    def __init__(self, timeout: float = _FORWARD_TIMEOUT) -> None:
+        self.timeout = timeout
+        self._client: httpx.AsyncClient | None = None
+
+    @property
+    def client(self) -> httpx.AsyncClient:
+        if self._client is None:
+            self._client = httpx.AsyncClient(timeout=self.timeout)
+        return self._client
+
+    @staticmethod
+    def headers_of(request: Request) -> dict[str, str]:
+        return {k: v for k, v in request.headers.items() if k.lower() not in _HOP_HEADERS}
+
+    @staticmethod
+    def response_of(reply: httpx.Response) -> Response:
+        headers = {k: v for k, v in reply.headers.items() if k.lower() not in _HOP_HEADERS}
+        return Response(reply.content, status_code=reply.status_code, headers=headers)
+
+    async def forward(self, request: Request, base: str) -> Response:
+        """`request` as it came, to the farm at `base`; its answer."""
+        reply = await self.client.request(request.method, base + request.url.path,
+                                          params=request.query_params.multi_items(),
+                                          headers=self.headers_of(request), content=await request.body())
+        return self.response_of(reply)
+
+    async def aclose(self) -> None:
+        if self._client is not None:
+            await self._client.aclose()
+            self._client = None
+
+
 def create_router(owners: dict[str, int], apis: list[str]) -> Starlette:
     """The fleet's HTTP API: `owners` maps each device (in configuration order) to the index of the
     worker serving it, `apis[i]` is worker i's base URL. Requests are forwarded with their
     Authorization header; the workers answer (and check the token)."""
     order = {name: position for position, name in enumerate(owners)}
-    clients: dict[str, httpx.AsyncClient] = {}  # per router instance, made on its own event loop
+    upstream = Upstream()  # per router instance, its client made on the router's loop
+    headers_of, response_of = upstream.headers_of, upstream.response_of
 
     def client() -> httpx.AsyncClient:
-        if "client" not in clients:
-            clients["client"] = httpx.AsyncClient(timeout=_FORWARD_TIMEOUT)
-        return clients["client"]
-
-    def headers_of(request: Request) -> dict[str, str]:
-        return {k: v for k, v in request.headers.items() if k.lower() not in _HOP_HEADERS}
-
-    def response_of(reply: httpx.Response) -> Response:
-        headers = {k: v for k, v in reply.headers.items() if k.lower() not in _HOP_HEADERS}
-        return Response(reply.content, status_code=reply.status_code, headers=headers)
+        return upstream.client
 
     async def forward(request: Request, worker: int) -> Response:
-        reply = await client().request(request.method, apis[worker] + request.url.path,
-                                       params=request.query_params.multi_items(), headers=headers_of(request),
-                                       content=await request.body())
-        return response_of(reply)
+        return await upstream.forward(request, apis[worker])
 
     async def gather(request: Request, workers: list[int]) -> list[httpx.Response] | Response:
         replies = await asyncio.gather(*(client().get(apis[i] + request.url.path, headers=headers_of(request),
@@ -162,8 +188,7 @@ def create_router(owners: dict[str, int], apis: list[str]) -> Starlette:
     @contextlib.asynccontextmanager
     async def lifespan(_: Starlette) -> AsyncIterator[None]:
         yield
-        if "client" in clients:
-            await clients.pop("client").aclose()
+        await upstream.aclose()
 
     methods = ["GET", "PUT", "POST", "DELETE", "PATCH"]
     return Starlette(routes=[

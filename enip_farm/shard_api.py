@@ -26,13 +26,10 @@ from enip_farm.config import FarmConfig
 from enip_farm.control.client import merge_events
 from enip_farm.control.http import no_such_device
 from enip_farm.fleet import split
-from enip_farm.fleet_api import merge_metrics
+from enip_farm.fleet_api import Upstream, merge_metrics
 
 _PROBE_TIMEOUT = 3.0
-_FORWARD_TIMEOUT = 30.0
 _VIEW_TTL = 1.0  # seconds a view of the shards serves device requests before it is looked up again
-_HOP_HEADERS = frozenset({"connection", "keep-alive", "transfer-encoding", "content-length", "content-encoding",
-                          "host", "upgrade", "te", "trailer", "proxy-authorization", "proxy-authenticate"})
 
 Discover = Callable[[], Awaitable[list[str]]]
 
@@ -126,13 +123,12 @@ def create_shard_router(config: FarmConfig, shards: int, discover: Discover, tok
     the shards what they serve; a client's requests are forwarded with the client's Authorization."""
     view = ShardView(config, shards)
     own = {"Authorization": f"Bearer {token}"} if token else {}
-    clients: dict[str, httpx.AsyncClient] = {}
+    upstream = Upstream()
+    headers_of, response_of = upstream.headers_of, upstream.response_of
     lock: dict[str, asyncio.Lock] = {}
 
     def client() -> httpx.AsyncClient:
-        if "client" not in clients:
-            clients["client"] = httpx.AsyncClient(timeout=_FORWARD_TIMEOUT)
-        return clients["client"]
+        return upstream.client
 
     async def refresh(force: bool) -> ShardView:
         if "lock" not in lock:
@@ -152,18 +148,7 @@ def create_shard_router(config: FarmConfig, shards: int, discover: Discover, tok
                 view.learn({endpoint: answer for endpoint, answer in answers if answer is not None}, clock())
         return view
 
-    def headers_of(request: Request) -> dict[str, str]:
-        return {k: v for k, v in request.headers.items() if k.lower() not in _HOP_HEADERS}
-
-    def response_of(reply: httpx.Response) -> Response:
-        headers = {k: v for k, v in reply.headers.items() if k.lower() not in _HOP_HEADERS}
-        return Response(reply.content, status_code=reply.status_code, headers=headers)
-
-    async def forward(request: Request, endpoint: str) -> Response:
-        reply = await client().request(request.method, endpoint + request.url.path,
-                                       params=request.query_params.multi_items(), headers=headers_of(request),
-                                       content=await request.body())
-        return response_of(reply)
+    forward = upstream.forward
 
     def unknown(name: str) -> Response:
         return JSONResponse({"detail": no_such_device(name, view.order)}, status_code=404)
@@ -273,8 +258,7 @@ def create_shard_router(config: FarmConfig, shards: int, discover: Discover, tok
     @contextlib.asynccontextmanager
     async def lifespan(_: Starlette) -> AsyncIterator[None]:
         yield
-        if "client" in clients:
-            await clients.pop("client").aclose()
+        await upstream.aclose()
 
     methods = ["GET", "PUT", "POST", "DELETE", "PATCH"]
     return Starlette(routes=[

@@ -25,7 +25,11 @@ class ConnectionEvent:
     """Something that happened to a device's connections at `at` (ns)."""
 
     at: int
-    kind: ClassVar[str]  # the wire's "kind"
+    kind: ClassVar[str] = ""  # the wire's "kind", given by each class: `class X(Base, kind="...")`
+
+    def __init_subclass__(cls, kind: str = "") -> None:
+        if kind:  # (no super(): dataclass(slots=True) makes a new class, object's takes nothing)
+            cls.kind = kind
 
     @property
     def text(self) -> str:
@@ -34,11 +38,10 @@ class ConnectionEvent:
 
 
 @dataclass(frozen=True, slots=True)
-class ConnectionRefused(ConnectionEvent):
+class ConnectionRefused(ConnectionEvent, kind="connection refused"):
     """A Forward Open or Forward Close refused: no connection came of it."""
 
     reason: str  # the request, who sent it and the status it got
-    kind: ClassVar[str] = "connection refused"
 
     @property
     def text(self) -> str:
@@ -57,58 +60,52 @@ class OfConnection(ConnectionEvent):
         return describe(self.connection) + (f": {self.reason}" if self.reason else "")
 
 
-@dataclass(frozen=True, slots=True)
-class ConnectionOpened(OfConnection):
+class ConnectionOpened(OfConnection, kind="connection opened"):
     """A Forward Open admitted: a new connection, a new watchdog and maybe a new T->O stream."""
 
-    kind: ClassVar[str] = "connection opened"
+    __slots__ = ()
 
 
-@dataclass(frozen=True, slots=True)
 class ConnectionEnded(OfConnection):
     """A connection closed, whatever closed it (the subclasses say what)."""
 
+    __slots__ = ()
 
-@dataclass(frozen=True, slots=True)
-class ConnectionClosed(ConnectionEnded):
+
+class ConnectionClosed(ConnectionEnded, kind="connection closed"):
     """Closed on purpose: a Forward Close, its TCP connection, a reset, its producer's close."""
 
-    kind: ClassVar[str] = "connection closed"
+    __slots__ = ()
 
 
-@dataclass(frozen=True, slots=True)
-class ConnectionTimedOut(ConnectionEnded):
+class ConnectionTimedOut(ConnectionEnded, kind="connection timed out"):
     """Its supervision deadline came (Vol. 1, 3-4.4.9; a Safety Validator's for CIP Safety)."""
 
-    kind: ClassVar[str] = "connection timed out"
+    __slots__ = ()
 
 
-@dataclass(frozen=True, slots=True)
-class ConnectionFaulted(ConnectionEnded):
+class ConnectionFaulted(ConnectionEnded, kind="connection faulted"):
     """A CIP Safety connection its Safety Validator faulted (Vol. 5, 2-4.6)."""
 
-    kind: ClassVar[str] = "connection faulted"
+    __slots__ = ()
 
 
-@dataclass(frozen=True, slots=True)
-class SafeState(OfConnection):
+class SafeState(OfConnection, kind="safe state"):
     """The end of a safety output connection put the safe outputs in the safe state (all off)."""
 
-    kind: ClassVar[str] = "safe state"
+    __slots__ = ()
 
 
-@dataclass(frozen=True, slots=True)
-class SafetyCrcFault(OfConnection):
+class SafetyCrcFault(OfConnection, kind="safety crc fault"):
     """A safety message failed its integrity checks (size, CRC, redundancy)."""
 
-    kind: ClassVar[str] = "safety crc fault"
+    __slots__ = ()
 
 
-@dataclass(frozen=True, slots=True)
-class SafetyTimingFault(OfConnection):
+class SafetyTimingFault(OfConnection, kind="safety timing fault"):
     """A safety message failed its time checks (timestamp delta, data age)."""
 
-    kind: ClassVar[str] = "safety timing fault"
+    __slots__ = ()
 
 
 #: The event of each fault a Safety Validator names (cip/safety/validator.py, `Consumed.fault`).
@@ -116,11 +113,10 @@ SAFETY_FAULTS: Mapping[str, type[OfConnection]] = MappingProxyType({"crc": Safet
                                                                    "timing": SafetyTimingFault})
 
 
-@dataclass(frozen=True, slots=True)
-class ConnectionShortData(OfConnection):
+class ConnectionShortData(OfConnection, kind="connection short data"):
     """A variable-size connection's first O->T shorter than the assembly (not applied)."""
 
-    kind: ClassVar[str] = "connection short data"
+    __slots__ = ()
 
 
 def describe(connection: Connection) -> str:
