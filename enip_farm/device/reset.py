@@ -107,9 +107,9 @@ class Resets:
         self.sessions.restart()
         self.window.start(now)
 
-    def announce(self, request: ResetRequested) -> None:
+    def announce(self, request: ResetRequested, now: int) -> None:
         """After the lock: the "reset" event, whose `DeviceReset` detail the farm acts on."""
-        self.guard.record("reset", DeviceReset(request, self.quiet_s))
+        self.guard.record("reset", DeviceReset(request, self.quiet_s), now)
 
     def reset(self, kind: int, now: int) -> bool:
         """A reset from outside CIP (a test engineer's power switch or reset button): as an Identity
@@ -127,7 +127,7 @@ class Resets:
             connections = self.objects.table.pop_events()
             after = guard.snapshot()
         guard.publish(before, after, now, (), connections)
-        self.announce(request)
+        self.announce(request, now)
         return True
 
     def end(self, now: int) -> bool:

@@ -86,7 +86,7 @@ class EncapsulationTarget:
         if connections or before != after or guard.observers or reset is not None:
             guard.publish(before, after, context.now, requests, connections)
             if reset is not None:
-                self.resets.announce(reset)
+                self.resets.announce(reset, context.now)
         else:  # the hot path: a request that changed nothing, nobody listening
             for handled in requests:
                 guard.events.request(handled, context.now)
@@ -110,5 +110,5 @@ class EncapsulationTarget:
             after = guard.snapshot()
         guard.publish(before, after, context.now, requests, connections)
         if reset is not None:
-            self.resets.announce(reset)
+            self.resets.announce(reset, context.now)
         return connection.t_o_id, reply, items

@@ -1,0 +1,82 @@
+"""A device's reset as the farm carries it out (Identity Reset, CIP Networks Library Vol. 1,
+5-2.4.1; the device's own part is device/reset.py). A device tells its observers of a reset it
+performed by a "reset" event whose detail is a `DeviceReset` (the Identity object's
+`ResetRequested`, or the API's reset button); on that type, never on an event's text, the farm
+closes the device's TCP connections and its listener once the reply has been written (the event
+loop runs the close after the write), and listens again when the device's reset window ends
+(`Device.end_reset`, asked at the window's deadline and never before)."""
+
+from __future__ import annotations
+
+import asyncio
+import logging
+import time
+from collections.abc import Callable, Coroutine
+from typing import Any
+
+from enip_farm.device.device import Device
+from enip_farm.device.events import Event
+from enip_farm.device.reset import DeviceReset
+from enip_farm.farm_listeners import BindError, Listeners
+from enip_farm.server.waits import os_wait_s
+
+log = logging.getLogger(__name__)
+
+
+class FarmResets:
+    """Closes and reopens the TCP side of the farm's devices around their resets."""
+
+    def __init__(self, listeners: Listeners, spawn: Callable[[Coroutine[Any, Any, Any]], None]) -> None:
+        """`spawn`: runs a coroutine as a task of the farm (its exception reaches the loop's handler)."""
+        self.listeners = listeners
+        self.spawn = spawn
+        self.timers: dict[str, asyncio.TimerHandle] = {}  # each resetting device's end of window
+        self.loop: asyncio.AbstractEventLoop | None = None  # while the farm serves (`start`, `stop`)
+
+    def start(self, loop: asyncio.AbstractEventLoop) -> None:
+        """The farm serves from `loop`: resets are carried out from now."""
+        self.loop = loop
+
+    def stop(self) -> None:
+        self.loop = None
+        for timer in self.timers.values():
+            timer.cancel()
+        self.timers.clear()
+
+    def on_event(self, device: Device, event: Event) -> None:
+        """A device's observer (any thread): a reset is carried out on the loop, after the reply."""
+        loop = self.loop
+        if type(event.detail) is DeviceReset and loop is not None:
+            loop.call_soon_threadsafe(self._begin, device)
+
+    def _begin(self, device: Device) -> None:
+        """On the loop, after the Reset's reply was written: the device's sessions end (its TCP
+        connections close) and it takes no connection until its reset window ends."""
+        if self.loop is None:
+            return
+        self.listeners.close_connections(device)
+        self.listeners.stop_listening(device.name)
+        self._arm_end(device)
+
+    def _arm_end(self, device: Device) -> None:
+        due = device.reset_window.due()
+        timer = self.timers.pop(device.name, None)
+        if timer is not None:
+            timer.cancel()
+        if due is not None and self.loop is not None:
+            delay_s = os_wait_s((due - time.monotonic_ns()) / 1e9)
+            self.timers[device.name] = self.loop.call_later(delay_s, self._end, device)
+
+    def _end(self, device: Device) -> None:
+        self.timers.pop(device.name, None)
+        if not device.end_reset(time.monotonic_ns()):
+            self._arm_end(device)  # the timer came a little early: wait for the deadline itself
+            return
+        if self.loop is not None and device.faults.listens and not self.listeners.listening(device.name):
+            self.spawn(self._listen_after_reset(device))
+
+    async def _listen_after_reset(self, device: Device) -> None:
+        try:
+            await self.listeners.listen(device)
+        except BindError as error:  # someone took the address meanwhile: say so, keep serving the others
+            log.error("%s (after its reset)", error)
