@@ -10,6 +10,7 @@ polling the page does not add to what is measured.
 
 from __future__ import annotations
 
+import os
 import shutil
 import tempfile
 import time
@@ -96,6 +97,19 @@ new MutationObserver(records => {
 
 def installed() -> bool:
     return Path(CHROMIUM).exists() and Path(CHROMEDRIVER).exists()
+
+
+@contextmanager
+def browser_for_tests() -> Iterator[Any]:
+    """`chromium()` for a test: skipped where Debian's chromium is not installed (failed on CI)."""
+    import pytest
+
+    if not installed():
+        if os.environ.get("CI"):
+            pytest.fail("chromium and chromium-driver are not installed (.ci/run installs them)")
+        pytest.skip("needs Debian's chromium and chromium-driver (apt-get install chromium chromium-driver)")
+    with chromium() as driver:
+        yield driver
 
 
 @contextmanager

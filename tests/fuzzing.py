@@ -23,10 +23,12 @@ import struct
 from collections.abc import Iterator
 from contextlib import contextmanager
 
-from enip_farm.cip.admission import ConnectionPolicy, KeyIdentity, Originator
+from enip_farm.cip.admission import Originator
 from enip_farm.cip.assembly import AssemblyInstance
 from enip_farm.cip.connection import ConnectionKind
 from enip_farm.cip.connection_events import ConnectionEnded
+from enip_farm.cip.connection_path import KeyIdentity
+from enip_farm.cip.connection_policy import ConnectionPolicy
 from enip_farm.cip.connection_table import ConnectionTable
 from enip_farm.config import parse_config
 from enip_farm.device.build import build_profiles

@@ -9,10 +9,12 @@ import random
 import httpx
 import pytest
 
-from enip_farm.cip.admission import ConnectionPolicy, KeyIdentity, Originator, Refusal
+from enip_farm.cip.admission import Originator
 from enip_farm.cip.assembly import AssemblyInstance
 from enip_farm.cip.budget import CyclicBudget
 from enip_farm.cip.connection_events import ConnectionRefused
+from enip_farm.cip.connection_path import KeyIdentity
+from enip_farm.cip.connection_policy import ConnectionPolicy, Refusal
 from enip_farm.cip.connection_table import ConnectionTable, Opened
 from enip_farm.server.calibrate import UTILISATION, measure_budget
 from enip_farm.server.implicit import OVERLOAD_LAG_NS, Lag

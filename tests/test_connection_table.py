@@ -8,7 +8,7 @@ import random
 
 import pytest
 
-from enip_farm.cip.admission import ConnectionPolicy, KeyIdentity, Originator, Refusal
+from enip_farm.cip.admission import Originator
 from enip_farm.cip.assembly import AssemblyInstance
 from enip_farm.cip.connection import ConnectionKind
 from enip_farm.cip.connection_events import (
@@ -17,6 +17,8 @@ from enip_farm.cip.connection_events import (
     ConnectionShortData,
     ConnectionTimedOut,
 )
+from enip_farm.cip.connection_path import KeyIdentity
+from enip_farm.cip.connection_policy import ConnectionPolicy, Refusal
 from enip_farm.cip.connection_table import ConnectionTable, Opened
 from enip_farm.protocol.connection import (
     ConnectionTriad,

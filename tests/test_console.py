@@ -22,8 +22,6 @@ import pytest
 from click.testing import CliRunner
 from pycomm3 import CIPDriver, Services
 
-from enip_farm.cip.safety.messages import encode_data, mode_byte
-from enip_farm.cip.safety.validator import ticks
 from enip_farm.cli import main
 from enip_farm.console import Console
 from enip_farm.device.device import Device
@@ -33,6 +31,8 @@ from enip_farm.protocol.cip import encode_multiple_service, encode_request, enco
 from enip_farm.protocol.connection import ConnectionTriad, encode_class0_packet, encode_forward_open
 from enip_farm.protocol.encapsulation import Command, encode_frame
 from enip_farm.protocol.epath import encode_request_path
+from enip_farm.protocol.safety.messages import encode_data, mode_byte
+from enip_farm.protocol.safety.validator import ticks
 from enip_farm.protocol.session import EncapsulationSession, MessageContext
 from enip_farm.pytest_plugin import AddressPool
 from enip_farm.server.limits import RateLimitedLog

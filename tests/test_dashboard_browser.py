@@ -28,8 +28,7 @@ from tests.browser import (
     RECORD_CHANGES,
     RECORD_TILES,
     WAIT_S,
-    chromium,
-    installed,
+    browser_for_tests,
     open_page,
     page_errors,
     until,
@@ -46,11 +45,7 @@ NAMED = [{"name": "diGripperClosed", "type": "DI", "device_map": "3"},
 
 @pytest.fixture(scope="module")
 def browser() -> Iterator:
-    if not installed():
-        if os.environ.get("CI"):
-            pytest.fail("chromium and chromium-driver are not installed (.ci/run installs them)")
-        pytest.skip("needs Debian's chromium and chromium-driver (apt-get install chromium chromium-driver)")
-    with chromium() as driver:
+    with browser_for_tests() as driver:
         yield driver
 
 

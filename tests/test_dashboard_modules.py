@@ -7,7 +7,6 @@ and looks at the page and the farm.
 
 from __future__ import annotations
 
-import os
 import re
 from collections.abc import Iterator
 from typing import Any
@@ -16,7 +15,7 @@ import httpx
 import pytest
 
 from enip_farm.control.dashboard import WEB
-from tests.browser import chromium, installed, open_page, page_errors, until
+from tests.browser import browser_for_tests, open_page, page_errors, until
 
 pytestmark = pytest.mark.system
 
@@ -38,11 +37,7 @@ import(new URL('dashboard/' + module, document.baseURI).href)
 
 @pytest.fixture(scope="module")
 def browser() -> Iterator:
-    if not installed():
-        if os.environ.get("CI"):
-            pytest.fail("chromium and chromium-driver are not installed (.ci/run installs them)")
-        pytest.skip("needs Debian's chromium and chromium-driver (apt-get install chromium chromium-driver)")
-    with chromium() as driver:
+    with browser_for_tests() as driver:
         yield driver
 
 

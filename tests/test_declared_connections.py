@@ -8,9 +8,11 @@ from __future__ import annotations
 
 import random
 
-from enip_farm.cip.admission import ConnectionPolicy, DeclaredConnection, KeyIdentity, Originator, Refusal
+from enip_farm.cip.admission import Originator
 from enip_farm.cip.assembly import AssemblyInstance
 from enip_farm.cip.connection import ConnectionKind
+from enip_farm.cip.connection_path import KeyIdentity
+from enip_farm.cip.connection_policy import ConnectionPolicy, DeclaredConnection, Refusal
 from enip_farm.cip.connection_table import ConnectionTable, Opened
 from enip_farm.protocol.connection import (
     ConnectionTriad,

@@ -8,7 +8,6 @@ import random
 import pytest
 
 from enip_farm import console
-from enip_farm.cip.safety import segment
 from enip_farm.config import parse_config
 from enip_farm.device import reset as device_reset
 from enip_farm.device.build import build_profiles
@@ -41,6 +40,7 @@ from enip_farm.protocol.epath import (
     encode_port,
     encode_request_path,
 )
+from enip_farm.protocol.safety import segment
 
 
 @pytest.mark.parametrize("value", [0, 1, 0xFF, 0x100, 0xFFFF, 0x10000, 0xFFFFFFFF])

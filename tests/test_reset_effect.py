@@ -11,7 +11,6 @@ import pytest
 
 from enip_farm.cip.identity import IdentityObject, ResetRequested
 from enip_farm.cip.message_router import MessageRouter
-from enip_farm.cip.safety.messages import encode_data, mode_byte
 from enip_farm.config import DeviceConfig
 from enip_farm.device.catalogue import shipped_catalogue
 from enip_farm.device.device import Device
@@ -23,6 +22,7 @@ from enip_farm.protocol.connection import decode_io_packet, encode_class0_packet
 from enip_farm.protocol.cpf import ItemType
 from enip_farm.protocol.encapsulation import Command, encode_frame
 from enip_farm.protocol.epath import encode_request_path
+from enip_farm.protocol.safety.messages import encode_data, mode_byte
 from enip_farm.protocol.session import MessageContext
 from tests.helpers import ENIP_PORT, RawClient
 from tests.test_cip_services_unit import CLASS1, MS, SCANNER, T0, ask, make_device

@@ -10,7 +10,7 @@ import struct
 
 import pytest
 
-from enip_farm.cip.admission import ConnectionPolicy, KeyIdentity, Originator, Refusal
+from enip_farm.cip.admission import Originator
 from enip_farm.cip.assembly import AssemblyInstance
 from enip_farm.cip.connection import ConnectionKind
 from enip_farm.cip.connection_events import (
@@ -22,27 +22,10 @@ from enip_farm.cip.connection_events import (
     SafetyCrcFault,
     SafetyTimingFault,
 )
+from enip_farm.cip.connection_path import KeyIdentity
+from enip_farm.cip.connection_policy import ConnectionPolicy, Refusal
 from enip_farm.cip.connection_table import ConnectionTable, Opened
 from enip_farm.cip.safety.admission import SafetyPolicy
-from enip_farm.cip.safety.crc import Seeds, crc_s1, crc_s2, crc_s3, crc_s4, crc_s5
-from enip_farm.cip.safety.messages import (
-    decode_data,
-    decode_time_coordination,
-    encode_data,
-    encode_time_coordination,
-    mode_byte,
-    wire_size,
-)
-from enip_farm.cip.safety.segment import (
-    FORMAT_BASE,
-    FORMAT_EXTENDED,
-    SafetySegment,
-    Unid,
-    compute_cpcrc,
-    decode_segment,
-    encode_segment,
-)
-from enip_farm.cip.safety.validator import TICK_NS, ticks
 from enip_farm.protocol.connection import (
     ConnectionTriad,
     ConnectionType,
@@ -54,6 +37,25 @@ from enip_farm.protocol.connection import (
     encode_class0_packet,
     encode_forward_open,
 )
+from enip_farm.protocol.safety.crc import Seeds, crc_s1, crc_s2, crc_s3, crc_s4, crc_s5
+from enip_farm.protocol.safety.messages import (
+    decode_data,
+    decode_time_coordination,
+    encode_data,
+    encode_time_coordination,
+    mode_byte,
+    wire_size,
+)
+from enip_farm.protocol.safety.segment import (
+    FORMAT_BASE,
+    FORMAT_EXTENDED,
+    SafetySegment,
+    Unid,
+    compute_cpcrc,
+    decode_segment,
+    encode_segment,
+)
+from enip_farm.protocol.safety.validator import TICK_NS, ticks
 from enip_farm.protocol.status import ExtendedStatus as X
 
 MS = 1_000_000

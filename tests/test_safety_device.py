@@ -11,9 +11,6 @@ import struct
 import httpx
 from pycomm3 import CIPDriver, Services
 
-from enip_farm.cip.safety.crc import Seeds
-from enip_farm.cip.safety.messages import decode_time_coordination, encode_data, mode_byte
-from enip_farm.cip.safety.validator import ticks
 from enip_farm.config import DeviceConfig
 from enip_farm.device.catalogue import shipped_catalogue
 from enip_farm.device.device import Device
@@ -22,6 +19,9 @@ from enip_farm.device.signals import SignalMap
 from enip_farm.protocol.cip import decode_reply, encode_request
 from enip_farm.protocol.connection import class0_data, decode_io_packet, encode_class0_packet, encode_forward_open
 from enip_farm.protocol.epath import encode_request_path
+from enip_farm.protocol.safety.crc import Seeds
+from enip_farm.protocol.safety.messages import decode_time_coordination, encode_data, mode_byte
+from enip_farm.protocol.safety.validator import ticks
 from enip_farm.protocol.session import MessageContext
 from tests.test_safety import MS, ORIGINATOR, T0, _pid, safety_open
 

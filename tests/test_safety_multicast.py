@@ -16,19 +16,10 @@ from pathlib import Path
 
 import pytest
 
-from enip_farm.cip.admission import Originator, Refusal
+from enip_farm.cip.admission import Originator
 from enip_farm.cip.connection_events import ConnectionRefused, ConnectionTimedOut
+from enip_farm.cip.connection_policy import Refusal
 from enip_farm.cip.connection_table import ConnectionTable, Opened
-from enip_farm.cip.safety.crc import Seeds
-from enip_farm.cip.safety.messages import (
-    TimeCorrection,
-    decode_data,
-    decode_time_correction,
-    encode_time_coordination,
-    wire_size,
-)
-from enip_farm.cip.safety.segment import Unid
-from enip_farm.cip.safety.validator import ticks
 from enip_farm.config import parse_config
 from enip_farm.farm import Farm
 from enip_farm.protocol.cip import encode_request
@@ -45,6 +36,16 @@ from enip_farm.protocol.connection import (
 )
 from enip_farm.protocol.cpf import ItemType
 from enip_farm.protocol.epath import encode_request_path
+from enip_farm.protocol.safety.crc import Seeds
+from enip_farm.protocol.safety.messages import (
+    TimeCorrection,
+    decode_data,
+    decode_time_correction,
+    encode_time_coordination,
+    wire_size,
+)
+from enip_farm.protocol.safety.segment import Unid
+from enip_farm.protocol.safety.validator import ticks
 from enip_farm.protocol.status import ExtendedStatus as X
 from tests.helpers import RawClient
 from tests.test_safety import MS, SERIAL, T0, VENDOR, _pid, make_table, safety_open

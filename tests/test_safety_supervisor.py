@@ -10,8 +10,6 @@ import struct
 
 import pytest
 
-from enip_farm.cip.safety.crc import crc_s4
-from enip_farm.cip.safety.segment import Unid
 from enip_farm.config import DeviceConfig
 from enip_farm.device.catalogue import shipped_catalogue
 from enip_farm.device.device import Device
@@ -19,6 +17,8 @@ from enip_farm.device.profile import resolve
 from enip_farm.protocol.cip import decode_reply, encode_request
 from enip_farm.protocol.connection import encode_forward_open
 from enip_farm.protocol.epath import encode_request_path
+from enip_farm.protocol.safety.crc import crc_s4
+from enip_farm.protocol.safety.segment import Unid
 from enip_farm.protocol.session import MessageContext
 from tests.test_safety import MS, NODE, ORIGINATOR, OUNID, SNN, T0, TUNID, safety_open
 

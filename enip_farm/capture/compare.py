@@ -26,15 +26,15 @@ import struct
 from dataclasses import dataclass, field
 from typing import Any
 
-from enip_farm.protocol.cip import CipDecodeError, MessageRouterReply, decode_reply
+from enip_farm.protocol.cip import REPLY_BIT, CipDecodeError, MessageRouterReply, Service, decode_reply
 from enip_farm.protocol.commands import decode_identity_item, decode_send_data
 from enip_farm.protocol.connection import ConnectionTriad, decode_forward_open_reply
 from enip_farm.protocol.cpf import ItemType, decode_items
 from enip_farm.protocol.encapsulation import Command, Frame
 
 Difference = tuple[str, Any, Any]  # field, captured, live
-_FORWARD_OPEN_REPLIES = (0xD4, 0xDB)  # Forward Open, Large Forward Open
-_FORWARD_CLOSE_REPLY = 0xCE
+_FORWARD_OPEN_REPLIES = (Service.FORWARD_OPEN | REPLY_BIT, Service.LARGE_FORWARD_OPEN | REPLY_BIT)
+_FORWARD_CLOSE_REPLY = Service.FORWARD_CLOSE | REPLY_BIT
 _TRIAD = struct.Struct("<HHI")
 
 

@@ -129,22 +129,22 @@ class _Rewriter:
         return encode_request(request.service, request.path, data)
 
     def _connection_manager(self, service: int, data: bytes) -> bytes:
-        if service == 0x52:
+        if service == Service.UNCONNECTED_SEND:
             send = decode_unconnected_send(data)
             if encode_unconnected_send(send.message, send.route_path, send.priority_time_tick,
                                        send.timeout_ticks) != data:
                 return data
             return encode_unconnected_send(self.message(send.message), send.route_path, send.priority_time_tick,
                                            send.timeout_ticks)
-        if service in (0x54, 0x5B):
-            request = decode_forward_open(data, service == 0x5B)
+        if service in (Service.FORWARD_OPEN, Service.LARGE_FORWARD_OPEN):
+            request = decode_forward_open(data, service == Service.LARGE_FORWARD_OPEN)
             if encode_forward_open(request) != data:
                 return data
             if request.triad not in self.mapping.triads:
                 self.mapping.triads[request.triad] = request.triad._replace(connection_serial=self.fresh_serial())
             self.mapping.sent_t_o_ids.add(request.t_o_connection_id)
             return encode_forward_open(request._replace(triad=self.mapping.triads[request.triad]))
-        if service == 0x4E:
+        if service == Service.FORWARD_CLOSE:
             close = decode_forward_close(data)
             if encode_forward_close(close) != data:
                 return data

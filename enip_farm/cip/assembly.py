@@ -4,7 +4,9 @@ The device holds its lock around every read and write of the bytes (device/guard
 
 from __future__ import annotations
 
-from enip_farm.cip.object import UINT, Attribute, CipClass, CipInstance
+from enip_farm.cip.attribute import Access, Attribute, CipInstance
+from enip_farm.cip.data_types import UINT, Octets
+from enip_farm.cip.object import CipClass
 from enip_farm.protocol.cip import ClassCode
 from enip_farm.protocol.status import GeneralStatus
 
@@ -24,16 +26,15 @@ class AssemblyInstance:
     def get(self) -> bytes:
         return bytes(self.data)
 
-    def set(self, value: bytes) -> int:
-        """Set Attribute Single on attribute 3. While an exclusive owner holds the assembly, explicit
-        writes get 0x10 (device state conflict) unless the device's config allows them."""
+    def guard(self) -> int:
+        """While an exclusive owner holds the assembly, explicit writes of attribute 3 get 0x10
+        (device state conflict) unless the device's config allows them."""
         if self.owned and not self.writable_while_owned:
             return GeneralStatus.DEVICE_STATE_CONFLICT
-        size = len(self.data)
-        if len(value) < size:
-            return GeneralStatus.NOT_ENOUGH_DATA
-        if len(value) > size:
-            return GeneralStatus.TOO_MUCH_DATA
+        return GeneralStatus.SUCCESS
+
+    def set(self, value: bytes) -> int:
+        """Set Attribute Single on attribute 3, once the guard and the size let it through."""
         self.data[:] = value
         return GeneralStatus.SUCCESS
 
@@ -45,10 +46,9 @@ class AssemblyObject(CipClass):
     def __init__(self, assemblies: list[AssemblyInstance]) -> None:
         super().__init__()
         for assembly in assemblies:
-            self.instances[assembly.instance_id] = CipInstance(
-                {
-                    3: Attribute(assembly.get, assembly.set if assembly.settable else None),
-                    4: Attribute(lambda a=assembly: UINT.pack(len(a.data))),
-                },
-                all_ids=(3,),
-            )
+            data = Octets(len(assembly.data), "USINT[]")
+            self.instances[assembly.instance_id] = CipInstance((
+                Attribute(3, data, assembly.get, assembly.set, guard=assembly.guard) if assembly.settable
+                else Attribute(3, data, assembly.get),
+                Attribute(4, UINT, value=len(assembly.data), access=Access.GET),
+            ))

@@ -13,7 +13,6 @@ from __future__ import annotations
 from collections import Counter
 from collections.abc import Mapping
 
-from enip_farm.cip.admission import RUN_IDLE_HEADER_SIZE, ConnectionPolicy
 from enip_farm.cip.assembly import AssemblyInstance
 from enip_farm.cip.connection import Connection, ConnectionKind, Production
 from enip_farm.cip.connection_events import (
@@ -24,7 +23,7 @@ from enip_farm.cip.connection_events import (
     ConnectionFaulted,
     ConnectionShortData,
 )
-from enip_farm.cip.safety.validator import SafetyConsumer
+from enip_farm.cip.connection_policy import RUN_IDLE_HEADER_SIZE, ConnectionPolicy
 from enip_farm.protocol.connection import (
     IO_HEADER_SIZE,
     IoPacket,
@@ -33,6 +32,7 @@ from enip_farm.protocol.connection import (
     encode_io_packet,
     unpack_io_header,
 )
+from enip_farm.protocol.safety.validator import SafetyConsumer
 
 _HALF = 0x80000000
 #: A datagram to send: its bytes and where to (host, port).

@@ -12,10 +12,10 @@ from dataclasses import dataclass, field
 from enum import Enum
 
 from enip_farm.cip.budget import Reservation
-from enip_farm.cip.safety.multicast import MulticastConsumer, MulticastProducer
-from enip_farm.cip.safety.segment import Unid
-from enip_farm.cip.safety.validator import SafetyConsumer, SafetyProducer
 from enip_farm.protocol.connection import ConnectionTriad
+from enip_farm.protocol.safety.multicast import MulticastConsumer, MulticastProducer
+from enip_farm.protocol.safety.segment import Unid
+from enip_farm.protocol.safety.validator import SafetyConsumer, SafetyProducer
 
 
 class ConnectionKind(str, Enum):

@@ -14,8 +14,9 @@ from dataclasses import dataclass
 from types import MappingProxyType
 from typing import ClassVar
 
-from enip_farm.cip.admission import Originator, Refusal
+from enip_farm.cip.admission import Originator
 from enip_farm.cip.connection import Connection
+from enip_farm.cip.connection_policy import Refusal
 from enip_farm.protocol.connection import ForwardOpenRequest
 from enip_farm.protocol.status import describe_status
 
@@ -108,7 +109,7 @@ class SafetyTimingFault(OfConnection, kind="safety timing fault"):
     __slots__ = ()
 
 
-#: The event of each fault a Safety Validator names (cip/safety/validator.py, `Consumed.fault`).
+#: The event of each fault a Safety Validator names (protocol/safety/validator.py, `Consumed.fault`).
 SAFETY_FAULTS: Mapping[str, type[OfConnection]] = MappingProxyType({"crc": SafetyCrcFault,
                                                                    "timing": SafetyTimingFault})
 

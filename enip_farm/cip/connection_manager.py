@@ -14,9 +14,10 @@ from __future__ import annotations
 import socket
 
 from enip_farm.cip.admission import Originator
+from enip_farm.cip.attribute import CipInstance
 from enip_farm.cip.connection_table import ConnectionTable, Opened
 from enip_farm.cip.message_router import MAX_NESTING, MessageRouter
-from enip_farm.cip.object import CipClass, CipInstance, Reply, ServiceResult
+from enip_farm.cip.object import CipClass, Reply, ServiceResult
 from enip_farm.protocol.cip import CipDecodeError, ClassCode, Service, decode_unconnected_send
 from enip_farm.protocol.commands import SocketAddress, decode_sockaddr
 from enip_farm.protocol.connection import (
@@ -46,7 +47,7 @@ class ConnectionManager(CipClass):
         super().__init__()
         self.router = router
         self.table = table
-        self.instances[1] = CipInstance({})
+        self.instances[1] = CipInstance()
         if unconnected_send:
             self.handlers[Service.UNCONNECTED_SEND] = self.unconnected_send
         self.handlers[Service.FORWARD_OPEN] = self.forward_open

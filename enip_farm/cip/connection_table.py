@@ -28,7 +28,7 @@ from collections import Counter
 from collections.abc import Callable, Mapping
 from typing import NamedTuple
 
-from enip_farm.cip.admission import Admission, ConnectionPolicy, KeyIdentity, Originator, Refusal
+from enip_farm.cip.admission import Admission, Originator
 from enip_farm.cip.assembly import AssemblyInstance
 from enip_farm.cip.budget import CyclicBudget
 from enip_farm.cip.class1_io import ClassOneIo, Datagram
@@ -43,12 +43,13 @@ from enip_farm.cip.connection_events import (
     SafeState,
     refused_open,
 )
-from enip_farm.cip.safety.admission import SafetyOpen
-from enip_farm.cip.safety.multicast import MulticastConsumer
-from enip_farm.cip.safety.validator import SafetyConsumer
+from enip_farm.cip.connection_path import KeyIdentity
+from enip_farm.cip.connection_policy import ConnectionPolicy, Refusal, SafetyOpen
 from enip_farm.protocol.commands import SocketAddress, encode_sockaddr
 from enip_farm.protocol.connection import ConnectionTriad, ForwardOpenRequest
 from enip_farm.protocol.cpf import ItemType
+from enip_farm.protocol.safety.multicast import MulticastConsumer
+from enip_farm.protocol.safety.validator import SafetyConsumer
 from enip_farm.protocol.session import ReplyItems
 from enip_farm.protocol.status import ExtendedStatus as X
 from enip_farm.protocol.status import GeneralStatus, describe_status
@@ -218,7 +219,7 @@ class ConnectionTable(ClassOneIo):
         else:
             key = (connection.t_o_id, connection.t_o_address)
             production = self.productions.get(key)  # type: ignore[arg-type]
-            if production is not None:  # another consumer of a multicast producer (cip/safety/multicast.py)
+            if production is not None:  # another consumer of a multicast producer (protocol/safety/multicast.py)
                 production.users += 1
             else:
                 safety = connection.safety

@@ -29,17 +29,9 @@ from __future__ import annotations
 
 import struct
 
-from enip_farm.cip.object import (
-    UDINT,
-    Attribute,
-    CipClass,
-    CipInstance,
-    ServiceResult,
-    constant,
-    short_string,
-    short_string_size,
-    udint,
-)
+from enip_farm.cip.attribute import Attribute, CipInstance
+from enip_farm.cip.data_types import DWORD, SHORT_STRING, UDINT, USINT, Encoded, Octets, Packed
+from enip_farm.cip.object import CipClass, ServiceResult
 from enip_farm.protocol.cip import ClassCode, Service
 from enip_farm.protocol.epath import RequestPath
 from enip_farm.protocol.session import MessageContext
@@ -51,19 +43,25 @@ _LINK_FULL_DUPLEX = 0x01 | 0x02
 _NEGOTIATED, _FORCED = 3 << 2, 4 << 2
 #: Interface control bits: 0 auto-negotiate, 1 forced duplex mode (1 = full).
 AUTO_NEGOTIATE, FORCED_FULL_DUPLEX = 0x01, 0x02
-_CONTROL = struct.Struct("<HH")
+#: Attribute 6: control bits (WORD) and forced interface speed (UINT).
+_CONTROL = Packed("STRUCT of WORD, UINT", "<HH")
 #: Interface capability: bit 1 auto-negotiate, bit 3 manual speed/duplex; one speed/duplex mode.
-_CAPABILITY = UDINT.pack(0x02 | 0x08) + bytes((1,)) + struct.pack("<HB", 100, 1)
+_CAPABILITY = DWORD.encode(0x02 | 0x08) + bytes((1,)) + struct.pack("<HB", 100, 1)
 _INTERFACE_TYPE_TWISTED_PAIR = 2
 _ENABLED = 1
 LABEL = "port 1"
 MEDIA_COUNTERS = 12
 _UDINT_MASK = 0xFFFFFFFF
+#: Attribute 4: In Octets, In Ucast Packets, ... Out Errors (eleven UDINTs).
+_INTERFACE_COUNTERS = Packed("STRUCT of UDINT[11]", "<11I")
 
 
 def _capability_size(data: bytes) -> int | None:
     """Attribute 11: capability bits DWORD, a USINT count and that many (UINT speed, USINT duplex)."""
     return 5 + 3 * data[4] if len(data) >= 5 else None
+
+
+_INTERFACE_CAPABILITY = Encoded("STRUCT of DWORD, USINT count, STRUCT of UINT, USINT[count]", _capability_size)
 
 
 class InterfaceCounters:
@@ -114,22 +112,20 @@ class EthernetLinkObject(CipClass):
         self._sources: list[InterfaceCounters] = []
         self._baseline = (0,) * len(InterfaceCounters.__slots__)
         self.control = (AUTO_NEGOTIATE, 0)
-        self.instances[1] = CipInstance(
-            {
-                1: udint(speed_mbps),
-                2: Attribute(lambda: UDINT.pack(_LINK_FULL_DUPLEX | (
-                    _NEGOTIATED if self.control[0] & AUTO_NEGOTIATE else _FORCED))),
-                3: constant(mac),
-                4: Attribute(self._interface_counters),
-                5: constant(bytes(4 * MEDIA_COUNTERS)),
-                6: Attribute(lambda: _CONTROL.pack(*self.control), self._set_control),
-                7: constant(bytes((_INTERFACE_TYPE_TWISTED_PAIR,))),
-                8: constant(bytes((_ENABLED,))),
-                9: constant(bytes((_ENABLED,))),
-                10: Attribute(lambda: short_string(LABEL), size=short_string_size),
-                11: Attribute(lambda: _CAPABILITY, size=_capability_size),
-            }
-        )
+        self.instances[1] = CipInstance((
+            Attribute(1, UDINT, value=speed_mbps),
+            Attribute(2, DWORD, lambda: _LINK_FULL_DUPLEX | (
+                _NEGOTIATED if self.control[0] & AUTO_NEGOTIATE else _FORCED)),
+            Attribute(3, Octets(6, "USINT[6]"), value=mac),
+            Attribute(4, _INTERFACE_COUNTERS, self.counters),
+            Attribute(5, Octets(4 * MEDIA_COUNTERS, "STRUCT of UDINT[12]"), value=bytes(4 * MEDIA_COUNTERS)),
+            Attribute(6, _CONTROL, lambda: self.control, self._set_control),
+            Attribute(7, USINT, value=_INTERFACE_TYPE_TWISTED_PAIR),
+            Attribute(8, USINT, value=_ENABLED),
+            Attribute(9, USINT, value=_ENABLED),
+            Attribute(10, SHORT_STRING, value=LABEL),
+            Attribute(11, _INTERFACE_CAPABILITY, value=_CAPABILITY),
+        ))
         self.handlers[Service.GET_AND_CLEAR] = self.get_and_clear
 
     # -- interface counters ---------------------------------------------------------------------
@@ -151,21 +147,14 @@ class EthernetLinkObject(CipClass):
     def clear_counters(self) -> None:
         self._baseline = self._totals()
 
-    def _interface_counters(self) -> bytes:
-        return struct.pack("<11I", *self.counters())
-
     # -- settings ---------------------------------------------------------------------------------
 
     def restore_defaults(self) -> None:
         """Back to the out-of-box configuration (Identity Reset type 1)."""
         self.control = (AUTO_NEGOTIATE, 0)
 
-    def _set_control(self, data: bytes) -> int:
-        if len(data) < _CONTROL.size:
-            return GeneralStatus.NOT_ENOUGH_DATA
-        if len(data) > _CONTROL.size:
-            return GeneralStatus.TOO_MUCH_DATA
-        bits, speed = _CONTROL.unpack(data)
+    def _set_control(self, value: tuple[int, int]) -> int:
+        bits, speed = value
         if bits > AUTO_NEGOTIATE | FORCED_FULL_DUPLEX:
             return GeneralStatus.INVALID_ATTRIBUTE_VALUE
         if bits & AUTO_NEGOTIATE:
@@ -185,7 +174,7 @@ class EthernetLinkObject(CipClass):
             return ServiceResult(GeneralStatus.ATTRIBUTE_NOT_SUPPORTED)
         if instance is self.class_instance or path.attribute_id not in (4, 5):
             return ServiceResult(GeneralStatus.SERVICE_NOT_SUPPORTED_FOR_PATH)
-        value = attribute.get()
+        value = attribute.read()
         if path.attribute_id == 4:
             self.clear_counters()
         return ServiceResult(GeneralStatus.SUCCESS, value)

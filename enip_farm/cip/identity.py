@@ -12,22 +12,12 @@ more than one byte gets 0x15. The object only takes the request: it answers succ
 
 from __future__ import annotations
 
-import struct
 from collections.abc import Callable
 from dataclasses import dataclass
 
-from enip_farm.cip.object import (
-    UDINT,
-    UINT,
-    Attribute,
-    CipClass,
-    CipInstance,
-    Effect,
-    ServiceResult,
-    constant,
-    short_string,
-    short_string_size,
-)
+from enip_farm.cip.attribute import Access, Attribute, CipInstance
+from enip_farm.cip.data_types import SHORT_STRING, UDINT, UINT, USINT, WORD, Packed
+from enip_farm.cip.object import CipClass, Effect, ServiceResult
 from enip_farm.protocol.cip import ClassCode, Service
 from enip_farm.protocol.epath import RequestPath
 from enip_farm.protocol.session import MessageContext
@@ -44,6 +34,8 @@ RESET_POWER_CYCLE = 0
 RESET_OUT_OF_BOX = 1
 RESET_KEEP_COMMUNICATION = 2
 RESET_TYPES = (RESET_POWER_CYCLE, RESET_OUT_OF_BOX, RESET_KEEP_COMMUNICATION)
+#: Attribute 4: major and minor revision (Vol. 1, 5-2.2.1.4).
+REVISION = Packed("STRUCT of USINT major, USINT minor", "<BB")
 
 
 @dataclass(frozen=True, slots=True)
@@ -62,19 +54,16 @@ class IdentityObject(CipClass):
                  serial_number: int, product_name: str, status: Callable[[], int],
                  state: Callable[[], int] = lambda: STATE_OPERATIONAL) -> None:
         super().__init__()
-        self.instances[1] = CipInstance(
-            {
-                1: constant(UINT.pack(vendor_id)),
-                2: constant(UINT.pack(device_type)),
-                3: Attribute(lambda: UINT.pack(product_code())),
-                4: constant(struct.pack("<BB", *revision)),
-                5: Attribute(lambda: UINT.pack(status())),
-                6: constant(UDINT.pack(serial_number)),
-                7: Attribute(lambda: short_string(product_name), size=short_string_size),
-                8: Attribute(lambda: bytes((state(),))),
-            },
-            all_ids=(1, 2, 3, 4, 5, 6, 7),  # Get Attributes All: the required attributes, as OpENer
-        )
+        self.instances[1] = CipInstance((  # Get Attributes All: the required attributes 1-7, as OpENer
+            Attribute(1, UINT, value=vendor_id),
+            Attribute(2, UINT, value=device_type),
+            Attribute(3, UINT, product_code),
+            Attribute(4, REVISION, value=revision),
+            Attribute(5, WORD, status),
+            Attribute(6, UDINT, value=serial_number),
+            Attribute(7, SHORT_STRING, value=product_name),
+            Attribute(8, USINT, state, access=Access.GET),
+        ))
         self.handlers[Service.RESET] = self.reset
 
     def reset(self, instance: CipInstance, path: RequestPath, data: bytes,

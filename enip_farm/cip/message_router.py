@@ -11,18 +11,9 @@ import logging
 from collections import Counter
 from collections.abc import Callable
 
-from enip_farm.cip.object import (
-    UINT,
-    Attribute,
-    CipClass,
-    CipInstance,
-    Effect,
-    Reply,
-    ReplyItems,
-    ServiceResult,
-    uint_list,
-    uint_list_size,
-)
+from enip_farm.cip.attribute import Attribute, CipInstance
+from enip_farm.cip.data_types import UINT, UINT_LIST
+from enip_farm.cip.object import CipClass, Effect, Reply, ReplyItems, ServiceResult
 from enip_farm.protocol.cip import (
     REPLY_BIT,
     CipDecodeError,
@@ -68,13 +59,11 @@ class MessageRouter(CipClass):
         self._paths: dict[bytes, RequestPath | int] = {}
         if multiple_service_packet:
             self.handlers[Service.MULTIPLE_SERVICE_PACKET] = self.multiple_service_packet
-        self.instances[1] = CipInstance(
-            {
-                1: Attribute(lambda: uint_list(tuple(sorted(self.objects))), size=uint_list_size),
-                2: Attribute(lambda: UINT.pack(max_connections)),
-                3: Attribute(lambda: UINT.pack(active_connections())),
-            }
-        )
+        self.instances[1] = CipInstance((
+            Attribute(1, UINT_LIST, lambda: tuple(sorted(self.objects))),
+            Attribute(2, UINT, value=max_connections),
+            Attribute(3, UINT, active_connections),
+        ))
 
     def register(self, obj: CipClass) -> None:
         self.objects[obj.class_id] = obj

@@ -6,16 +6,16 @@ maximum: 0x09), 2 link path size, 3 link path, 4 descriptor, 5 data type, 6 data
 
 from __future__ import annotations
 
-import struct
 from dataclasses import dataclass
 
-from enip_farm.cip.object import Attribute, CipClass, CipInstance
+from enip_farm.cip.attribute import Attribute, CipInstance
+from enip_farm.cip.data_types import ELEMENTARY, SIGNED, USINT, WORD, CipType, Integer, Octets
+from enip_farm.cip.object import CipClass
 from enip_farm.protocol.cip import ClassCode
 from enip_farm.protocol.status import GeneralStatus
 
 _READ_ONLY = 0x0010  # descriptor bit 4
-_FLOATS = {0xCA: "<f", 0xCB: "<d"}
-_SIGNED = {0xC2, 0xC3, 0xC4, 0xC5}
+_FLOATS = (0xCA, 0xCB)  # REAL, LREAL
 
 
 @dataclass(frozen=True)
@@ -34,35 +34,27 @@ class ParameterSpec:
 
 
 class ParameterInstance:
-    """One parameter's current value, as its data type encodes it."""
+    """One parameter: its data type (attribute 5's, as its EDS gives the size) and current value."""
 
-    __slots__ = ("spec", "data")
+    __slots__ = ("spec", "type", "value")
 
     def __init__(self, spec: ParameterSpec) -> None:
         self.spec = spec
-        self.data = self.encode(spec.default if spec.default is not None else 0)
+        elementary = ELEMENTARY.get(spec.data_type)
+        self.type: CipType = elementary if elementary is not None and elementary.size == spec.size else \
+            Integer(f"0x{spec.data_type:02X}[{spec.size}]", spec.size, spec.data_type in SIGNED)
+        default = spec.default if spec.default is not None else 0
+        self.value = float(default) if spec.data_type in _FLOATS else int(default)
 
-    def encode(self, value: float) -> bytes:
-        form = _FLOATS.get(self.spec.data_type)
-        if form is not None:
-            return struct.pack(form, float(value))
-        return int(value).to_bytes(self.spec.size, "little", signed=self.spec.data_type in _SIGNED)
+    @property
+    def data(self) -> bytes:
+        return self.type.encode(self.value)
 
-    def decode(self, data: bytes) -> float:
-        form = _FLOATS.get(self.spec.data_type)
-        if form is not None:
-            return struct.unpack(form, data)[0]
-        return int.from_bytes(data, "little", signed=self.spec.data_type in _SIGNED)
-
-    def set(self, data: bytes) -> int:
-        if len(data) < len(self.data):
-            return GeneralStatus.NOT_ENOUGH_DATA
-        if len(data) > len(self.data):
-            return GeneralStatus.TOO_MUCH_DATA
-        value, spec = self.decode(data), self.spec
+    def set(self, value: float) -> int:
+        spec = self.spec
         if (spec.minimum is not None and value < spec.minimum) or (spec.maximum is not None and value > spec.maximum):
             return GeneralStatus.INVALID_ATTRIBUTE_VALUE
-        self.data = bytes(data)
+        self.value = value
         return GeneralStatus.SUCCESS
 
 
@@ -75,11 +67,13 @@ class ParameterObject(CipClass):
         self.parameters: dict[int, ParameterInstance] = {}
         for spec in parameters:
             parameter = self.parameters[spec.instance] = ParameterInstance(spec)
-            self.instances[spec.instance] = CipInstance({
-                1: Attribute(lambda p=parameter: p.data, None if spec.descriptor & _READ_ONLY else parameter.set),
-                2: Attribute(lambda s=spec: bytes((len(s.link_path),))),
-                3: Attribute(lambda s=spec: s.link_path),
-                4: Attribute(lambda s=spec: struct.pack("<H", s.descriptor)),
-                5: Attribute(lambda s=spec: bytes((s.data_type,))),
-                6: Attribute(lambda s=spec: bytes((s.size,))),
-            })
+            value = parameter.type
+            self.instances[spec.instance] = CipInstance((
+                Attribute(1, value, lambda p=parameter: p.value) if spec.descriptor & _READ_ONLY
+                else Attribute(1, value, lambda p=parameter: p.value, parameter.set),
+                Attribute(2, USINT, value=len(spec.link_path)),
+                Attribute(3, Octets(len(spec.link_path), "EPATH"), value=spec.link_path),
+                Attribute(4, WORD, value=spec.descriptor),
+                Attribute(5, USINT, value=spec.data_type),
+                Attribute(6, USINT, value=spec.size),
+            ))

@@ -24,21 +24,13 @@ from __future__ import annotations
 
 import re
 import socket
-import struct
 from collections.abc import Callable
 
-from enip_farm.cip.object import (
-    UDINT,
-    UINT,
-    Attribute,
-    CipClass,
-    CipInstance,
-    cip_string,
-    constant,
-    string_size,
-    udint,
-)
+from enip_farm.cip.attribute import GET_ALL, Access, Attribute, CipInstance
+from enip_farm.cip.data_types import BOOL, DWORD, PADDED_STRING, UDINT, UINT, USINT, Encoded, Octets, Packed
+from enip_farm.cip.object import CipClass
 from enip_farm.protocol.cip import ClassCode
+from enip_farm.protocol.epath import encode_request_path
 from enip_farm.protocol.status import GeneralStatus
 
 #: Attribute 1: interface configuration status 1 = "valid configuration obtained".
@@ -60,23 +52,34 @@ _NO_SAFETY_NETWORK_NUMBER = bytes(6)
 _NO_CONFLICT = bytes(1 + 6 + 28)
 #: Attribute 9's allocation control: 0 the CIP algorithm (Vol. 2, 3-5.3), 1 a configured group.
 ALLOC_ALGORITHM, ALLOC_CONFIGURED = 0, 1
-_MCAST_CONFIG = struct.Struct("<BBHI")
+#: Attribute 9: allocation control, reserved, number of groups, the first group's address.
+_MCAST_CONFIG = Packed("STRUCT of USINT, USINT, UINT, UDINT", "<BBHI")
 
 
 def ip_udint(address: str) -> bytes:
     """An IPv4 address as the UDINT the TCP/IP object uses (host order, sent little-endian)."""
-    return UDINT.pack(int.from_bytes(socket.inet_aton(address), "big"))
+    return UDINT.encode(_ip(address))
+
+
+def _ip(address: str) -> int:
+    return int.from_bytes(socket.inet_aton(address), "big")
 
 
 def _epath_size(data: bytes) -> int | None:
     """Attribute 4: a UINT path size in words and the path."""
-    return UINT.size + 2 * UINT.unpack_from(data)[0] if len(data) >= UINT.size else None
+    return 2 + 2 * UINT.decode(data[:2]) if len(data) >= 2 else None
 
 
 def _configuration_size(data: bytes) -> int | None:
     """Attribute 5: five UDINTs and a STRING."""
-    name = string_size(data[20:])
+    name = PADDED_STRING.size_in(data[20:])
     return None if name is None else 20 + name
+
+
+#: Attribute 4: a UINT path size in words and a padded EPATH.
+PHYSICAL_LINK = Encoded("STRUCT of UINT path size, padded EPATH", _epath_size)
+#: Attribute 5: IP address, network mask, gateway, name servers 1 and 2 (UDINTs), domain name (STRING).
+INTERFACE_CONFIGURATION = Encoded("STRUCT of UDINT[5], STRING", _configuration_size)
 
 
 class TcpIpSettings:
@@ -109,35 +112,33 @@ class TcpIpInterfaceObject(CipClass):
         self.settings = self._out_of_box.copy()
         interface_configuration = (
             ip_udint(address) + ip_udint(netmask) + ip_udint(gateway)
-            + ip_udint("0.0.0.0") + ip_udint("0.0.0.0") + cip_string("")
+            + ip_udint("0.0.0.0") + ip_udint("0.0.0.0") + PADDED_STRING.encode("")
         )
-        multicast = _MCAST_CONFIG.pack(ALLOC_CONFIGURED if multicast_configured else ALLOC_ALGORITHM, 0, 1,
-                                       int.from_bytes(socket.inet_aton(multicast_group), "big"))
+        multicast = (ALLOC_CONFIGURED if multicast_configured else ALLOC_ALGORITHM, 0, 1, _ip(multicast_group))
         if safety_network_number is not None and len(safety_network_number) != len(_NO_SAFETY_NETWORK_NUMBER):
             raise ValueError("a safety network number has 6 bytes")
-        self.instances[1] = CipInstance(
-            {
-                1: udint(_STATUS_VALID),
-                2: udint(_CAPABILITY),
-                3: udint(_CONTROL_STATIC),
-                # physical link object: path size 2 words, path 20 F6 24 01 (Ethernet Link 1)
-                4: Attribute(lambda: b"\x02\x00\x20\xf6\x24\x01", size=_epath_size),
-                5: Attribute(lambda: interface_configuration, size=_configuration_size),
-                6: Attribute(lambda: cip_string(self.settings.host_name), self._set_host_name, string_size),
-                8: Attribute(lambda: bytes((self.settings.ttl,)), self._set_ttl),
-                9: constant(multicast),
-                10: Attribute(lambda: bytes((self.settings.select_acd,)), self._setter_bool("select_acd")),
-                11: constant(_NO_CONFLICT),
-                12: Attribute(lambda: bytes((self.settings.quick_connect,)), self._setter_bool("quick_connect")),
-                13: Attribute(lambda: UINT.pack(self.settings.inactivity_timeout_s),
-                              self._set_inactivity_timeout),
-            },
-            all_ids=tuple(range(1, 14)),
-            all_defaults={7: _NO_SAFETY_NETWORK_NUMBER},
-        )
-        if safety_network_number is not None:
-            self.instances[1].attributes[7] = constant(safety_network_number)
-        self.optional_attributes = tuple(i for i in sorted(self.instances[1].attributes) if i > 5)
+        #: Attribute 7: the safety network number, as the device's CIP Safety state has it (a safety
+        #: device replaces this getter with one that follows Apply_TUNID).
+        self.safety_network_number: Callable[[], bytes] = lambda: safety_network_number or _NO_SAFETY_NETWORK_NUMBER
+        self.instances[1] = CipInstance((
+            Attribute(1, DWORD, value=_STATUS_VALID),
+            Attribute(2, DWORD, value=_CAPABILITY),
+            Attribute(3, DWORD, value=_CONTROL_STATIC),
+            # physical link object: path size 2 words, path 20 F6 24 01 (Ethernet Link 1)
+            Attribute(4, PHYSICAL_LINK, value=UINT.encode(2) + encode_request_path(ClassCode.ETHERNET_LINK, 1)),
+            Attribute(5, INTERFACE_CONFIGURATION, value=interface_configuration),
+            Attribute(6, PADDED_STRING, lambda: self.settings.host_name, self._set_host_name),
+            # not a safety device: no attribute 7, six zero bytes in its place in Get Attributes All
+            Attribute(7, Octets(6, "USINT[6]"), lambda: self.safety_network_number(),
+                      access=GET_ALL if safety_network_number is not None else Access.ALL),
+            Attribute(8, USINT, lambda: self.settings.ttl, self._set_ttl),
+            Attribute(9, _MCAST_CONFIG, value=multicast),
+            Attribute(10, BOOL, lambda: self.settings.select_acd, self._setter_bool("select_acd")),
+            Attribute(11, Octets(len(_NO_CONFLICT)), value=_NO_CONFLICT),
+            Attribute(12, BOOL, lambda: self.settings.quick_connect, self._setter_bool("quick_connect")),
+            Attribute(13, UINT, lambda: self.settings.inactivity_timeout_s, self._set_inactivity_timeout),
+        ))
+        self.optional_attributes = tuple(i for i in self.instances[1].served_ids() if i > 5)
 
     @property
     def inactivity_timeout_s(self) -> int:
@@ -149,56 +150,30 @@ class TcpIpInterfaceObject(CipClass):
 
     # -- setters: encoded data in, a general status out ------------------------------------------
 
-    def _set_inactivity_timeout(self, data: bytes) -> int:
-        status = _exact(data, UINT.size)
-        if status:
-            return status
-        (value,) = UINT.unpack(data)
+    def _set_inactivity_timeout(self, value: int) -> int:
         if value > MAX_INACTIVITY_TIMEOUT_S:
             return GeneralStatus.INVALID_ATTRIBUTE_VALUE
         self.settings.inactivity_timeout_s = value
         return GeneralStatus.SUCCESS
 
-    def _set_ttl(self, data: bytes) -> int:
-        status = _exact(data, 1)
-        if status:
-            return status
-        if data[0] == 0:
+    def _set_ttl(self, value: int) -> int:
+        if value == 0:
             return GeneralStatus.INVALID_ATTRIBUTE_VALUE
-        self.settings.ttl = data[0]
+        self.settings.ttl = value
         return GeneralStatus.SUCCESS
 
-    def _setter_bool(self, name: str) -> Callable[[bytes], int]:
-        def set_bool(data: bytes) -> int:
-            status = _exact(data, 1)
-            if status:
-                return status
-            if data[0] > 1:
+    def _setter_bool(self, name: str) -> Callable[[int], int]:
+        def set_bool(value: int) -> int:
+            if value > 1:
                 return GeneralStatus.INVALID_ATTRIBUTE_VALUE
-            setattr(self.settings, name, data[0])
+            setattr(self.settings, name, value)
             return GeneralStatus.SUCCESS
         return set_bool
 
-    def _set_host_name(self, data: bytes) -> int:
-        size = string_size(data)
-        if size is None or size > len(data):
-            return GeneralStatus.NOT_ENOUGH_DATA
-        if size < len(data):
-            return GeneralStatus.TOO_MUCH_DATA
-        (length,) = UINT.unpack_from(data)
-        if length > MAX_HOST_NAME:
+    def _set_host_name(self, name: str) -> int:
+        if len(name) > MAX_HOST_NAME:
             return GeneralStatus.TOO_MUCH_DATA  # as OpENer
-        name = data[UINT.size : UINT.size + length].decode("latin-1")
         if name and not _HOST_NAME.match(name):
             return GeneralStatus.INVALID_ATTRIBUTE_VALUE
         self.settings.host_name = name
         return GeneralStatus.SUCCESS
-
-
-def _exact(data: bytes, size: int) -> int:
-    """0 if `data` has `size` bytes, else 0x13 (short) or 0x15 (long)."""
-    if len(data) < size:
-        return GeneralStatus.NOT_ENOUGH_DATA
-    if len(data) > size:
-        return GeneralStatus.TOO_MUCH_DATA
-    return GeneralStatus.SUCCESS

@@ -13,24 +13,24 @@ from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from types import MappingProxyType
 
-from enip_farm.cip.admission import ConnectionPolicy, DeclaredConnection, KeyIdentity
 from enip_farm.cip.assembly import AssemblyInstance, AssemblyObject
 from enip_farm.cip.budget import CyclicBudget
 from enip_farm.cip.connection import Connection, ConnectionKind
 from enip_farm.cip.connection_manager import ConnectionManager
+from enip_farm.cip.connection_path import KeyIdentity
+from enip_farm.cip.connection_policy import ConnectionPolicy, DeclaredConnection
 from enip_farm.cip.connection_table import ConnectionTable
 from enip_farm.cip.ethernet_link import EthernetLinkObject
 from enip_farm.cip.identity import IdentityObject
 from enip_farm.cip.message_router import MessageRouter
-from enip_farm.cip.object import Attribute
 from enip_farm.cip.parameter import ParameterObject, ParameterSpec
 from enip_farm.cip.safety.admission import SafetyPolicy
 from enip_farm.cip.safety.objects import SafetyValidatorObject
-from enip_farm.cip.safety.segment import Unid
 from enip_farm.cip.safety.supervisor import SafetySupervisor
 from enip_farm.cip.tcpip_interface import TcpIpInterfaceObject
 from enip_farm.device.catalogue import ConnectionEntry
 from enip_farm.device.profile import DeviceProfile
+from enip_farm.protocol.safety.segment import Unid
 
 
 @dataclass(frozen=True, slots=True)
@@ -101,7 +101,7 @@ def build_objects(profile: DeviceProfile, counters: Counter[str], budget: Cyclic
 
         router.register(SafetySupervisor(safety, open_connections, close_safety_connections, resetting))
         state = safety.state
-        tcpip.instances[1].attributes[7] = Attribute(lambda: state.tunid.snn)  # follows Apply_TUNID
+        tcpip.safety_network_number = lambda: state.tunid.snn  # follows Apply_TUNID
         router.register(SafetyValidatorObject(open_connections, lambda: counters["safety_faulted"]))
     return ObjectModel(assemblies, table, router, tcpip, link)
 

@@ -10,16 +10,13 @@ import struct
 from dataclasses import dataclass, field
 from types import MappingProxyType
 
+from enip_farm.cip.data_types import SIGNED
 from enip_farm.eds.grammar import Value
 from enip_farm.protocol.epath import ElectronicKey
 
 #: Real-time transfer formats, connection parameters bits 8-10 (O->T) and 12-14 (T->O). Real files
 #: give 3 for heartbeat connections (no data) and 4 for the 32-bit run/idle header.
 FORMATS = MappingProxyType({0: "modeless", 1: "zero length", 2: "heartbeat", 3: "heartbeat", 4: "run/idle"})
-#: Parameter data types (Vol. 1, C-6.1) and their sizes in bytes.
-TYPE_SIZES = MappingProxyType({0xC1: 1, 0xC2: 1, 0xC3: 2, 0xC4: 4, 0xC5: 8, 0xC6: 1, 0xC7: 2, 0xC8: 4, 0xC9: 8,
-                               0xCA: 4, 0xCB: 8, 0xD1: 1, 0xD2: 2, 0xD3: 4, 0xD4: 8})
-_SIGNED = frozenset({0xC2, 0xC3, 0xC4, 0xC5})
 
 
 class EdsError(ValueError):
@@ -55,7 +52,7 @@ class EdsParam:
             return struct.pack("<f", float(value))
         if self.data_type == 0xCB:
             return struct.pack("<d", float(value))
-        return int(value).to_bytes(self.size, "little", signed=self.data_type in _SIGNED and int(value) < 0)
+        return int(value).to_bytes(self.size, "little", signed=self.data_type in SIGNED and int(value) < 0)
 
 
 @dataclass(frozen=True)

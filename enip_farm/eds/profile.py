@@ -11,8 +11,9 @@ from __future__ import annotations
 import re
 from typing import Any
 
+from enip_farm.cip.data_types import ELEMENTARY
 from enip_farm.device.catalogue import MAX_ASSEMBLY_SIZE, Catalogue, shipped_catalogue
-from enip_farm.eds.entries import FORMATS, TYPE_SIZES, EdsConnection, EdsDevice, EdsError, EdsParam
+from enip_farm.eds.entries import FORMATS, EdsConnection, EdsDevice, EdsError, EdsParam
 
 
 def _describe(connection: EdsConnection) -> str:
@@ -67,7 +68,7 @@ def _served(connection: EdsConnection, notes: list[str]) -> dict[str, Any] | Non
 
 def _parameter(param: EdsParam, notes: list[str]) -> dict[str, Any] | None:
     """The profile's entry of a ParamN the Parameter Object serves, or None (a note says why)."""
-    if not 1 <= param.size <= 8 or param.data_type not in TYPE_SIZES:
+    if not 1 <= param.size <= 8 or param.data_type not in ELEMENTARY:
         notes.append(f"[Params] {param.keyword}: data type 0x{param.data_type:02X} size {param.size}; not served "
                      "by the Parameter Object")
         return None

@@ -11,8 +11,8 @@ from __future__ import annotations
 
 import re
 
+from enip_farm.cip.data_types import ELEMENTARY
 from enip_farm.eds.entries import (
-    TYPE_SIZES,
     EdsAssembly,
     EdsConnection,
     EdsParam,
@@ -81,8 +81,9 @@ class SectionReader:
                         self.notes.append(f"[Params] {keyword}: {('minimum', 'maximum', 'default')[index - 9]} "
                                           f"{text!r} is not a number; not used")
                 minimum, maximum, default = limits
+                elementary = ELEMENTARY.get(data_type)
                 param = EdsParam(keyword, entry.line, parse_int(self.field(entry, 3)) or 0, data_type,
-                                 size or TYPE_SIZES.get(data_type, 0), self.field(entry, 6).text,
+                                 size or (elementary.size if elementary is not None else 0), self.field(entry, 6).text,
                                  minimum, maximum, default, self.field(entry, 2).text)
                 if default is not None and ((minimum is not None and default < minimum)
                                             or (maximum is not None and default > maximum)):

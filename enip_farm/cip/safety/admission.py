@@ -22,7 +22,7 @@ checked). A multicast client SafetyOpen for a point already produced joins that 
 T->O connection id, group and Safety Validator instance) when its ping interval EPI multiplier
 (0x0815), max consumer number (0x0816), format (0x0817) and RPIs (0x0112, with the producer's RPIs)
 match, and gets the lowest free consumer number; none free: general status 0x02, no extended
-status (as the HMS target stack answers). cip/safety/multicast.py produces it.
+status (as the HMS target stack answers). protocol/safety/multicast.py produces it.
 """
 
 from __future__ import annotations
@@ -30,13 +30,17 @@ from __future__ import annotations
 import struct
 from collections.abc import Callable, Collection
 from dataclasses import dataclass, field
-from typing import NamedTuple
 
 from enip_farm.cip.connection import Connection, ConnectionKind
-from enip_farm.cip.safety.crc import Seeds, crc_s4
-from enip_farm.cip.safety.messages import TCOO_SIZE, TIME_CORRECTION_SIZE, data_length, wire_size
-from enip_farm.cip.safety.multicast import MAX_CONSUMERS, MulticastProducer
-from enip_farm.cip.safety.segment import (
+from enip_farm.cip.connection_path import assembly_points
+from enip_farm.cip.connection_policy import Refusal, SafetyOpen
+from enip_farm.cip.safety.state import SafetyState
+from enip_farm.protocol.connection import ConnectionType, ForwardOpenRequest, NetworkParameters, encode_forward_open
+from enip_farm.protocol.epath import DataSegment, ElectronicKey, SafetyNetworkSegment
+from enip_farm.protocol.safety.crc import Seeds, crc_s4
+from enip_farm.protocol.safety.messages import TCOO_SIZE, TIME_CORRECTION_SIZE, data_length, wire_size
+from enip_farm.protocol.safety.multicast import MAX_CONSUMERS, MulticastProducer
+from enip_farm.protocol.safety.segment import (
     NOT_USED,
     TIME_CORRECTION_NOT_USED,
     SafetySegment,
@@ -45,11 +49,7 @@ from enip_farm.cip.safety.segment import (
     compute_cpcrc,
     decode_segment,
 )
-from enip_farm.cip.safety.state import SafetyState
-from enip_farm.cip.safety.validator import SafetyConsumer, SafetyProducer
-from enip_farm.protocol.cip import ClassCode
-from enip_farm.protocol.connection import ConnectionType, ForwardOpenRequest, NetworkParameters, encode_forward_open
-from enip_farm.protocol.epath import DataSegment, ElectronicKey, LogicalSegment, LogicalType, SafetyNetworkSegment
+from enip_farm.protocol.safety.validator import SafetyConsumer, SafetyProducer
 from enip_farm.protocol.status import ExtendedStatus as X
 from enip_farm.protocol.status import GeneralStatus
 
@@ -91,132 +91,123 @@ class SafetyPolicy:
     def tunid_set(self) -> bool:
         return self.state.tunid_set
 
+    def admit(self, request: ForwardOpenRequest, segments: list, route_size: int,
+              check_key: Callable[[ElectronicKey], None], sizes: tuple[int, int], originator_host: str,
+              t_o_address: tuple[str, int], now: int, connections: Collection[Connection],
+              new_id: Callable[[], int], first_watchdog_ns: int, initial_rc_offset: int,
+              multicast_address: tuple[str, int]) -> SafetyOpen | Refusal:
+        """A SafetyOpen admitted, or refused (cip/connection_policy.py's `SafetyTarget` says what the
+        arguments are; `t_o_address`: where single-cast T->O goes, `multicast_address` multicast)."""
+        policy = self
+        used = {c.instance for c in connections if c.safety is not None}  # the Safety Validator instances
 
-class SafetyRefusal(NamedTuple):
-    extended: int | None  # None: no extended status
-    expected_size: int | None = None
-    general: int = GeneralStatus.CONNECTION_FAILURE
-    more: tuple[int, ...] = ()  # further additional status words (0x0112: the RPIs)
+        def instance_id() -> int:
+            return next(i for i in range(1, len(used) + 2) if i not in used)
 
+        raw = safety_segment_of(segments)
+        assert raw is not None
+        application = segments[:segments.index(raw)]
+        configuration_data = None
+        if application and isinstance(application[-1], DataSegment):  # a Type 1 SafetyOpen
+            configuration_data = application.pop().data
+        try:
+            segment = decode_segment(raw.raw)
+        except SegmentError as error:
+            return Refusal(X.INVALID_SAFETY_FORMAT if error.format_error else X.INVALID_SEGMENT)
+        if segments[-1] is not raw:
+            return Refusal(X.INVALID_SEGMENT)  # nothing may follow the safety segment
+        application_path = request.connection_path[route_size:len(request.connection_path) - len(raw.raw)]
+        fixed = encode_forward_open(request._replace(connection_path=b""))
+        fixed = fixed[:-1] + bytes(((len(application_path) + len(raw.raw)) // 2,))
+        if compute_cpcrc(fixed, application_path, raw.raw) != segment.cpcrc:
+            return Refusal(X.INVALID_CPCRC)
+        if not policy.tunid_set:
+            return Refusal(X.TUNID_NOT_SET)
+        state = policy.state
+        if segment.tunid != state.tunid:
+            return Refusal(X.TUNID_MISMATCH)
+        if any(c.triad == request.triad for c in connections):
+            return Refusal(X.CONNECTION_IN_USE)
+        if application and isinstance(application[0], ElectronicKey):
+            check_key(application.pop(0))
+        refusal = _parameters(request, segment, sizes)
+        if refusal is not None:
+            return refusal
+        server = request.transport_type_trigger == SERVER
+        points = assembly_points(application)
+        if points is None or points[0] is None:
+            return Refusal(X.INVALID_SEGMENT)
+        configuration, consuming, producing = points
+        if configuration not in (policy.configuration_point, policy.null_point):
+            return Refusal(X.INVALID_CONFIGURATION_PATH)
+        if server:
+            if producing != policy.null_point:
+                return Refusal(X.INVALID_PRODUCING_PATH)
+            if consuming != policy.output_point:
+                return Refusal(X.INVALID_CONSUMING_PATH)
+        else:
+            if consuming != policy.null_point:
+                return Refusal(X.INVALID_CONSUMING_PATH)
+            if producing != policy.input_point:
+                return Refusal(X.INVALID_PRODUCING_PATH)
+        safety = [c for c in connections if c.safety is not None]
+        if configuration_data is not None:
+            if configuration != policy.configuration_point:
+                return Refusal(X.INVALID_CONFIGURATION_PATH)
+            if state.cfunid is not None and state.cfunid != segment.ounid:
+                return Refusal(X.CONFIGURATION_OWNED)
+            if not any(segment.scid) or crc_s4(configuration_data) != segment.sccrc:
+                return Refusal(X.SCID_MISMATCH)
+            if segment.scid != state.scid and safety:
+                return Refusal(X.CONFIGURATION_OPERATION_NOT_ALLOWED)
+        elif any(segment.scid) and segment.scid != state.scid:
+            return Refusal(X.SCID_MISMATCH)
+        if server and any(c.kind is ConnectionKind.SAFETY_OUTPUT for c in safety):
+            return Refusal(X.OWNERSHIP_CONFLICT)  # one owner of the safe outputs
+        multicast = is_multicast(request)
+        shared = next((c for c in safety if c.multicast and c.t_o_point == producing), None) if multicast else None
+        if shared is not None:
+            refusal = _join_refusal(shared, request, segment)
+            if refusal is not None:
+                return refusal
+        elif len({c.instance for c in safety}) >= policy.max_connections:  # Safety Validator instances
+            return Refusal(X.OUT_OF_CONNECTIONS)
+        originator = Seeds.of(request.triad.originator_vendor_id, request.triad.originator_serial,
+                              request.triad.connection_serial)
+        if multicast:
+            return _multicast(request, segment, shared, policy, sizes[1], originator, consuming, producing,
+                              originator_host, multicast_address, now, new_id, instance_id, first_watchdog_ns,
+                              configuration_data)
+        if configuration_data is not None:  # admitted: the originator owns the configuration
+            state.configure(segment.ounid, segment.scid, configuration_data)
 
-class SafetyOpen(NamedTuple):
-    connection: Connection
-    application_reply: bytes
+        instance = instance_id()
+        target = Seeds.of(policy.vendor_id, policy.serial_number, instance)
+        if server:
+            validator: SafetyConsumer | SafetyProducer = SafetyConsumer(
+                segment, sizes[0], pid=originator, cid=target, now=now, first_watchdog_ns=first_watchdog_ns,
+                initial_rc_offset=initial_rc_offset)
+            initial = (validator.initial_timestamp, validator.initial_rollover)
+        else:
+            validator = SafetyProducer(segment, sizes[1], pid=target, cid=originator, epi_ns=request.t_o_rpi * 1000,
+                                       now=now, first_watchdog_ns=first_watchdog_ns)
+            initial = (segment.initial_timestamp, segment.initial_rollover_value)
+        # application reply (Vol. 5, 3-5.4.2): consumer number (0xFFFF: single-cast), target vendor id,
+        # serial number and connection serial number (the Safety Validator instance); extended format:
+        # initial timestamp and initial rollover value
+        reply = _application_reply(0xFFFF, policy, instance, initial if segment.extended else None)
+        connection = Connection(
+            kind=ConnectionKind.SAFETY_OUTPUT if server else ConnectionKind.SAFETY_INPUT, triad=request.triad,
+            o_t_id=new_id(), t_o_id=request.t_o_connection_id, o_t_rpi=request.o_t_rpi, t_o_rpi=request.t_o_rpi,
+            timeout_multiplier=request.timeout_multiplier, originator_host=originator_host, opened_at=now,
+            first_watchdog_ns=first_watchdog_ns, t_o_address=t_o_address, o_t_point=consuming, t_o_point=producing,
+            o_t_run_idle_header=False, safety=validator, instance=instance, ounid=segment.ounid,
+        )
+        return SafetyOpen(connection, reply)
 
 
 def safety_segment_of(segments: list) -> SafetyNetworkSegment | None:
     return next((s for s in segments if isinstance(s, SafetyNetworkSegment)), None)
-
-
-def admit_safety(request: ForwardOpenRequest, segments: list, route_size: int, policy: SafetyPolicy,
-                 check_key: Callable[[ElectronicKey], None], sizes: tuple[int, int], originator_host: str,
-                 t_o_address: tuple[str, int], now: int, connections: Collection[Connection],
-                 new_id: Callable[[], int], instance_id: Callable[[], int], first_watchdog_ns: int,
-                 initial_rc_offset: int,
-                 multicast_address: tuple[str, int] = ("0.0.0.0", 0)) -> SafetyOpen | SafetyRefusal:
-    """`segments`: the connection path after the route to this device (`route_size` bytes);
-    `sizes`: the output and input images' sizes; `check_key` raises the admission's refusal for a
-    key mismatch; `t_o_address`: where single-cast T->O goes, `multicast_address` multicast."""
-    raw = safety_segment_of(segments)
-    assert raw is not None
-    application = segments[:segments.index(raw)]
-    configuration_data = None
-    if application and isinstance(application[-1], DataSegment):  # a Type 1 SafetyOpen
-        configuration_data = application.pop().data
-    try:
-        segment = decode_segment(raw.raw)
-    except SegmentError as error:
-        return SafetyRefusal(X.INVALID_SAFETY_FORMAT if error.format_error else X.INVALID_SEGMENT)
-    if segments[-1] is not raw:
-        return SafetyRefusal(X.INVALID_SEGMENT)  # nothing may follow the safety segment
-    application_path = request.connection_path[route_size:len(request.connection_path) - len(raw.raw)]
-    fixed = encode_forward_open(request._replace(connection_path=b""))
-    fixed = fixed[:-1] + bytes(((len(application_path) + len(raw.raw)) // 2,))
-    if compute_cpcrc(fixed, application_path, raw.raw) != segment.cpcrc:
-        return SafetyRefusal(X.INVALID_CPCRC)
-    if not policy.tunid_set:
-        return SafetyRefusal(X.TUNID_NOT_SET)
-    state = policy.state
-    if segment.tunid != state.tunid:
-        return SafetyRefusal(X.TUNID_MISMATCH)
-    if any(c.triad == request.triad for c in connections):
-        return SafetyRefusal(X.CONNECTION_IN_USE)
-    if application and isinstance(application[0], ElectronicKey):
-        check_key(application.pop(0))
-    refusal = _parameters(request, segment, sizes)
-    if refusal is not None:
-        return refusal
-    server = request.transport_type_trigger == SERVER
-    points = _points(application)
-    if points is None:
-        return SafetyRefusal(X.INVALID_SEGMENT)
-    configuration, consuming, producing = points
-    if configuration not in (policy.configuration_point, policy.null_point):
-        return SafetyRefusal(X.INVALID_CONFIGURATION_PATH)
-    if server:
-        if producing != policy.null_point:
-            return SafetyRefusal(X.INVALID_PRODUCING_PATH)
-        if consuming != policy.output_point:
-            return SafetyRefusal(X.INVALID_CONSUMING_PATH)
-    else:
-        if consuming != policy.null_point:
-            return SafetyRefusal(X.INVALID_CONSUMING_PATH)
-        if producing != policy.input_point:
-            return SafetyRefusal(X.INVALID_PRODUCING_PATH)
-    safety = [c for c in connections if c.safety is not None]
-    if configuration_data is not None:
-        if configuration != policy.configuration_point:
-            return SafetyRefusal(X.INVALID_CONFIGURATION_PATH)
-        if state.cfunid is not None and state.cfunid != segment.ounid:
-            return SafetyRefusal(X.CONFIGURATION_OWNED)
-        if not any(segment.scid) or crc_s4(configuration_data) != segment.sccrc:
-            return SafetyRefusal(X.SCID_MISMATCH)
-        if segment.scid != state.scid and safety:
-            return SafetyRefusal(X.CONFIGURATION_OPERATION_NOT_ALLOWED)
-    elif any(segment.scid) and segment.scid != state.scid:
-        return SafetyRefusal(X.SCID_MISMATCH)
-    if server and any(c.kind is ConnectionKind.SAFETY_OUTPUT for c in safety):
-        return SafetyRefusal(X.OWNERSHIP_CONFLICT)  # one owner of the safe outputs
-    multicast = is_multicast(request)
-    shared = next((c for c in safety if c.multicast and c.t_o_point == producing), None) if multicast else None
-    if shared is not None:
-        refusal = _join_refusal(shared, request, segment)
-        if refusal is not None:
-            return refusal
-    elif len({c.instance for c in safety}) >= policy.max_connections:  # Safety Validator instances
-        return SafetyRefusal(X.OUT_OF_CONNECTIONS)
-    originator = Seeds.of(request.triad.originator_vendor_id, request.triad.originator_serial,
-                          request.triad.connection_serial)
-    if multicast:
-        return _multicast(request, segment, shared, policy, sizes[1], originator, consuming, producing,
-                          originator_host, multicast_address, now, new_id, instance_id, first_watchdog_ns,
-                          configuration_data)
-    if configuration_data is not None:  # admitted: the originator owns the configuration
-        state.configure(segment.ounid, segment.scid, configuration_data)
-
-    instance = instance_id()
-    target = Seeds.of(policy.vendor_id, policy.serial_number, instance)
-    if server:
-        validator: SafetyConsumer | SafetyProducer = SafetyConsumer(
-            segment, sizes[0], pid=originator, cid=target, now=now, first_watchdog_ns=first_watchdog_ns,
-            initial_rc_offset=initial_rc_offset)
-        initial = (validator.initial_timestamp, validator.initial_rollover)
-    else:
-        validator = SafetyProducer(segment, sizes[1], pid=target, cid=originator, epi_ns=request.t_o_rpi * 1000,
-                                   now=now, first_watchdog_ns=first_watchdog_ns)
-        initial = (segment.initial_timestamp, segment.initial_rollover_value)
-    # application reply (Vol. 5, 3-5.4.2): consumer number (0xFFFF: single-cast), target vendor id,
-    # serial number and connection serial number (the Safety Validator instance); extended format:
-    # initial timestamp and initial rollover value
-    reply = _application_reply(0xFFFF, policy, instance, initial if segment.extended else None)
-    connection = Connection(
-        kind=ConnectionKind.SAFETY_OUTPUT if server else ConnectionKind.SAFETY_INPUT, triad=request.triad,
-        o_t_id=new_id(), t_o_id=request.t_o_connection_id, o_t_rpi=request.o_t_rpi, t_o_rpi=request.t_o_rpi,
-        timeout_multiplier=request.timeout_multiplier, originator_host=originator_host, opened_at=now,
-        first_watchdog_ns=first_watchdog_ns, t_o_address=t_o_address, o_t_point=consuming, t_o_point=producing,
-        o_t_run_idle_header=False, safety=validator, instance=instance, ounid=segment.ounid,
-    )
-    return SafetyOpen(connection, reply)
 
 
 def _application_reply(consumer_number: int, policy: SafetyPolicy, instance: int,
@@ -228,21 +219,21 @@ def _application_reply(consumer_number: int, policy: SafetyPolicy, instance: int
     return reply + (struct.pack("<HH", *initial) if initial is not None else b"")
 
 
-def _join_refusal(shared: Connection, request: ForwardOpenRequest, segment: SafetySegment) -> SafetyRefusal | None:
+def _join_refusal(shared: Connection, request: ForwardOpenRequest, segment: SafetySegment) -> Refusal | None:
     """A multicast SafetyOpen joining a producer must ask for what it produces (the checks and
     statuses of the HMS target stack): ping interval EPI multiplier, max consumer number, format,
     then the RPIs (0x0112 with the acceptable RPI types, 4 = required, and the producer's RPIs)."""
     producer = shared.safety.producer  # type: ignore[union-attr]
     if segment.ping_interval_epi_multiplier != producer.ping_interval_epi_multiplier:
-        return SafetyRefusal(X.MULTICAST_PING_INTERVAL_EPI_MULTIPLIER)
+        return Refusal(X.MULTICAST_PING_INTERVAL_EPI_MULTIPLIER)
     if segment.max_consumer_number != producer.max_consumers:
-        return SafetyRefusal(X.MULTICAST_MAX_CONSUMER_NUMBER)
+        return Refusal(X.MULTICAST_MAX_CONSUMER_NUMBER)
     if segment.extended != producer.extended:
-        return SafetyRefusal(X.MULTICAST_SAFETY_FORMAT)
+        return Refusal(X.MULTICAST_SAFETY_FORMAT)
     if (request.o_t_rpi, request.t_o_rpi) != (shared.o_t_rpi, shared.t_o_rpi):
         types = (_REQUIRED if request.o_t_rpi != shared.o_t_rpi else 0) | (
             _REQUIRED << 8 if request.t_o_rpi != shared.t_o_rpi else 0)
-        return SafetyRefusal(X.RPI_NOT_ACCEPTABLE, more=(types, *struct.unpack("<HHHH", struct.pack(
+        return Refusal(X.RPI_NOT_ACCEPTABLE, more=(types, *struct.unpack("<HHHH", struct.pack(
             "<II", shared.o_t_rpi, shared.t_o_rpi))))
     return None
 
@@ -250,7 +241,7 @@ def _join_refusal(shared: Connection, request: ForwardOpenRequest, segment: Safe
 def _multicast(request: ForwardOpenRequest, segment: SafetySegment, shared: Connection | None, policy: SafetyPolicy,
                length: int, originator: Seeds, consuming: int, producing: int, originator_host: str,
                address: tuple[str, int], now: int, new_id: Callable[[], int], instance_id: Callable[[], int],
-               first_watchdog_ns: int, configuration_data: bytes | None) -> SafetyOpen | SafetyRefusal:
+               first_watchdog_ns: int, configuration_data: bytes | None) -> SafetyOpen | Refusal:
     """A consumer of the multicast producer of the safe inputs: a new producer, or `shared`'s."""
     if shared is not None:
         producer, instance, t_o_id = shared.safety.producer, shared.instance, shared.t_o_id  # type: ignore[union-attr]
@@ -260,7 +251,7 @@ def _multicast(request: ForwardOpenRequest, segment: SafetySegment, shared: Conn
                                      request.t_o_rpi * 1000, now, first_watchdog_ns)
     consumer = producer.join(segment, originator, now)
     if consumer is None:  # every consumer number taken
-        return SafetyRefusal(None, general=GeneralStatus.RESOURCE_UNAVAILABLE)
+        return Refusal(None, general=GeneralStatus.RESOURCE_UNAVAILABLE)
     if configuration_data is not None:
         policy.state.configure(segment.ounid, segment.scid, configuration_data)
     reply = _application_reply(consumer.number, policy, instance, producer.initial_values if segment.extended else None)
@@ -271,18 +262,6 @@ def _multicast(request: ForwardOpenRequest, segment: SafetySegment, shared: Conn
         t_o_point=producing, o_t_run_idle_header=False, safety=consumer, instance=instance, ounid=segment.ounid,
     )
     return SafetyOpen(connection, reply)
-
-
-def _points(application: list) -> tuple[int, int, int] | None:
-    if not application or application[0] != LogicalSegment(LogicalType.CLASS_ID, ClassCode.ASSEMBLY):
-        return None
-    values = []
-    for segment in application[1:]:
-        if not isinstance(segment, LogicalSegment) or segment.type not in (
-                LogicalType.INSTANCE_ID, LogicalType.CONNECTION_POINT):
-            return None
-        values.append(segment.value)
-    return (values[0], values[1], values[2]) if len(values) == 3 else None
 
 
 def _network_ok(p: NetworkParameters, size: int | None, multicast: bool = False) -> bool:
@@ -299,52 +278,52 @@ def is_multicast(request: ForwardOpenRequest) -> bool:
             and request.t_o_parameters.connection_type == ConnectionType.MULTICAST)
 
 
-def _parameters(request: ForwardOpenRequest, segment: SafetySegment, sizes: tuple[int, int]) -> SafetyRefusal | None:
+def _parameters(request: ForwardOpenRequest, segment: SafetySegment, sizes: tuple[int, int]) -> Refusal | None:
     """Connection and safety parameters (Vol. 5, 3-5.4.1), in the order a target checks them."""
     if request.timeout_multiplier > _MAX_CONNECTION_TIMEOUT_MULTIPLIER:
-        return SafetyRefusal(X.INVALID_SAFETY_TIMEOUT_MULTIPLIER)
+        return Refusal(X.INVALID_SAFETY_TIMEOUT_MULTIPLIER)
     transport = request.transport_type_trigger
     if transport not in (SERVER, CLIENT):
-        return SafetyRefusal(X.TRANSPORT_TRIGGER_NOT_SUPPORTED)
+        return Refusal(X.TRANSPORT_TRIGGER_NOT_SUPPORTED)
     server = transport == SERVER
     multicast = is_multicast(request)
     data, tcoo = (request.o_t_parameters, request.t_o_parameters) if server else (
         request.t_o_parameters, request.o_t_parameters)
     if not _network_ok(data, None, multicast) or not _network_ok(tcoo, TCOO_SIZE):
-        return SafetyRefusal(X.INVALID_CONNECTION_TYPE)
+        return Refusal(X.INVALID_CONNECTION_TYPE)
     if segment.time_correction_parameters != 0:  # multicast too: no separate time correction connection
-        return SafetyRefusal(X.INVALID_TIME_CORRECTION_PARAMETERS)
+        return Refusal(X.INVALID_TIME_CORRECTION_PARAMETERS)
     appended = TIME_CORRECTION_SIZE if multicast else 0  # each multicast data message ends with one
     length = data_length(data.size - appended)
     if length is None:
-        return SafetyRefusal(X.INVALID_SAFETY_CONNECTION_SIZE)
+        return Refusal(X.INVALID_SAFETY_CONNECTION_SIZE)
     expected = sizes[0] if server else sizes[1]
     if length != expected:
-        return SafetyRefusal(X.INVALID_O_T_SIZE if server else X.INVALID_T_O_SIZE, wire_size(expected) + appended)
+        return Refusal(X.INVALID_O_T_SIZE if server else X.INVALID_T_O_SIZE, wire_size(expected) + appended)
     data_rpi, tcoo_rpi = (request.o_t_rpi, request.t_o_rpi) if server else (request.t_o_rpi, request.o_t_rpi)
     max_rpi = _MAX_RPI_EXTENDED_US if segment.extended else _MAX_RPI_BASE_US
     if not (_MIN_RPI_US <= data_rpi <= max_rpi and _MIN_RPI_US <= tcoo_rpi <= _MAX_RPI_TCOO_US):
-        return SafetyRefusal(X.RPI_NOT_SUPPORTED)
+        return Refusal(X.RPI_NOT_SUPPORTED)
     if segment.time_correction_epi != 0 and not multicast:
-        return SafetyRefusal(X.MISCELLANEOUS)
+        return Refusal(X.MISCELLANEOUS)
     piem_min = min(segment.timeout_multiplier, 4) * segment.max_consumer_number + MAX_CONSUMERS
     if not piem_min <= segment.ping_interval_epi_multiplier <= _MAX_PIEM or (
             data_rpi * segment.ping_interval_epi_multiplier > 100_000_000):
-        return SafetyRefusal(X.INVALID_PING_INTERVAL_EPI_MULTIPLIER)
+        return Refusal(X.INVALID_PING_INTERVAL_EPI_MULTIPLIER)
     if segment.time_coord_msg_min_multiplier > _MAX_TCOO_MIN_MULTIPLIER:
-        return SafetyRefusal(X.INVALID_TIME_COORD_MSG_MIN_MULTIPLIER)
+        return Refusal(X.INVALID_TIME_COORD_MSG_MIN_MULTIPLIER)
     if not 1 <= segment.network_time_expectation_multiplier <= _MAX_NTE_MULTIPLIER:
-        return SafetyRefusal(X.INVALID_NETWORK_TIME_EXPECTATION_MULTIPLIER)
+        return Refusal(X.INVALID_NETWORK_TIME_EXPECTATION_MULTIPLIER)
     if segment.timeout_multiplier < 1 or (not segment.extended and segment.timeout_multiplier > 4):
-        return SafetyRefusal(X.INVALID_SAFETY_TIMEOUT_MULTIPLIER)
+        return Refusal(X.INVALID_SAFETY_TIMEOUT_MULTIPLIER)
     if not 1 <= segment.max_consumer_number <= (MAX_CONSUMERS if multicast else 1):
-        return SafetyRefusal(X.INVALID_MAX_CONSUMER_NUMBER)
+        return Refusal(X.INVALID_MAX_CONSUMER_NUMBER)
     if not multicast and segment.time_correction_connection_id != TIME_CORRECTION_NOT_USED:
-        return SafetyRefusal(X.INVALID_TIME_CORRECTION_CONNECTION_ID)
+        return Refusal(X.INVALID_TIME_CORRECTION_CONNECTION_ID)
     if segment.extended:
         if segment.max_fault_number > 255:
-            return SafetyRefusal(X.MISCELLANEOUS)
+            return Refusal(X.MISCELLANEOUS)
         if (server or multicast) and (segment.initial_timestamp, segment.initial_rollover_value) != (
                 NOT_USED, NOT_USED):  # the producer of a multicast picks them
-            return SafetyRefusal(X.PARAMETER_ERROR)
+            return Refusal(X.PARAMETER_ERROR)
     return None

@@ -18,7 +18,7 @@ What each reset keeps (Vol. 5, the Safety_Reset service; Vol. 1, 5-2.4.1 Identit
 
 from __future__ import annotations
 
-from enip_farm.cip.safety.segment import Unid
+from enip_farm.protocol.safety.segment import Unid
 
 UNID_SIZE = 10
 SCID_SIZE = 10

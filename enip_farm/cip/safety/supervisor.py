@@ -34,20 +34,23 @@ from __future__ import annotations
 import struct
 from collections.abc import Callable, Iterable
 
+from enip_farm.cip.attribute import Attribute, CipInstance
 from enip_farm.cip.connection import Connection, ConnectionKind
-from enip_farm.cip.object import Attribute, CipClass, CipInstance, ServiceResult
+from enip_farm.cip.data_types import BOOL, BYTE, USINT, Encoded, Octets
+from enip_farm.cip.object import CipClass, ServiceResult
 from enip_farm.cip.safety.admission import SafetyPolicy
-from enip_farm.cip.safety.segment import Unid
 from enip_farm.cip.safety.state import (
     EXTENDED_MAP,
     NO_UNID,
     PASSWORD_SIZE,
     RESERVED_BIT,
+    SCID_SIZE,
     UNID_SIZE,
     UNSET_UNID,
 )
 from enip_farm.protocol.cip import ClassCode
 from enip_farm.protocol.epath import RequestPath, encode_request_path
+from enip_farm.protocol.safety.segment import Unid
 from enip_farm.protocol.session import MessageContext
 from enip_farm.protocol.status import GeneralStatus
 
@@ -55,6 +58,8 @@ SAFETY_RESET, PROPOSE_TUNID, APPLY_TUNID = 0x54, 0x56, 0x57
 #: Device status (attribute 11), Vol. 5 as Wireshark names the values.
 SELF_TESTING, IDLE, EXECUTING, ABORT, CRITICAL_FAULT, CONFIGURING, WAITING_FOR_TUNID = 1, 2, 4, 5, 6, 7, 8
 _RESET_FIXED = 1 + PASSWORD_SIZE + UNID_SIZE  # type, password, TUNID
+UNID = Octets(UNID_SIZE, "UNID: SNN (6 bytes), node address (UDINT)")
+SCID = Octets(SCID_SIZE, "SCID: SCCRC (UDINT), SCTS (6 bytes)")
 
 
 def _exact(data: bytes, size: int) -> int:
@@ -80,16 +85,16 @@ class SafetySupervisor(CipClass):
         self._close = close_safety_connections
         self._self_testing = self_testing
         state = self.state
-        self.instances[1] = CipInstance({
-            11: Attribute(lambda: bytes((self.device_status,))),
-            12: Attribute(lambda: b"\x00"),
-            24: Attribute(lambda: bytes((int(state.locked),))),
-            25: Attribute(lambda: (state.cfunid or NO_UNID).encode()),  # Configuration UNID (CFUNID)
-            26: Attribute(lambda: state.scid),  # Safety Configuration Identifier: SCCRC + SCTS
-            27: Attribute(lambda: state.tunid.encode()),  # Target UNID: SNN + node address
-            28: Attribute(self._output_owners, size=_owners_size),
-            29: Attribute(lambda: (state.proposed_tunid or UNSET_UNID).encode()),
-        })
+        self.instances[1] = CipInstance((
+            Attribute(11, USINT, lambda: self.device_status),
+            Attribute(12, BYTE, value=0),  # exception status
+            Attribute(24, BOOL, lambda: int(state.locked)),
+            Attribute(25, UNID, lambda: (state.cfunid or NO_UNID).encode()),  # Configuration UNID (CFUNID)
+            Attribute(26, SCID, lambda: state.scid),  # Safety Configuration Identifier: SCCRC + SCTS
+            Attribute(27, UNID, lambda: state.tunid.encode()),  # Target UNID: SNN + node address
+            Attribute(28, OUTPUT_CONNECTION_POINT_OWNERS, self._output_owners),
+            Attribute(29, UNID, lambda: (state.proposed_tunid or UNSET_UNID).encode()),
+        ))
         self.handlers[PROPOSE_TUNID] = self.propose_tunid
         self.handlers[APPLY_TUNID] = self.apply_tunid
         self.handlers[SAFETY_RESET] = self.safety_reset
@@ -192,3 +197,6 @@ def _owners_size(data: bytes) -> int | None:
             return None
         offset += UNID_SIZE + 1 + data[offset + UNID_SIZE]
     return offset
+
+
+OUTPUT_CONNECTION_POINT_OWNERS = Encoded("STRUCT of UINT count, STRUCT of UNID, USINT size, EPATH[count]", _owners_size)

@@ -18,16 +18,16 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from enip_farm.cip.safety.crc import Seeds
-from enip_farm.cip.safety.messages import (
+from enip_farm.protocol.safety.crc import Seeds
+from enip_farm.protocol.safety.messages import (
     TimeCorrection,
     decode_time_coordination,
     encode_data,
     encode_time_correction,
     mode_byte,
 )
-from enip_farm.cip.safety.segment import SafetySegment
-from enip_farm.cip.safety.validator import Consumed, ticks
+from enip_farm.protocol.safety.segment import SafetySegment
+from enip_farm.protocol.safety.validator import Consumed, ticks
 
 MAX_CONSUMERS = 15  # Max_Consumer_Number of a multicast connection (Vol. 5, 3-5.3)
 _FIRST_SECTION_EPI = 8  # time correction sections start at the 8th production of a ping interval

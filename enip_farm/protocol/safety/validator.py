@@ -9,8 +9,8 @@ from __future__ import annotations
 
 from typing import NamedTuple
 
-from enip_farm.cip.safety.crc import Seeds
-from enip_farm.cip.safety.messages import (
+from enip_farm.protocol.safety.crc import Seeds
+from enip_farm.protocol.safety.messages import (
     decode_data,
     decode_time_coordination,
     encode_data,
@@ -19,7 +19,7 @@ from enip_farm.cip.safety.messages import (
     mode_byte,
     wire_size,
 )
-from enip_farm.cip.safety.segment import SafetySegment
+from enip_farm.protocol.safety.segment import SafetySegment
 
 TICK_NS = 128_000
 #: Timeout_Multiplier.PI: ping intervals a producer waits for a time coordination message, plus 2

@@ -27,7 +27,7 @@ from __future__ import annotations
 import struct
 from typing import NamedTuple
 
-from enip_farm.cip.safety.crc import Seeds, crc_s1, crc_s2, crc_s3, crc_s5
+from enip_farm.protocol.safety.crc import Seeds, crc_s1, crc_s2, crc_s3, crc_s5
 
 _U16 = struct.Struct("<H")
 TCOO_SIZE = 6

@@ -26,7 +26,7 @@ from collections.abc import Mapping
 from types import MappingProxyType
 from typing import NamedTuple
 
-from enip_farm.cip.safety.crc import crc_s4
+from enip_farm.protocol.safety.crc import crc_s4
 
 SAFETY_SEGMENT = 0x50
 FORMAT_BASE, FORMAT_ROUTER, FORMAT_EXTENDED = 0, 1, 2
