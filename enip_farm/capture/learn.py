@@ -45,14 +45,8 @@ from enip_farm.config import DeviceConfig
 from enip_farm.device.catalogue import Catalogue, shipped_catalogue
 from enip_farm.device.device import Device
 from enip_farm.device.profile import resolve
-from enip_farm.protocol.cip import (
-    CipDecodeError,
-    ClassCode,
-    Service,
-    decode_reply,
-    decode_request,
-    decode_unconnected_send,
-)
+from enip_farm.protocol.cip import CipDecodeError, ClassCode, Service, decode_reply, decode_request
+from enip_farm.protocol.cip import decode_unconnected_send as unconnected_send
 from enip_farm.protocol.commands import IdentityItem, decode_identity_item, decode_send_data
 from enip_farm.protocol.connection import ConnectionType, DecodeError, ForwardOpenRequest, decode_forward_open
 from enip_farm.protocol.cpf import ItemType, decode_items
@@ -142,7 +136,7 @@ def _cip_pairs(exchange: Exchange) -> tuple[bytes, bytes] | None:
     try:
         if (request[0] == Service.UNCONNECTED_SEND
                 and decode_request_path(decode_request(request).path)[:2] == (ClassCode.CONNECTION_MANAGER, 1)):
-            request = decode_unconnected_send(decode_request(request).data).message
+            request = unconnected_send(decode_request(request).data).message
     except (CipDecodeError, PathError, IndexError):
         pass
     return request, reply
@@ -165,8 +159,8 @@ def _identity_from_item(item: IdentityItem, identity: dict[str, Any]) -> None:
 def _identity_attribute(attribute: int, data: bytes, identity: dict[str, Any]) -> None:
     if attribute in (1, 2, 3) and len(data) >= 2:
         identity[("vendor_id", "device_type", "product_code")[attribute - 1]] = struct.unpack_from("<H", data)[0]
-    elif attribute == 4 and len(data) >= 2:
-        identity["revision"] = [data[0], data[1]]
+    elif attribute == 4 and len(data) >= 2:  # revision: major, minor
+        identity["revision"] = list(data[:2])
     elif attribute == 6 and len(data) >= 4:
         identity["serial_number"] = struct.unpack_from("<I", data)[0]
     elif attribute == 7 and data and len(data) > data[0]:
