@@ -18,6 +18,7 @@ from pathlib import Path
 from typing import IO
 
 import pytest
+from prometheus_client.parser import text_string_to_metric_families
 
 from enip_farm.protocol.cip import MessageRouterReply, decode_reply, encode_request
 from enip_farm.protocol.commands import decode_send_data, encode_send_data
@@ -196,3 +197,10 @@ def own_network_namespace() -> tuple[str, ...]:
         pytest.skip(f"a network namespace is not permitted here (root needed; uid {os.geteuid()}): "
                     f"{tried.stderr.strip()}")
     return ("unshare", "-n", "sh", "-c", 'ip link set lo up && exec "$@"', "sh")
+
+
+def metric_samples(text: str, name: str) -> dict[tuple[tuple[str, str], ...], float]:
+    """The samples called `name` in Prometheus exposition text, parsed by prometheus_client:
+    {((label, value), ...) sorted by label: sample value}; {} when there is none."""
+    return {tuple(sorted(sample.labels.items())): sample.value
+            for family in text_string_to_metric_families(text) for sample in family.samples if sample.name == name}

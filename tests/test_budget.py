@@ -19,7 +19,7 @@ from enip_farm.cip.connection_table import ConnectionTable, Opened
 from enip_farm.server.calibrate import UTILISATION, measure_budget
 from enip_farm.server.implicit import OVERLOAD_LAG_NS, Lag
 from tests.fuzzing import dsqc1030_profile
-from tests.helpers import RawClient
+from tests.helpers import RawClient, metric_samples
 from tests.test_connection_table import INPUT_ONLY_PATH, LISTEN_ONLY_PATH, MULTICAST, T0, request
 from tests.test_implicit import forward_close, forward_open
 
@@ -125,10 +125,10 @@ def test_a_farm_past_its_budget_refuses_0x0113_and_keeps_the_others(enip_farm) -
         assert cb.request(forward_open(rpi=10_000, multiplier=7)[0]).general_status == 0
         refused = cc.request(forward_open(rpi=10_000, multiplier=7)[0])
         assert (refused.general_status, list(refused.additional_status)) == (0x01, [0x0113])
-        metrics = httpx.get(f"http://127.0.0.1:{farm.http.port}/metrics").text.splitlines()
-        assert "enip_farm_cyclic_io_budget_datagrams_per_second 450.0" in metrics
-        assert "enip_farm_cyclic_io_reserved_datagrams_per_second 400.0" in metrics
-        assert "enip_farm_cyclic_io_budget_refusals_total 1.0" in metrics
+        metrics = httpx.get(f"http://127.0.0.1:{farm.http.port}/metrics").text
+        assert metric_samples(metrics, "enip_farm_cyclic_io_budget_datagrams_per_second") == {(): 450.0}
+        assert metric_samples(metrics, "enip_farm_cyclic_io_reserved_datagrams_per_second") == {(): 400.0}
+        assert metric_samples(metrics, "enip_farm_cyclic_io_budget_refusals_total") == {(): 1.0}
         assert ca.request(forward_close(triad)).general_status == 0
         assert farm.budget.reserved == 200
         assert cc.request(forward_open(rpi=10_000, multiplier=7)[0]).general_status == 0

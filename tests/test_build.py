@@ -47,8 +47,9 @@ def test_a_profile_named_like_a_built_in_model_is_refused(tmp_path: Path) -> Non
     assert str(error.value) == (
         f"cell.yaml: device 'io1' (devices[0]), model: profile {shadow} defines model 'DSQC1030', which would "
         "replace the built-in model: give the profile's model another name (enip-farm learn --name)")
-    with pytest.raises(ConfigError, match="built-in model"):
+    with pytest.raises(ConfigError) as again:
         Farm(config)
+    assert str(again.value) == str(error.value)
     # the built-in model is unchanged, in this process and for the next test
     assert shipped_catalogue().models["DSQC1030"].io.di == 16
     assert _dsqc1030_input_size() == 2
@@ -56,7 +57,7 @@ def test_a_profile_named_like_a_built_in_model_is_refused(tmp_path: Path) -> Non
 
 def test_the_shipped_catalogue_cannot_change(tmp_path: Path) -> None:
     shipped = shipped_catalogue()
-    with pytest.raises(TypeError):
+    with pytest.raises(TypeError, match="^'mappingproxy' object does not support item assignment$"):
         shipped.models["DSQC1030"] = shipped.models["DSQC1031"]  # type: ignore[index]
     extended, base = shipped.with_profile(_profile(tmp_path / "mine.yaml", "MINE", di=8))
     assert base == "MINE" and extended.origins["MINE"] == str(tmp_path / "mine.yaml")
@@ -70,7 +71,8 @@ def test_profile_models_are_per_farm(tmp_path: Path) -> None:
     config = parse_config({"devices": [{"name": "d", "address": "127.0.0.5", "model": "mine.yaml"}]}, "a", tmp_path)
     (profile,) = build_profiles(config, shipped_catalogue())
     assert profile.model == "MINE" and profile.input_size == 1
-    with pytest.raises(ConfigError, match="unknown base model 'MINE'"):
+    with pytest.raises(ConfigError, match=r"^<config>: device 'd' \(devices\[0\]\), model: unknown base model 'MINE'; "
+                                          r"known: DSQC1030, DSQC1042, GenericAdapter$"):
         build_profiles(parse_config({"devices": [{"name": "d", "address": "127.0.0.5", "model": "MINE"}]}),
                        shipped_catalogue())
 
@@ -93,8 +95,9 @@ def test_two_profiles_with_one_model_name_are_refused(tmp_path: Path) -> None:
                                        {"name": "b", "address": "127.0.0.6", "model": "b.yaml"}]}, "cell", tmp_path)
     with pytest.raises(ConfigError) as error:
         build_profiles(config, shipped_catalogue())
-    assert f"device 'b' (devices[1]), model: profile {tmp_path / 'b.yaml'} defines model 'LEARNED'" in str(error.value)
-    assert f"the model of {tmp_path / 'a.yaml'}" in str(error.value)
+    assert str(error.value) == (f"cell: device 'b' (devices[1]), model: profile {tmp_path / 'b.yaml'} defines "
+                                f"model 'LEARNED', which would replace the model of {tmp_path / 'a.yaml'}: give the "
+                                "profile's model another name (enip-farm learn --name)")
 
 
 def test_problems_of_a_count_entry_are_reported_once() -> None:
@@ -138,7 +141,8 @@ def test_learn_never_names_a_model_like_a_built_in_one(tmp_path: Path) -> None:
     mine = Catalogue.from_document({"models": {"DSQC1030_learned": shipped_catalogue().models["DSQC1030"]}}, "mine")
     assert [p.name for p in learn(capture, catalogue=shipped_catalogue().with_models(mine.models, "mine"))] == [
         "DSQC1030_learned_learned"]
-    with pytest.raises(ValueError, match="never replaces"):
+    with pytest.raises(ValueError, match="^'DSQC1031' is a model of the catalogue: a learned profile never replaces "
+                                         "one, choose another name$"):
         learn(capture, name="DSQC1031")
     refused = subprocess.run([*CLI, "learn", str(capture), "-o", str(tmp_path / "p.yaml"), "--name", "DSQC1030"],
                              capture_output=True, text=True, timeout=120)
@@ -172,7 +176,5 @@ def test_a_chain_of_thousands_of_devices_does_not_exhaust_the_stack(closed: bool
         return
     with pytest.raises(ConfigError) as error:
         build_profiles(config, shipped_catalogue())
-    [line] = str(error.value).splitlines()
-    assert line.startswith("<config>: wiring cycle: d0.inputs -> d0.outputs -> d1.inputs -> d1.outputs -> ")
-    assert line.endswith(" -> d2999.inputs -> d2999.outputs -> d0.inputs")
-    assert line.count(" -> ") == 6000
+    cycle = [f"d{n}.{end}" for n in range(3000) for end in ("inputs", "outputs")] + ["d0.inputs"]
+    assert str(error.value) == "<config>: wiring cycle: " + " -> ".join(cycle)

@@ -306,7 +306,7 @@ def test_reset_window_to_the_tick() -> None:
     assert window.start(T0) == T0 + 250 * MS and window.active and window.resets == 1
     assert window.end(T0 + 250 * MS - 1) is False and window.active
     assert window.end(T0 + 250 * MS) is True and not window.active
-    with pytest.raises(ValueError):
+    with pytest.raises(ValueError, match="^a reset time is not negative$"):
         ResetWindow(-1)
 
 

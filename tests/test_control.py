@@ -20,7 +20,7 @@ from enip_farm.device.build import build_profiles
 from enip_farm.device.catalogue import shipped_catalogue
 from enip_farm.protocol.encapsulation import Command, decode_frame, encode_frame
 from enip_farm.pytest_plugin import AddressPool
-from tests.helpers import CLI, STARTUP_S, RawClient, read_lines, serving
+from tests.helpers import CLI, STARTUP_S, RawClient, metric_samples, read_lines, serving
 from tests.test_implicit import ASSEMBLY_PATH, forward_open
 
 GET_OUTPUTS = dict(service=Services.get_attribute_single, class_code=4, instance=100, attribute=3,
@@ -48,7 +48,7 @@ def test_signals_across_addons(enip_farm) -> None:
                                       connected=False, route_path=False)
     assert read.value == io.inputs
     assert io.get("DO16") == 1 and io.get("AO1") == 1000
-    with pytest.raises(ValueError):
+    with pytest.raises(ValueError, match="^DI33: this device has 32 DI signals$"):
         io.get("DI33")
 
 
@@ -72,7 +72,7 @@ def test_wait_for_and_events(enip_farm) -> None:
     io = enip_farm(name="io", model="DSQC1030")["io"]
     threading.Timer(0.05, lambda: io.set(DO2=1)).start()
     io.wait_for(lambda d: d.get("DO2") == 1, timeout=5)
-    with pytest.raises(TimeoutError):
+    with pytest.raises(TimeoutError, match=r"^io: condition not met within 0\.05 s$"):
         io.wait_for(lambda d: d.get("DO3") == 1, timeout=0.05)
     with RawClient(io.address) as c:
         c.register()
@@ -111,9 +111,9 @@ def test_plugin_teardown_leaves_nothing_behind(free_address: AddressPool) -> Non
         with RawClient(address) as c:
             c.register()
     assert {t.name for t in threading.enumerate()} == before
-    with pytest.raises(OSError):
+    with pytest.raises(OSError, match="Connection refused"):
         socket.create_connection((address, 44818), timeout=1)
-    with pytest.raises(OSError):
+    with pytest.raises(OSError, match="Connection refused"):
         socket.create_connection(("127.0.0.1", port), timeout=1)
 
 
@@ -133,7 +133,7 @@ def test_delay_makes_pycomm3_time_out_and_clears(enip_farm) -> None:
     io = enip_farm(name="io", model="DSQC1030")["io"]
     with _driver(io.address, 0.3) as driver:
         io.inject("delay", delay_ms=800)
-        with pytest.raises(CommError):
+        with pytest.raises(CommError, match="^failed to receive reply$"):
             driver.generic_message(**GET_OUTPUTS)
     io.clear_faults()
     with CIPDriver(io.address) as driver:
@@ -157,10 +157,11 @@ def test_drop_processes_but_sends_nothing(enip_farm) -> None:
     io = enip_farm(name="io", model="DSQC1030")["io"]
     with _driver(io.address, 0.3) as driver:
         io.inject("drop")
-        with pytest.raises(CommError):
+        with pytest.raises(CommError, match="^failed to receive reply$"):
             driver.generic_message(**set_outputs(b"\x07\x00"))
     # the write happened (by now, or soon on a loaded machine: the client gave up first); its reply was lost
     io.wait_for(lambda d: d.counters["replies_dropped"] >= 1, timeout=10)
+    assert io.counters["replies_dropped"] == 1
     assert io.outputs == b"\x07\x00"
 
 
@@ -171,11 +172,11 @@ def test_close_and_reset(enip_farm, kind: str) -> None:
     existing.register()
     io.inject(kind)
     if kind == "reset":
-        with pytest.raises(ConnectionResetError):
+        with pytest.raises(ConnectionResetError, match="Connection reset by peer"):
             existing.sock.recv(10)
     else:
         assert existing.is_closed()
-    with pytest.raises(CommError):
+    with pytest.raises(CommError, match="^failed to open a connection$"):
         with CIPDriver(io.address) as driver:
             driver.generic_message(**GET_OUTPUTS)
     io.clear_faults(kind)
@@ -186,12 +187,12 @@ def test_close_and_reset(enip_farm, kind: str) -> None:
 def test_offline_refuses_and_comes_back(enip_farm) -> None:
     io = enip_farm(name="io", model="DSQC1030")["io"]
     io.inject("offline")
-    with pytest.raises(CommError):
+    with pytest.raises(CommError, match="^failed to open a connection$"):
         CIPDriver(io.address).open()
     with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as udp:
         udp.settimeout(0.3)
         udp.sendto(encode_frame(Command.LIST_IDENTITY), (io.address, 44818))
-        with pytest.raises(TimeoutError):
+        with pytest.raises(TimeoutError, match="^timed out$"):
             udp.recv(1024)
     io.clear_faults()
     with CIPDriver(io.address) as driver:
@@ -201,13 +202,13 @@ def test_offline_refuses_and_comes_back(enip_farm) -> None:
 def test_offline_for_a_duration(enip_farm) -> None:
     io = enip_farm(name="io", model="DSQC1030")["io"]
     io.inject("offline", duration_s=2)  # long enough that a loaded machine still connects within it
-    with pytest.raises(OSError):
+    with pytest.raises(OSError, match="Connection refused"):
         socket.create_connection((io.address, 44818), timeout=1).close()
     # "fault cleared" is recorded once the device listens again; `faults` empties a moment before
     io.wait_for(lambda d: d.events("fault cleared"), timeout=10)
     assert not io.faults
     with RawClient(io.address) as c:
-        assert c.register() >= 1
+        assert c.register() == 1
 
 
 def test_injected_status_is_read_by_pycomm3(enip_farm) -> None:
@@ -303,17 +304,21 @@ def test_analog_wire(enip_farm) -> None:
 
 @pytest.mark.parametrize(("wiring", "message"), [
     ({"wires": [{"from": "a.DO1-8", "to": "b.DI1-8"}],
-      "rules": [{"when": "b.DI1", "set": "a.DI1"}, {"when": "a.DI1", "set": "a.DO1"}]}, "wiring cycle"),
-    ({"wires": [{"from": "a.DO1-8", "to": "b.DI1-7"}]}, "same kind and number"),
-    ({"wires": [{"from": "a.DI1-8", "to": "b.DI1-8"}]}, "from outputs"),
-    ({"wires": [{"from": "a.DO1-8", "to": "c.DI1-8"}]}, "no device named 'c'"),
-    ({"wires": [{"from": "a.DO17", "to": "b.DI1"}]}, "16 DO signals"),
+      "rules": [{"when": "b.DI1", "set": "a.DI1"}, {"when": "a.DI1", "set": "a.DO1"}]},
+     "wiring cycle: a.inputs -> a.outputs -> b.inputs -> a.inputs"),
+    ({"wires": [{"from": "a.DO1-8", "to": "b.DI1-7"}]},
+     "wire a.DO1-8 -> b.DI1-7: both ends need the same kind and number of signals"),
+    ({"wires": [{"from": "a.DI1-8", "to": "b.DI1-8"}]},
+     "wire a.DI1-8 -> b.DI1-8: wires go from outputs (DO, AO) to inputs (DI, AI)"),
+    ({"wires": [{"from": "a.DO1-8", "to": "c.DI1-8"}]}, "wire a.DO1-8 -> c.DI1-8: 'c.DI1-8': no device named 'c'"),
+    ({"wires": [{"from": "a.DO17", "to": "b.DI1"}]},
+     "wire a.DO17 -> b.DI1: 'a.DO17': DO17: this device has 16 DO signals"),
 ])
 def test_bad_wiring_is_refused_at_load(free_address: AddressPool, wiring: dict, message: str) -> None:
     devices = [{"name": n, "address": free_address(), "model": "DSQC1030"} for n in ("a", "b")]
     with pytest.raises(ConfigError) as error:
         build_profiles(parse_config({"devices": devices, **wiring}), shipped_catalogue())
-    assert message in str(error.value)
+    assert str(error.value) == f"<config>: {message}"
 
 
 # -- HTTP API and CLI --------------------------------------------------------------------------------
@@ -337,8 +342,10 @@ def test_http_api(enip_farm) -> None:
         assert driver.generic_message(**GET_OUTPUTS).error == "Service not supported"
     assert httpx.delete(f"{base}/devices/harness/faults").json() == {"cleared": ["status"]}
     metrics = httpx.get(f"{base}/metrics").text
-    assert 'enip_farm_requests_total{device="harness",service="0x0E",status="0x08"} 1.0' in metrics
-    assert "enip_farm_request_seconds_bucket" in metrics
+    assert metric_samples(metrics, "enip_farm_requests_total") == {
+        (("device", "harness"), ("service", "0x0E"), ("status", "0x08")): 1.0}
+    assert metric_samples(metrics, "enip_farm_request_seconds_count") == {(("device", "harness"),): 2.0,
+                                                                         (("device", "robot1"),): 0.0}
     assert "/devices/{name}/faults" in httpx.get(f"{base}/openapi.json").json()["paths"]
 
 

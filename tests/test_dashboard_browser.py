@@ -172,7 +172,7 @@ def test_the_power_cycle_button_resets_the_device(enip_farm, browser) -> None:
     card.find_element("css selector", ".power-cycle").click()
     until(lambda: [e.kind for e in io.events() if e.kind.startswith("reset")] == ["reset", "reset done"],
           "the device reset and answering again")
-    assert io.events("reset")[0].text.startswith("type 0 (power cycle)")
+    assert io.events("reset")[0].text == "type 0 (power cycle): not answering for 0.5 s"
     until(lambda: "io: power cycled" in browser.find_element("id", "message").text, "the reset said")
     assert page_errors(browser) == []
 

@@ -165,7 +165,8 @@ def test_import_refuses_what_it_cannot_serve() -> None:
         "Connection2", "Connection3", "Connection4"]
     assert notes == ["Connection1 'Exclusive Owner' (exclusive owner, path 20 04 24 97 2C 96 2C 64): o_t_size 500 is "
                      "beyond the farm's 496 bytes; not served"]
-    with pytest.raises(EdsError, match="never replaces"):
+    with pytest.raises(EdsError, match="^'DSQC1030' is a model of the catalogue: a profile never replaces one, choose "
+                                       "another name$"):
         eds_profile(read_eds(text, "x.eds"), "x.eds", name="DSQC1030")
     renamed = text.replace('ProdName = "EX-IO 8DI/8DO/2AI";', 'ProdName = "DSQC1030";')
     assert eds_profile(read_eds(renamed, "x.eds"), "x.eds")[0] == "DSQC1030_eds"

@@ -26,7 +26,7 @@ from enip_farm.control.client import ApiClient
 from enip_farm.fleet import FleetClient, shard, split
 from enip_farm.protocol.encapsulation import Command, encode_frame
 from enip_farm.pytest_plugin import AddressPool
-from tests.helpers import CLI, ROOT, STARTUP_S, RawClient, read_lines, serving
+from tests.helpers import CLI, ROOT, STARTUP_S, RawClient, metric_samples, read_lines, serving
 
 
 def _block(free_address: AddressPool) -> str:
@@ -44,10 +44,12 @@ def test_count_shorthand() -> None:
     assert [(d.name, str(d.address)) for d in config.devices] == [
         ("io1", "127.0.100.254"), ("io2", "127.0.100.255"), ("io3", "127.0.101.0"), ("io4", "127.0.101.1"),
         ("x", "127.0.101.9")]
-    with pytest.raises(ConfigError, match=r"address: 127.0.101.1 is taken by device 'io4' \(devices\[0\]\)"):
+    with pytest.raises(ConfigError, match=r"^<config>: device 'x' \(devices\[1\]\), address: 127\.0\.101\.1 is taken "
+                                          r"by device 'io4' \(devices\[0\]\) \(here by 'x'\)$"):
         parse_config({"devices": [{"name": "io{n}", "address": "127.0.100.254", "count": 4, "model": "DSQC1030",
                                    **wide}, {"name": "x", "address": "127.0.101.1", "model": "DSQC1030"}]})
-    with pytest.raises(ConfigError, match="needs {n}"):
+    with pytest.raises(ConfigError, match=r"^<config>: device 'io' \(devices\[0\]\): name 'io' needs \{n\} to number 2 "
+                                          r"devices$"):
         parse_config({"devices": [{"name": "io", "address": "127.0.100.1", "count": 2, "model": "DSQC1030"}]})
 
 
@@ -105,7 +107,7 @@ def test_workers_start_serve_and_stop(free_address: AddressPool, tmp_path: Path)
         # the workers (and multiprocessing's resource tracker, which follows a moment later) are gone
         _, alive = psutil.wait_procs(workers, timeout=STARTUP_S)
         assert not alive
-        with pytest.raises(OSError):
+        with pytest.raises(OSError, match="Connection refused"):
             socket.create_connection((first, 44818), timeout=1)
     finally:
         for worker in workers:  # only after a failure: bounded clean-up of what this test started
@@ -146,8 +148,8 @@ def test_one_http_port_drives_the_devices_of_every_worker(free_address: AddressP
             assert client.get("/state", params={"device": "nope"}).status_code == 404
             metrics = client.get("/metrics").text
             assert metrics.count("# HELP enip_farm_tcp_connections_total") == 1
-            (family,) = [f for f in text_string_to_metric_families(metrics) if f.name == "enip_farm_tcp_connections"]
-            assert sorted(s.labels["device"] for s in family.samples if s.name.endswith("_total")) == sorted(names)
+            assert [f.name for f in text_string_to_metric_families(metrics)].count("enip_farm_tcp_connections") == 1
+            assert metric_samples(metrics, "enip_farm_tcp_connections_total") == {(("device", n),): 0.0 for n in names}
             with ApiClient(api, "s3cret") as reader, reader.events({"kind": "fault injected"}, STARTUP_S) as events:
                 for name in ("io1", "io6"):
                     injected = client.post(f"/devices/{name}/faults", json={"kind": "delay", "delay_ms": 1})
@@ -181,7 +183,7 @@ def test_one_http_port_drives_the_devices_of_every_worker(free_address: AddressP
             assert [f["kind"] for f in fleet["io2"].faults] == ["delay"]
             fleet["io2"].clear_faults()
             assert fleet["io2"].faults == []
-            with pytest.raises(KeyError):
+            with pytest.raises(KeyError, match="device 'io2': DI99: this device has 16 DI signals"):
                 fleet["io2"].get("DI99")
         inputs = {name: b"\x07\x00" if name == "io5" else b"\x04\x00" for name in names}
         for name in names:  # read back over EtherNet/IP: the writes reached the devices themselves
@@ -214,7 +216,7 @@ def test_shards_cover_every_device_once_and_keep_wired_devices_together() -> Non
     assert {"harness", "io1"} <= {d.name for d in wired.devices}
     assert len(split(config, 1)[0].devices) == len(config.devices)
     for bad in ("0/3", "4/3", "x/2", "2"):
-        with pytest.raises(ValueError):
+        with pytest.raises(ValueError, match=f"^--shard '{bad}': expected I/N with 1 <= I <= N$"):
             shard(config, bad)
 
 
@@ -240,7 +242,8 @@ def test_compose_refuses_more_shards_than_the_container_pool_holds(tmp_path: Pat
     thirteen = yaml.safe_load(compose_file(config, ROOT / "docker" / "cell.yaml", ROOT / "docker", 13, subnet,
                                            containers))
     assert len([s for s in thirteen["services"] if s.startswith("farm")]) == 13
-    with pytest.raises(ValueError, match="at most 13 shards"):
+    with pytest.raises(ValueError, match=r"^14 farm containers and the tester need 15 addresses; 192\.168\.125\.240/28 "
+                                         r"holds 14: at most 13 shards, or give a larger --container-range$"):
         compose_file(config, ROOT / "docker" / "cell.yaml", ROOT / "docker", 14, subnet, containers)
     wider = compose_file(config, ROOT / "docker" / "cell.yaml", ROOT / "docker", 14, subnet, "192.168.125.224/27")
     assert "farm14:" in wider

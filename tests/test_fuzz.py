@@ -205,8 +205,11 @@ def test_the_mirror_catches_a_bad_reply() -> None:
     """The checker is not vacuous: a reply with another sender context, or none at all, fails it."""
     good = HEADER.pack(REGISTER, 4, 7, 0, b"register", 0) + b"\x01\x00\x00\x00"
     SessionMirror().feed(REGISTER_FRAME, [good])
-    for replies in ([good.replace(b"register", b"REGISTER")], [], [good, good], [good[:-1]]):
-        with pytest.raises(Malformed):
+    for replies, message in (([good.replace(b"register", b"REGISTER")], "sender context not echoed"),
+                             ([], "no reply to command 0x0065"),
+                             ([good, good], "more replies than frames that call for one"),
+                             ([good[:-1]], "length field 4, 3 bytes follow")):
+        with pytest.raises(Malformed, match=f"^{message}$"):
             SessionMirror().feed(REGISTER_FRAME, replies)
 
 

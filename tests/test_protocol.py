@@ -61,7 +61,7 @@ def test_port_segments() -> None:
     big_port = encode_port(0x123, 5)  # port 15 escape, 16-bit port id, link 5: even, no pad
     assert big_port == b"\x0f\x23\x01\x05"
     assert decode_epath(big_port) == [PortSegment(0x123, b"\x05")]
-    with pytest.raises(PathError):
+    with pytest.raises(PathError, match="^truncated link address$"):
         decode_epath(b"\x12\x09127")
 
 
@@ -78,7 +78,7 @@ def test_electronic_key_and_connection_path() -> None:
 def test_request_path() -> None:
     assert decode_request_path(encode_request_path(4, 100, 3)) == (4, 100, 3, None)
     assert decode_request_path(encode_request_path(1)) == (1, 0, None, None)  # the class itself
-    with pytest.raises(PathError) as error:
+    with pytest.raises(PathError, match="^request path does not start with a class segment$") as error:
         decode_request_path(b"\x24\x01")
     assert error.value.status == 0x04
 
@@ -86,8 +86,10 @@ def test_request_path() -> None:
 def test_cpf_round_trip_and_errors() -> None:
     items = [(ItemType.NULL_ADDRESS, b""), (ItemType.UNCONNECTED_DATA, b"\x0e\x01\x20\x01")]
     assert [tuple(i) for i in decode_items(encode_items(items))] == items
-    for broken in (b"", b"\x01\x00\x00", b"\x01\x00\xb2\x00\x05\x00ab", encode_items(items) + b"x"):
-        with pytest.raises(CpfError):
+    for broken, message in ((b"", "no item count"), (b"\x01\x00\x00", "truncated item header"),
+                            (b"\x01\x00\xb2\x00\x05\x00ab", "item length exceeds data"),
+                            (encode_items(items) + b"x", "bytes after the last item")):
+        with pytest.raises(CpfError, match=f"^{message}$"):
             decode_items(broken)
 
 
@@ -111,7 +113,7 @@ def test_cip_layouts() -> None:
     assert decode_reply(encode_reply(0x52, 1, b"\x01", (0x0312,))) == (0xD2, 1, (0x0312,), b"\x01")
     parts = [b"\x0e\x01\x20\x01", b"\x0e\x02\x20\x01\x24\x01"]
     assert decode_multiple_service_request(encode_multiple_service(parts)) == parts
-    with pytest.raises(CipDecodeError):
+    with pytest.raises(CipDecodeError, match="^offset out of range$"):
         decode_multiple_service_request(b"\x02\x00\x06\x00\x50\x00")
     inner = encode_request(0x10, encode_request_path(4, 100, 3), b"\x07")
     decoded = decode_unconnected_send(encode_unconnected_send(inner, encode_port(1, 0)))
@@ -165,6 +167,6 @@ def test_status_words_and_module_constants_are_read_only() -> None:
     tables = (status.GENERAL_STATUS_TEXT, status.EXTENDED_STATUS_TEXT, segment.SIZE_WORDS, console._LEVELS,
               encapsulation._COMMAND_NAMES, device_reset.RESET_KINDS)
     for table in tables:
-        with pytest.raises(TypeError):
+        with pytest.raises(TypeError, match="^'mappingproxy' object does not support item assignment$"):
             table[0x7FFF] = 0  # type: ignore[index]
     assert isinstance(console._TOLD_ELSEWHERE, frozenset)

@@ -104,7 +104,7 @@ def test_the_farm_acts_on_the_typed_reset_not_on_an_events_text(enip_farm) -> No
         assert (frame.header.command, frame.header.status) == (Command.SEND_RR_DATA, 0)
         assert decode_send_data(frame.data).items[1].data == b"\x85\x00\x00\x00"  # the reply came first
         assert client.is_closed()  # then the farm dropped the TCP connection
-    with pytest.raises(ConnectionRefusedError):  # and listens no more until the window ends
+    with pytest.raises(ConnectionRefusedError, match="Connection refused"):  # and listens no more until the window ends
         socket.create_connection((address, ENIP_PORT), timeout=5)
     resets = farm["io1"].events("reset")
     assert [type(e.detail) for e in resets] == [str, DeviceReset] and resets[1].detail.request == ResetRequested(0)

@@ -170,7 +170,7 @@ def test_router_format_and_wrong_sizes_are_format_errors() -> None:
     segment = decode_segment(bytes.fromhex(CM_SAFETY_OPEN[FORMAT_BASE])[44:])
     router = bytearray(encode_segment(segment))
     router[2] = 1
-    with pytest.raises(ValueError) as error:
+    with pytest.raises(ValueError, match="^safety segment format 1 is not a target format$") as error:
         decode_segment(bytes(router))
     assert error.value.format_error  # type: ignore[attr-defined]
 

@@ -19,7 +19,7 @@ from enip_farm.config import parse_config
 from enip_farm.farm import SUPERVISE_S, Farm
 from enip_farm.protocol.connection import decode_forward_open_reply
 from enip_farm.server.waits import MAX_WAIT_S, os_wait_ns, os_wait_s
-from tests.helpers import ROOT, RawClient, wait_for
+from tests.helpers import ROOT, RawClient, metric_samples, wait_for
 from tests.test_implicit import forward_close, forward_open
 
 MESSAGE_ROUTER_PATH = bytes.fromhex("20 02 24 01")
@@ -157,10 +157,10 @@ def test_an_error_of_the_cyclic_io_loop_is_counted_logged_once_and_the_loop_goes
     assert health.status_code == 200
     assert health.json() == {"ok": True, "failure": None, "loop_errors": 0,
                              "cyclic_io": {"running": True, "errors": 1, "device_errors": 0}}
-    metrics = httpx.get(api + "/metrics").text.splitlines()
-    assert "enip_farm_cyclic_io_running 1.0" in metrics
-    assert "enip_farm_cyclic_io_loop_errors_total 1.0" in metrics
-    assert 'enip_farm_io_errors_total{device="io1"} 0.0' in metrics
+    metrics = httpx.get(api + "/metrics").text
+    assert metric_samples(metrics, "enip_farm_cyclic_io_running") == {(): 1.0}
+    assert metric_samples(metrics, "enip_farm_cyclic_io_loop_errors_total") == {(): 1.0}
+    assert metric_samples(metrics, "enip_farm_io_errors_total") == {(("device", "io1"),): 0.0}
 
 
 @pytest.mark.integration
@@ -176,7 +176,8 @@ def test_a_farm_whose_cyclic_io_thread_ended_fails_and_says_so(enip_farm) -> Non
     health = httpx.get(f"http://127.0.0.1:{farm.http.port}/health")
     assert health.status_code == 503
     assert health.json()["cyclic_io"]["running"] is False and health.json()["ok"] is False
-    assert "enip_farm_cyclic_io_running 0.0" in httpx.get(f"http://127.0.0.1:{farm.http.port}/metrics").text
+    assert metric_samples(httpx.get(f"http://127.0.0.1:{farm.http.port}/metrics").text,
+                          "enip_farm_cyclic_io_running") == {(): 0.0}
     assert wait_for(farm.failed.is_set, timeout=SUPERVISE_S * 10)  # `serve` exits 1 on it
     assert time.monotonic() - ended <= SUPERVISE_S * 10
     assert farm.failure == "the cyclic I/O thread has ended: no device sends T->O"

@@ -5,7 +5,7 @@ nothing; `$` comments anywhere outside a string (also between a value and its co
 ending; Latin-1 text. Parsed with a lark grammar (LALR, contextual lexer); every syntax error of a
 file is reported, each with its line, and parsing goes on after it.
 
-The syntax only: what the sections and entries mean is enip_farm/eds/reader.py's.
+The syntax only: what the sections and entries mean is read by enip_farm/eds/reader.py (and sections.py).
 """
 
 from __future__ import annotations

@@ -11,7 +11,8 @@ from enip_farm.device.build import build_profiles
 from enip_farm.device.catalogue import Catalogue
 from enip_farm.device.profile import DeviceProfile
 from enip_farm.eio.cfg import Value, write_cfg
-from enip_farm.eio.importer import ANALOG_FIELDS, DEFAULT_CONNECTION_PRIORITY, DEVICE_FIELDS
+from enip_farm.eio.eio_signal import ANALOG_FIELDS
+from enip_farm.eio.ethernetip_device import DEFAULT_CONNECTION_PRIORITY, DEVICE_FIELDS
 
 #: The header of an exported file: the EIO domain and format version, no RobotWare version.
 HEADER = "EIO:CFG_1.0::"
