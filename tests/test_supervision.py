@@ -113,7 +113,7 @@ def test_a_25_day_timeout_on_one_device_leaves_every_device_producing(make_farm)
             reply = other.request(forward_open(rpi=20_000, multiplier=7)[0])  # 20 ms x 512: 10 s
             assert reply.general_status == 0
             decode_forward_open_reply(reply.data)
-            produced, elapsed = _t_o_rate(b, 1.0)
+            produced, elapsed = _t_o_rate(b, 2.0)
             periods = elapsed / 0.020
             assert periods * 0.5 <= produced <= periods + 2, (produced, elapsed)  # at its RPI: not stopped, no burst
             assert farm.health()["ok"] and farm.health()["cyclic_io"] == {"running": True, "errors": 0,
@@ -145,7 +145,7 @@ def test_an_error_of_the_cyclic_io_loop_is_counted_logged_once_and_the_loop_goes
         thread._schedule = failing_once
         thread.reschedule(farm._implicit.endpoints[0])
         assert wait_for(lambda: thread.loop_errors == 1)
-        produced, elapsed = _t_o_rate(device, 0.5)
+        produced, elapsed = _t_o_rate(device, 2.0)  # long enough that a loaded machine does not stall it by half
         periods = elapsed / 0.020
         assert periods * 0.5 <= produced <= periods + 2, (produced, elapsed)
     assert thread.is_alive() and thread.loop_errors == 1
