@@ -5,6 +5,9 @@ export const $ = (selector, root = document) => root.querySelector(selector);
 
 export const sleep = ms => new Promise(resolve => setTimeout(resolve, ms));
 
+/** A count and its noun: `plural(1, 'device')` is `1 device`, `plural(2, 'device')` `2 devices`. */
+export const plural = (count, noun) => `${count} ${count === 1 ? noun : noun + 's'}`;
+
 export function el(tag, className, text) {
   const element = document.createElement(tag);
   if (className) element.className = className;

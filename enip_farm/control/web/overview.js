@@ -14,7 +14,7 @@
 // main.js hands it the stream's events (`onEvent`, and {kind: 'live'} when the stream is live).
 
 import { api } from './api.js';
-import { $, say, sleep } from './dom.js';
+import { $, plural, say, sleep } from './dom.js';
 import { addHistory } from './event-log.js';
 import { showDevice } from './table.js';
 
@@ -98,7 +98,7 @@ function applyTileFilter() {
     if (tile.element.hidden === visible) tile.element.hidden = !visible;
     shown += visible;
   }
-  shownLabel.textContent = shown === tiles.size ? `${tiles.size} devices` : `${shown} of ${tiles.size} shown`;
+  shownLabel.textContent = shown === tiles.size ? plural(tiles.size, 'device') : `${shown} of ${tiles.size} shown`;
 }
 
 function render(read) {

@@ -4,7 +4,7 @@
 // head, identity line, state LED and connections line. Its I/O panel (io-panel.js) and faults
 // panel (faults-panel.js) draw the rest of the card. All DOM work happens in the page's frame.
 
-import { $, el } from './dom.js';
+import { $, el, plural } from './dom.js';
 import { byName, devices, dirty, requestState, table } from './devices.js';
 import { drawFaults, fillForm } from './faults-panel.js';
 import { onFrame, schedule } from './frame.js';
@@ -114,7 +114,7 @@ function passes(device) {
 function applyFilter() {
   const words = filterWords();
   filtered = devices.filter(device => passes(device) && matches(device, words));
-  countLabel.textContent = `${filtered.length} of ${devices.length} devices`;
+  countLabel.textContent = `${filtered.length} of ${plural(devices.length, 'device')}`;
   filterDirty = false;
   layoutDirty = true;
 }
