@@ -24,7 +24,7 @@ from enip_farm.control.client import merge_events
 from enip_farm.control.guard import Guard
 from enip_farm.control.http import bind_problem, listening_socket, no_such_device
 
-_START_TIMEOUT = 120.0
+START_TIMEOUT = 120.0
 _FORWARD_TIMEOUT = 30.0
 _HOP_HEADERS = frozenset({"connection", "keep-alive", "transfer-encoding", "content-length", "content-encoding",
                           "host", "upgrade", "te", "trailer", "proxy-authorization", "proxy-authenticate"})
@@ -229,7 +229,7 @@ def serving_router(app: Starlette, host: str, port: int, token: str | None) -> I
     thread = threading.Thread(target=server.run, kwargs={"sockets": [sock]}, name="enip-farm-fleet-api", daemon=True)
     thread.start()
     try:
-        deadline = _START_TIMEOUT
+        deadline = START_TIMEOUT
         while not server.started and thread.is_alive() and deadline > 0:
             thread.join(0.05)
             deadline -= 0.05

@@ -28,10 +28,8 @@ from enip_farm.console import Console, configure_logging
 from enip_farm.control.guard import needs_token
 from enip_farm.farm import BindError, Farm, freeze_heap, new_event_loop, until_stopped_or_failed
 from enip_farm.fleet import split
-from enip_farm.fleet_api import create_router, router_port, serving_router
+from enip_farm.fleet_api import START_TIMEOUT, create_router, router_port, serving_router
 from enip_farm.table import TABLE_HEADER, device_table
-
-_START_TIMEOUT = 120.0
 
 
 def _worker(index: int, config_data: dict[str, Any], http: bool, token: str | None,
@@ -108,7 +106,7 @@ def serve_workers(config: FarmConfig, count: int, http: tuple[str, int] | None, 
         budgets: dict[int, str] = {}
         while len(tables) < len(processes) and not stopping:
             try:
-                index, kind, payload = reports.get(timeout=_START_TIMEOUT)
+                index, kind, payload = reports.get(timeout=START_TIMEOUT)
             except queue.Empty:
                 click.echo("workers did not start in time", err=True)
                 status = 1

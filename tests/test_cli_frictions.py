@@ -187,3 +187,14 @@ def test_the_cli_imports_only_click_until_a_command_runs() -> None:
     assert (loaded.returncode, loaded.stdout) == (0, "[]\n"), loaded.stderr
     helped = subprocess.run([*CLI, "--help"], capture_output=True, text=True, timeout=60)
     assert helped.returncode == 0 and "serve " in helped.stdout and "fault " in helped.stdout
+
+
+def test_the_cli_run_in_process_leaves_the_modules_it_marked_missing_importable() -> None:
+    """The CLI marks modules it never uses as missing while a command runs (a quick start); a test
+    calling it in its own process gets them back when it returns."""
+    from enip_farm.cli import UNUSED
+
+    absent = [name for name in UNUSED if name not in sys.modules]
+    result = CliRunner().invoke(main, ["models"])
+    assert result.exit_code == 0, result.output
+    assert [name for name in absent if name in sys.modules] == []

@@ -8,7 +8,7 @@ the out-of-box configuration except the communication link parameters (TCP/IP In
 Ethernet Link settings), then emulates a power cycle. Other types get 0x20 (invalid parameter);
 more than one byte gets 0x15. The object only takes the request: it answers success with the effect
 `ResetRequested(type)` (cip/object.py `Effect`), which the device performs once the reply is built
-(device/reset.py); the server sends that reply before it ends the device's sessions (farm/reset.py)."""
+(device/reset.py); the server sends that reply before it ends the device's sessions (farm_resets.py)."""
 
 from __future__ import annotations
 
@@ -24,7 +24,6 @@ from enip_farm.protocol.session import MessageContext
 from enip_farm.protocol.status import GeneralStatus
 
 #: Identity status bits 4-7 = 0b0011: "no I/O connections established" (Vol. 1, table 5-2.4).
-STATUS_NO_IO_CONNECTIONS = 0x0030
 #: Attribute 8, state (Vol. 1, 5-2.3): 1 device self testing, 3 operational.
 STATE_SELF_TESTING = 1
 STATE_OPERATIONAL = 3

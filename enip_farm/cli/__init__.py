@@ -26,9 +26,17 @@ UNUSED = ("httpx._main", "trio")
 
 class Main(click.Group):
     def main(self, *args: Any, **kwargs: Any) -> Any:  # type: ignore[override]
-        for name in UNUSED:
-            sys.modules.setdefault(name, None)  # type: ignore[arg-type]  # `import` raises ImportError
-        return super().main(*args, **kwargs)
+        """Run a command with UNUSED marked missing; the marks go when it returns (a test calling the
+        CLI in its own process keeps the modules it has)."""
+        marked = [name for name in UNUSED if name not in sys.modules]
+        for name in marked:
+            sys.modules[name] = None  # type: ignore[assignment]  # `import` raises ImportError
+        try:
+            return super().main(*args, **kwargs)
+        finally:
+            for name in marked:
+                if sys.modules.get(name, "") is None:
+                    del sys.modules[name]
 
 
 @click.group(cls=Main)

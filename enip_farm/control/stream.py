@@ -32,6 +32,7 @@ from collections.abc import Iterable
 from starlette.responses import JSONResponse, Response
 from starlette.types import Receive, Scope, Send
 
+from enip_farm.control.client import KEEPALIVE_S
 from enip_farm.control.io_changes import IMAGE_CHANGED, IO_KIND, IoChange, SignalDiff, coalesce
 from enip_farm.device.device import Device
 from enip_farm.device.events import Event
@@ -43,7 +44,6 @@ MAX_SUBSCRIBERS = 32
 QUEUE_SIZE = 4096  # events per subscriber, about 1 MB of text
 PENDING_SIZE = 65536  # events between two ticks, across all devices
 TICK_S = 0.02
-KEEPALIVE_S = 15.0
 STALL_S = 60.0
 BATCH = 1024  # events per write
 

@@ -41,7 +41,8 @@ class CyclicIo:
         with guard.lock:  # O->T changes the outputs only: the inputs need no snapshot
             old = bytes(output.data) if output is not None else b""
             taken = table.receive_datagram(data, source[0], now, source[1])
-            replies = table.datagrams_to_send(now) if table.answers_queued else ()  # the one way out
+            # the one way out: the answers queued, and whatever T->O is due by now goes with them
+            replies = table.datagrams_to_send(now) if table.answers_queued else ()
             connections = table.pop_events() if table.has_events else ()
             changed = output is not None and output.data != old
             new = bytes(output.data) if changed else old

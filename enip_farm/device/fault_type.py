@@ -1,7 +1,9 @@
 """What every fault kind is: a pydantic model of its parameters, their checks, and its effects as
 hooks that the paths of the farm call generically (device/faults.py gathers them per device).
 
-A kind overrides only the hooks it needs; each default is "no effect":
+A kind overrides only the hooks it needs; each default is "no effect". `on_reply` and
+`on_product_code` are asked on every use; the others when a fault is set or cleared (device/faults.py
+keeps their answers for the fast paths), so their answer depends on the parameters, not on the moment:
 
 | hook | called by | returns |
 |---|---|---|

@@ -62,7 +62,6 @@ _MAX_CONNECTION_TIMEOUT_MULTIPLIER = 7
 _MIN_RPI_US, _MAX_RPI_BASE_US, _MAX_RPI_EXTENDED_US = 1_000, 100_000, 1_000_000
 _MAX_RPI_TCOO_US = 10_000_000
 _REQUIRED = 4  # acceptable RPI type of extended status 0x0112: the RPI required
-SCID_SIZE = 10
 
 
 @dataclass(frozen=True)

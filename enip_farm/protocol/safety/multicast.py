@@ -27,11 +27,10 @@ from enip_farm.protocol.safety.messages import (
     mode_byte,
 )
 from enip_farm.protocol.safety.segment import SafetySegment
-from enip_farm.protocol.safety.validator import Consumed, ticks
+from enip_farm.protocol.safety.validator import MAX_PI, Consumed, ticks
 
 MAX_CONSUMERS = 15  # Max_Consumer_Number of a multicast connection (Vol. 5, 3-5.3)
 _FIRST_SECTION_EPI = 8  # time correction sections start at the 8th production of a ping interval
-_MAX_PI = 4
 _NULL = TimeCorrection(0, False, 0)
 
 
@@ -78,7 +77,7 @@ class MulticastProducer:
         number = next((n for n in range(1, self.max_consumers + 1) if n not in self.consumers), None)
         if number is None:
             return None
-        self.consumers[number] = _Consumer(cid, min(max(segment.timeout_multiplier, 1), _MAX_PI), now)
+        self.consumers[number] = _Consumer(cid, min(max(segment.timeout_multiplier, 1), MAX_PI), now)
         return MulticastConsumer(self, number)
 
     def leave(self, number: int) -> None:

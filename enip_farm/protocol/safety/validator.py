@@ -24,7 +24,7 @@ from enip_farm.protocol.safety.segment import SafetySegment
 TICK_NS = 128_000
 #: Timeout_Multiplier.PI: ping intervals a producer waits for a time coordination message, plus 2
 #: (Vol. 5, 2-4.7: the base format allows 1..4).
-_MAX_PI = 4
+MAX_PI = 4
 
 
 def ticks(now: int) -> int:
@@ -163,7 +163,7 @@ class SafetyProducer:
         self.extended = segment.extended
         self.pid, self.cid = pid, cid
         self.ping_interval_ns = max(1, segment.ping_interval_epi_multiplier) * epi_ns
-        self.timeout_pi = min(max(segment.timeout_multiplier, 1), _MAX_PI)
+        self.timeout_pi = min(max(segment.timeout_multiplier, 1), MAX_PI)
         self.opened_at = now
         self.first_watchdog_ns = first_watchdog_ns
         self.ping_count = 0
