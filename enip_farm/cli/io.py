@@ -82,11 +82,20 @@ def io_watch(device: str, as_json: bool, api: str, token: str | None) -> None:
 
     Each line is one "io" event of the API's event stream: the signals of one image that changed
     within 20 ms, with their old and new values (changes that undo themselves within it do not show)."""
+    import os
+    import signal
     import sys
     from datetime import datetime
 
     from enip_farm.cli.api import events
 
+    def interrupted(*_: object) -> None:
+        """Ctrl-C ends the watch at once, exit 0: what was printed is flushed, and nothing of the
+        stream's teardown (which a busy farm can hold up) stands in the way."""
+        sys.stdout.flush()
+        os._exit(0)
+
+    previous = signal.signal(signal.SIGINT, interrupted)
     try:
         with events(api, token, {"device": device, "kind": "io"}) as stream:
             for event in stream:
@@ -100,6 +109,8 @@ def io_watch(device: str, as_json: bool, api: str, token: str | None) -> None:
                     click.echo(f"{clock} {fields['device']} {fields['detail']}")
     except KeyboardInterrupt:
         return
+    finally:
+        signal.signal(signal.SIGINT, previous)
     click.echo("the farm ended the event stream", err=True)
     sys.exit(1)
 
