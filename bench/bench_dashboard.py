@@ -65,7 +65,7 @@ from tests.browser import (  # noqa: E402
 FARM = """
 import sys, threading, time
 from enip_farm.config import parse_config
-from enip_farm.farm import Farm
+from enip_farm.farm.farm import Farm
 first, count, addons = sys.argv[1], int(sys.argv[2]), sys.argv[3:]
 device = {"name": "io{n}", "address": first, "model": "DSQC1030", "addons": addons}
 if count > 1:

@@ -27,7 +27,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 from enip_farm.eds.grammar import decode_eds_bytes  # noqa: E402
 from enip_farm.eds.reader import EdsError, eds_profile, read_eds  # noqa: E402
-from enip_farm.farm import Farm  # noqa: E402
+from enip_farm.farm.farm import Farm  # noqa: E402
 from tests.helpers import RawClient  # noqa: E402
 from tests.test_eds_real import _close, _open, _path  # noqa: E402
 

@@ -27,7 +27,7 @@ ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
 from enip_farm.config import FarmConfig  # noqa: E402
-from enip_farm.farm import Farm  # noqa: E402
+from enip_farm.farm.farm import Farm  # noqa: E402
 from tests.cm_ethernetip import CmOriginator, make_venv, node_address  # noqa: E402
 
 FARM, ORIGINATOR = "127.0.91.1", "127.0.91.2"

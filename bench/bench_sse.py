@@ -39,7 +39,7 @@ ROOT = Path(__file__).resolve().parent.parent
 FARM = """
 import sys
 from enip_farm.config import parse_config
-from enip_farm.farm import Farm
+from enip_farm.farm.farm import Farm
 config = parse_config({"devices": [{"name": "io", "address": sys.argv[1], "model": "DSQC1030"}], "discovery": False})
 farm = Farm(config, http=("127.0.0.1", 0))
 with farm.running_in_thread():

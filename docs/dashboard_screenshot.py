@@ -20,7 +20,7 @@ from pycomm3 import CIPDriver, Services
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 from enip_farm.config import default_config_path, load_config  # noqa: E402
-from enip_farm.farm import Farm  # noqa: E402
+from enip_farm.farm.farm import Farm  # noqa: E402
 from tests.browser import chromium, open_page  # noqa: E402
 
 

@@ -30,7 +30,7 @@ from enip_farm.config import parse_config
 from enip_farm.device.catalogue import shipped_catalogue
 from enip_farm.eio.cfg import parse_cfg
 from enip_farm.eio.importer import EioImportWarning, import_eio
-from enip_farm.farm import BindError, Farm
+from enip_farm.farm.farm import BindError, Farm
 
 
 class AddressPool:

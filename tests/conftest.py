@@ -18,7 +18,7 @@ from typing import Any
 
 import pytest
 
-from enip_farm.farm import Farm
+from enip_farm.farm.farm import Farm
 from tests.helpers import ROOT
 
 # Subprocesses (`python -m enip_farm`, pytest of the README example) import the tree under test,

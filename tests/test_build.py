@@ -16,8 +16,8 @@ from enip_farm.capture.recorder import Recorder
 from enip_farm.config import ConfigError, parse_config
 from enip_farm.device.build import build_profiles
 from enip_farm.device.catalogue import BUILT_IN, Catalogue, shipped_catalogue
-from enip_farm.farm import Farm
-from enip_farm.fleet import split
+from enip_farm.farm.farm import Farm
+from enip_farm.fleet.slices import split
 from enip_farm.protocol.commands import IdentityItem, SocketAddress, encode_identity_item
 from enip_farm.protocol.cpf import ItemType, encode_items
 from enip_farm.protocol.encapsulation import Command, encode_frame

@@ -19,7 +19,7 @@ from enip_farm.capture.learn import learn
 from enip_farm.capture.packets import read_capture
 from enip_farm.capture.recorder import Recorder
 from enip_farm.config import parse_config
-from enip_farm.farm import Farm
+from enip_farm.farm.farm import Farm
 from enip_farm.protocol.cip import encode_request
 from enip_farm.protocol.commands import IdentityItem, SocketAddress, encode_identity_item, encode_send_rr_data
 from enip_farm.protocol.cpf import ItemType, encode_items

@@ -14,7 +14,7 @@ from pathlib import Path
 
 import pytest
 
-from enip_farm.farm import Farm
+from enip_farm.farm.farm import Farm
 from enip_farm.protocol.cip import encode_request
 from enip_farm.protocol.epath import encode_request_path
 from tests.cm_ethernetip import CmOriginator, CmTarget, make_venv, node_address

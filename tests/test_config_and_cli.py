@@ -13,7 +13,7 @@ import pytest
 from enip_farm.config import ConfigError, load_config, parse_config
 from enip_farm.device.build import build_profiles
 from enip_farm.device.catalogue import shipped_catalogue
-from enip_farm.farm import BindError, Farm
+from enip_farm.farm.farm import BindError, Farm
 from enip_farm.pytest_plugin import AddressPool
 from tests.helpers import CLI, STARTUP_S, RawClient, own_network_namespace, serving
 

@@ -1,4 +1,4 @@
-"""The talking console (enip_farm/console.py): one line per connection, session, Forward Open/Close
+"""The talking console (enip_farm/farm/console.py): one line per connection, session, Forward Open/Close
 (originator, RPI, sizes), timeout, fault and refusal (status in hex and words), taken from the
 devices' events; the lines of real sessions (pycomm3, the ethernetip scanner); a bounded number
 of lines under a flood of connections, with every event accounted for; `serve`'s banner,
@@ -23,10 +23,10 @@ from click.testing import CliRunner
 from pycomm3 import CIPDriver, Services
 
 from enip_farm.cli import main
-from enip_farm.console import Console
 from enip_farm.device.device import Device
 from enip_farm.device.faults import Fault
-from enip_farm.farm import Farm
+from enip_farm.farm.console import Console
+from enip_farm.farm.farm import Farm
 from enip_farm.protocol.cip import encode_multiple_service, encode_request, encode_unconnected_send
 from enip_farm.protocol.connection import ConnectionTriad, encode_class0_packet, encode_forward_open
 from enip_farm.protocol.encapsulation import Command, encode_frame
@@ -63,7 +63,7 @@ class Lines(logging.Handler):
 @pytest.fixture
 def lines(request: pytest.FixtureRequest) -> Iterator[tuple[logging.Logger, Lines]]:
     """A logger of its own (nothing else writes to it) and what it received."""
-    logger = logging.getLogger(f"enip_farm.console.test.{request.node.name}")
+    logger = logging.getLogger(f"enip_farm.farm.console.test.{request.node.name}")
     handler = Lines()
     logger.addHandler(handler)
     logger.setLevel(logging.INFO)

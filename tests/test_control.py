@@ -367,7 +367,7 @@ def test_http_event_stream(enip_farm) -> None:
 
 
 def test_http_token_off_loopback(free_address: AddressPool, enip_farm) -> None:
-    from enip_farm.farm import BindError, Farm
+    from enip_farm.farm.farm import BindError, Farm
 
     config = parse_config({"devices": [{"name": "io", "address": free_address(), "model": "DSQC1030"}],
                            "discovery": False})

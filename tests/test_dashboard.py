@@ -261,7 +261,7 @@ def test_state_shows_signals_connections_counters_and_faults(enip_farm) -> None:
 
 @pytest.mark.integration
 def test_the_page_passes_the_guard_without_a_token_and_nothing_else_does(free_address) -> None:
-    from enip_farm.farm import Farm
+    from enip_farm.farm.farm import Farm
 
     config = parse_config({"devices": [{"name": "io", "address": free_address(), "model": "DSQC1030"}],
                            "discovery": False})
@@ -360,7 +360,7 @@ def test_io_watch_says_what_went_wrong(enip_farm) -> None:
 
 @pytest.mark.system
 def test_io_watch_ends_when_the_farm_stops(free_address) -> None:
-    from enip_farm.farm import Farm
+    from enip_farm.farm.farm import Farm
 
     config = parse_config({"devices": [{"name": "io", "address": free_address(), "model": "DSQC1030"}],
                            "discovery": False})

@@ -233,7 +233,7 @@ def test_the_cards_identity_marks_the_catalogues_unverified_placeholders(enip_fa
 
 def test_the_token_from_the_address_or_a_prompt(free_address, browser) -> None:
     from enip_farm.config import parse_config
-    from enip_farm.farm import Farm
+    from enip_farm.farm.farm import Farm
 
     config = parse_config({"devices": [{"name": "io", "address": free_address(), "model": "DSQC1030"}],
                            "discovery": False})

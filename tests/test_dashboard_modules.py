@@ -88,7 +88,7 @@ def test_frame_runs_each_task_once_a_frame_however_often_asked(enip_farm, browse
 
 def test_api_carries_the_token_and_words_the_apis_errors(free_address, browser) -> None:
     from enip_farm.config import parse_config
-    from enip_farm.farm import Farm
+    from enip_farm.farm.farm import Farm
 
     config = parse_config({"devices": [{"name": "io1", "address": free_address(), "model": "DSQC1030"}],
                            "discovery": False})

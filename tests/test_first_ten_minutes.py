@@ -28,7 +28,7 @@ from enip_farm.device.catalogue import shipped_catalogue
 from enip_farm.device.device import COUNTERS
 from enip_farm.device.faults import Fault
 from enip_farm.device.signals import SignalError
-from enip_farm.farm import Farm
+from enip_farm.farm.farm import Farm
 from enip_farm.pytest_plugin import AddressPool
 from tests.helpers import ROOT
 

@@ -20,10 +20,10 @@ import pytest
 import yaml
 from prometheus_client.parser import text_string_to_metric_families
 
-from enip_farm.compose import compose_file, pool_size
 from enip_farm.config import ConfigError, load_config, parse_config
 from enip_farm.control.client import ApiClient
-from enip_farm.fleet import FleetClient, shard, split
+from enip_farm.engines.compose import compose_file, pool_size
+from enip_farm.fleet.slices import FleetClient, shard, split
 from enip_farm.protocol.encapsulation import Command, encode_frame
 from enip_farm.pytest_plugin import AddressPool
 from tests.helpers import CLI, ROOT, STARTUP_S, RawClient, metric_samples, read_lines, serving

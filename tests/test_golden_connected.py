@@ -20,7 +20,7 @@ from enip_farm.capture.exchanges import load_exchanges
 from enip_farm.capture.golden import replay
 from enip_farm.capture.recorder import Recorder
 from enip_farm.config import parse_config
-from enip_farm.farm import Farm
+from enip_farm.farm.farm import Farm
 from enip_farm.protocol.cip import decode_request, decode_unconnected_send, encode_reply
 from enip_farm.protocol.commands import decode_send_data, encode_connected_payload, encode_unconnected_payload
 from enip_farm.protocol.connection import (

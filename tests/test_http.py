@@ -216,7 +216,7 @@ def test_host_header_must_name_the_api(enip_farm) -> None:
 
 @pytest.mark.integration
 def test_token_guards_every_path_and_any_scheme_case(free_address: AddressPool) -> None:
-    from enip_farm.farm import Farm
+    from enip_farm.farm.farm import Farm
 
     config = parse_config({"devices": [{"name": "io", "address": free_address(), "model": "DSQC1030"}],
                            "discovery": False})
@@ -319,7 +319,7 @@ def test_a_stalled_stream_is_closed(enip_farm) -> None:
 
 @pytest.mark.integration
 def test_stopping_the_farm_ends_open_streams(free_address: AddressPool) -> None:
-    from enip_farm.farm import Farm
+    from enip_farm.farm.farm import Farm
 
     config = parse_config({"devices": [{"name": "io", "address": free_address(), "model": "DSQC1030"}],
                            "discovery": False})

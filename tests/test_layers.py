@@ -10,7 +10,7 @@ from pathlib import Path
 
 from enip_farm.config import parse_config
 from enip_farm.control.handle import FarmControl
-from enip_farm.farm import Farm
+from enip_farm.farm.farm import Farm
 
 PACKAGE = Path(__file__).resolve().parent.parent / "enip_farm"
 
@@ -43,9 +43,9 @@ def test_no_type_checking_imports_of_the_package() -> None:
 
 def test_the_check_finds_what_it_looks_for(tmp_path: Path) -> None:
     module = tmp_path / "m.py"
-    module.write_text("import typing\nif typing.TYPE_CHECKING:\n    from enip_farm.farm import Farm\n"
+    module.write_text("import typing\nif typing.TYPE_CHECKING:\n    from enip_farm.farm.farm import Farm\n"
                       "    import os\nif TYPE_CHECKING:\n    from .x import y\n")
-    assert _type_checking_imports(module) == ["enip_farm.farm", ".x"]
+    assert _type_checking_imports(module) == ["enip_farm.farm.farm", ".x"]
 
 
 def test_farm_provides_farm_control() -> None:

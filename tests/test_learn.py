@@ -20,7 +20,7 @@ from enip_farm.capture.learn import LearnError, learn
 from enip_farm.capture.packets import CaptureError
 from enip_farm.config import parse_config
 from enip_farm.device.profile_file import write_profile
-from enip_farm.farm import Farm
+from enip_farm.farm.farm import Farm
 from enip_farm.protocol.encapsulation import Command, encode_frame
 from enip_farm.pytest_plugin import AddressPool
 from tests.helpers import CLI, ROOT, RawClient, forward_open_message

@@ -331,7 +331,7 @@ def test_two_assemblies_with_one_instance_id_are_refused() -> None:
 
 
 def test_names_through_the_fleet_client(enip_farm) -> None:
-    from enip_farm.fleet import FleetClient
+    from enip_farm.fleet.slices import FleetClient
 
     farm = enip_farm(name="io1", model="DSQC1030", signals=GRIPPER_SIGNALS, http=True)
     with FleetClient(f"http://127.0.0.1:{farm.http.port}") as fleet:

@@ -16,7 +16,7 @@ import pytest
 from pycomm3 import CIPDriver, CommError, Services
 
 from enip_farm.config import ConfigError
-from enip_farm.farm import Farm
+from enip_farm.farm.farm import Farm
 from enip_farm.protocol.cip import encode_request
 from enip_farm.protocol.epath import encode_request_path
 from tests.cm_ethernetip import node_address

@@ -7,12 +7,12 @@ import random
 
 import pytest
 
-from enip_farm import console
 from enip_farm.config import parse_config
 from enip_farm.device import reset as device_reset
 from enip_farm.device.build import build_profiles
 from enip_farm.device.catalogue import shipped_catalogue
 from enip_farm.device.device import Device
+from enip_farm.farm import console
 from enip_farm.protocol import encapsulation, status
 from enip_farm.protocol.cip import (
     CipDecodeError,

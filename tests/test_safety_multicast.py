@@ -21,7 +21,7 @@ from enip_farm.cip.connection_events import ConnectionRefused, ConnectionTimedOu
 from enip_farm.cip.connection_policy import Refusal
 from enip_farm.cip.connection_table import ConnectionTable, Opened
 from enip_farm.config import parse_config
-from enip_farm.farm import Farm
+from enip_farm.farm.farm import Farm
 from enip_farm.protocol.cip import encode_request
 from enip_farm.protocol.commands import decode_sockaddr
 from enip_farm.protocol.connection import (

@@ -16,7 +16,7 @@ import httpx
 import pytest
 
 from enip_farm.config import parse_config
-from enip_farm.farm import SUPERVISE_S, Farm
+from enip_farm.farm.farm import SUPERVISE_S, Farm
 from enip_farm.protocol.connection import decode_forward_open_reply
 from enip_farm.server.waits import MAX_WAIT_S, os_wait_ns, os_wait_s
 from tests.helpers import ROOT, RawClient, metric_samples, wait_for

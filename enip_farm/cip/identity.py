@@ -8,7 +8,7 @@ the out-of-box configuration except the communication link parameters (TCP/IP In
 Ethernet Link settings), then emulates a power cycle. Other types get 0x20 (invalid parameter);
 more than one byte gets 0x15. The object only takes the request: it answers success with the effect
 `ResetRequested(type)` (cip/object.py `Effect`), which the device performs once the reply is built
-(device/reset.py); the server sends that reply before it ends the device's sessions (farm_resets.py)."""
+(device/reset.py); the server sends that reply before it ends the device's sessions (farm/resets.py)."""
 
 from __future__ import annotations
 

@@ -29,7 +29,7 @@ def golden(capture: Path, config_path: Path | None, device: str | None, address:
     from enip_farm.capture.golden import replay
     from enip_farm.capture.packets import read_capture
     from enip_farm.cli.cell import load_cell, make_farm
-    from enip_farm.farm import BindError
+    from enip_farm.farm.farm import BindError
     from enip_farm.protocol.encapsulation import ENIP_PORT
     from enip_farm.words import plural
 

@@ -12,8 +12,8 @@ import click
 from enip_farm.config import ConfigError, FarmConfig, default_config_path, load_config
 from enip_farm.device.build import build_profiles
 from enip_farm.eds.reader import eds_catalogue
-from enip_farm.farm import Farm
-from enip_farm.fleet import shard
+from enip_farm.farm.farm import Farm
+from enip_farm.fleet.slices import shard
 
 
 def load_cell(path: Path | None, build: bool = True) -> FarmConfig:

@@ -87,7 +87,7 @@ def compose(config_path: Path, shards: int, subnet: str, container_range: str, a
             output: Path | None) -> None:
     """Print a compose file: one farm container per shard and a tester that reads every device."""
     from enip_farm.cli.cell import load_cell
-    from enip_farm.compose import compose_file
+    from enip_farm.engines.compose import compose_file
 
     source = Path(__file__).resolve().parents[2]  # a source checkout builds the image; an install uses it
     compose_dir = output.resolve().parent if output else Path.cwd()

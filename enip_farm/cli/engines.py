@@ -33,7 +33,7 @@ def stack(config_path: Path, shards: int, subnet: str, container_range: str, par
     """Write a Docker Swarm stack: a farm service of SHARDS replicas (task slot I serves slice I/N), the
     fleet's HTTP API, a one-shot tester."""
     from enip_farm.cli.cell import load_cell
-    from enip_farm.stack import stack_file
+    from enip_farm.engines.stack import stack_file
 
     stack_dir = output.resolve().parent if output else Path.cwd()
     try:
@@ -63,7 +63,7 @@ def k8s(config_path: Path, shards: int, subnet: str, node_range: str, image: str
     """Write Kubernetes manifests: StatefulSet (pod K serves slice K+1/N), ConfigMap, Secret, headless
     Service, the fleet's HTTP API, a tester Job."""
     from enip_farm.cli.cell import load_cell
-    from enip_farm.k8s import manifests
+    from enip_farm.engines.k8s import manifests
 
     try:
         files = manifests(load_cell(config_path), config_path.read_text(), shards, subnet, node_range, image, iface)
@@ -93,8 +93,8 @@ def fleet_api(config_path: Path, shards: int, discover: str | None, urls: tuple[
 
     from enip_farm.cli.cell import load_cell
     from enip_farm.control.guard import needs_token
-    from enip_farm.fleet_api import router_port, serving_router
-    from enip_farm.shard_api import create_shard_router, dns_discovery, static_discovery
+    from enip_farm.fleet.api import router_port, serving_router
+    from enip_farm.fleet.shard_api import create_shard_router, dns_discovery, static_discovery
     from enip_farm.words import plural
 
     config = load_cell(config_path)

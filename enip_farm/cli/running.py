@@ -13,10 +13,10 @@ import click
 from enip_farm.cli.cell import load_cell, make_farm, select
 from enip_farm.cli.options import DEFAULT_API
 from enip_farm.config import FarmConfig
-from enip_farm.console import Console, configure_logging
-from enip_farm.farm import BindError, Farm, freeze_heap, new_event_loop, until_stopped_or_failed
+from enip_farm.farm.console import Console, configure_logging
+from enip_farm.farm.farm import BindError, Farm, freeze_heap, new_event_loop, until_stopped_or_failed
+from enip_farm.farm.table import device_table
 from enip_farm.protocol.encapsulation import ENIP_PORT
-from enip_farm.table import device_table
 from enip_farm.words import plural
 
 
@@ -48,7 +48,7 @@ def run(config_path: Path | None, log_level: str, quiet: bool, address: tuple[st
     if workers > 1:
         if record or state:
             raise click.UsageError("--record and --state write one file: use them with --workers 1")
-        from enip_farm.workers import serve_workers
+        from enip_farm.fleet.workers import serve_workers
 
         source = source_of(config, config_path)
         sys.exit(serve_workers(config, workers, address, token, log_level, quiet, heartbeat,

@@ -23,7 +23,7 @@ T = TypeVar("T")
 
 @runtime_checkable
 class FarmControl(Protocol):
-    """What the control layer needs of a farm (`enip_farm.farm.Farm` provides it): its devices and
+    """What the control layer needs of a farm (`enip_farm.farm.farm.Farm` provides it): its devices and
     their handles, its event loop, and faults switched on the loop."""
 
     @property

@@ -9,7 +9,7 @@ go to their power-up state (all zero), the input image keeps what the field (the
 holds, the link counters clear, a type-1 reset also restores the configured TCP/IP and Ethernet
 Link settings, a safety target's types 1 and 2 clear its safety configuration, and a "reset" event
 is recorded whose detail is a `DeviceReset` (the request and the quiet time): the farm matches it
-by type (farm_resets.py) and closes the device's TCP connections and listener.
+by type (farm/resets.py) and closes the device's TCP connections and listener.
 
 A reset device does not answer (no TCP listener, UDP dropped) until its reset time has passed since
 the reset, then answers again (`restarts` moves on: a session of an earlier count has ended). Time

@@ -3,8 +3,8 @@ shipped catalogue unless given another), binds every device's TCP and UDP 44818 
 responder), and closes them all again.
 
 Its other jobs, each in a module beside this one: the devices' TCP listeners and connections
-(farm_listeners.py), carrying out a device's reset (farm_resets.py), watching the event loop and
-the cyclic I/O thread (farm_supervision.py), and the loop it serves from (farm_loop.py). Faults are
+(listeners.py), carrying out a device's reset (resets.py), watching the event loop and
+the cyclic I/O thread (supervision.py), and the loop it serves from (loop.py). Faults are
 switched on and off here, on the farm's loop (their kinds: device/fault_kinds.py)."""
 
 from __future__ import annotations
@@ -29,10 +29,10 @@ from enip_farm.device.device import Device
 from enip_farm.device.faults import Disconnect, FaultType
 from enip_farm.device.nonvolatile import load_state, save_state
 from enip_farm.eds.reader import eds_catalogue
-from enip_farm.farm_listeners import SOCKETS_PER_DEVICE, BindError, Listeners, bind_message, raise_open_file_limit
-from enip_farm.farm_loop import FarmThread, freeze_heap, new_event_loop, until_stopped_or_failed
-from enip_farm.farm_resets import FarmResets
-from enip_farm.farm_supervision import SUPERVISE_S, Supervision
+from enip_farm.farm.listeners import SOCKETS_PER_DEVICE, BindError, Listeners, bind_message, raise_open_file_limit
+from enip_farm.farm.loop import FarmThread, freeze_heap, new_event_loop, until_stopped_or_failed
+from enip_farm.farm.resets import FarmResets
+from enip_farm.farm.supervision import SUPERVISE_S, Supervision
 from enip_farm.protocol.connection import IO_PORT
 from enip_farm.protocol.encapsulation import ENIP_PORT
 from enip_farm.server.calibrate import DEFAULT_DATAGRAMS_PER_S, measure_budget
@@ -213,7 +213,7 @@ class Farm:
             save_state(self.devices, self.state_file)
         self.running = False
 
-    # -- supervision (farm_supervision.py) -------------------------------------------------------
+    # -- supervision (supervision.py) -------------------------------------------------------
 
     def health(self) -> dict[str, Any]:
         """Whether the farm serves as it should: `ok` is False while class-1 I/O is not running

@@ -11,7 +11,7 @@ from typing import Protocol
 
 
 class Servable(Protocol):
-    """What these helpers need of a farm (`enip_farm.farm.Farm` provides it)."""
+    """What these helpers need of a farm (`enip_farm.farm.farm.Farm` provides it)."""
 
     @property
     def failed(self) -> asyncio.Event | None: ...

@@ -28,7 +28,7 @@ from enip_farm.protocol.cip import Service
 from enip_farm.protocol.status import describe_status
 from enip_farm.server.limits import RateLimitedLog
 
-LOGGER = "enip_farm.console"
+LOGGER = "enip_farm.farm.console"
 #: Log line format of `serve` (configure_logging).
 LOG_FORMAT = "%(asctime)s %(levelname)s %(message)s"
 

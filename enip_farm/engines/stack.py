@@ -12,9 +12,9 @@ from pathlib import Path
 
 import yaml
 
-from enip_farm.compose import API_PORT, CONFIG_IN_CONTAINER, pool_size
 from enip_farm.config import FarmConfig
-from enip_farm.fleet import split
+from enip_farm.engines.compose import API_PORT, CONFIG_IN_CONTAINER, pool_size
+from enip_farm.fleet.slices import split
 from enip_farm.words import plural
 
 TOKEN_IN_CONTAINER = "/run/secrets/enip_farm_token"

@@ -25,8 +25,8 @@ from starlette.routing import Route
 from enip_farm.config import FarmConfig
 from enip_farm.control.client import merge_events
 from enip_farm.control.http import no_such_device
-from enip_farm.fleet import split
-from enip_farm.fleet_api import Upstream, merge_metrics
+from enip_farm.fleet.api import Upstream, merge_metrics
+from enip_farm.fleet.slices import split
 
 _PROBE_TIMEOUT = 3.0
 _VIEW_TTL = 1.0  # seconds a view of the shards serves device requests before it is looked up again

@@ -12,7 +12,7 @@ from pathlib import Path
 import yaml
 
 from enip_farm.config import FarmConfig
-from enip_farm.fleet import split
+from enip_farm.fleet.slices import split
 from enip_farm.words import plural
 
 CONFIG_IN_CONTAINER = "/etc/enip-farm/cell.yaml"

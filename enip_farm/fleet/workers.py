@@ -6,7 +6,7 @@ With --http [HOST:]PORT the parent serves one HTTP API for the whole fleet there
 serves its slice's API on a port of 127.0.0.1 it picks (with the same token), and the parent
 routes a request for a device to the worker that serves it; GET /devices, /events and /metrics
 merge every worker's answer. The token is checked by the parent (with the farm API's Host and
-body-size guard) and again by the workers (enip_farm/fleet_api.py).
+body-size guard) and again by the workers (enip_farm/fleet/api.py).
 """
 
 from __future__ import annotations
@@ -24,12 +24,12 @@ from typing import Any
 import click
 
 from enip_farm.config import FarmConfig, parse_config
-from enip_farm.console import Console, configure_logging
 from enip_farm.control.guard import needs_token
-from enip_farm.farm import BindError, Farm, freeze_heap, new_event_loop, until_stopped_or_failed
-from enip_farm.fleet import split
-from enip_farm.fleet_api import START_TIMEOUT, create_router, router_port, serving_router
-from enip_farm.table import TABLE_HEADER, device_table
+from enip_farm.farm.console import Console, configure_logging
+from enip_farm.farm.farm import BindError, Farm, freeze_heap, new_event_loop, until_stopped_or_failed
+from enip_farm.farm.table import TABLE_HEADER, device_table
+from enip_farm.fleet.api import START_TIMEOUT, create_router, router_port, serving_router
+from enip_farm.fleet.slices import split
 
 
 def _worker(index: int, config_data: dict[str, Any], http: bool, token: str | None,

@@ -17,7 +17,7 @@ from typing import Any
 from enip_farm.device.device import Device
 from enip_farm.device.events import Event
 from enip_farm.device.reset import DeviceReset
-from enip_farm.farm_listeners import BindError, Listeners
+from enip_farm.farm.listeners import BindError, Listeners
 from enip_farm.server.waits import os_wait_s
 
 log = logging.getLogger(__name__)

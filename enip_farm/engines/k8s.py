@@ -11,9 +11,9 @@ from pathlib import Path
 
 import yaml
 
-from enip_farm.compose import API_PORT, CONFIG_IN_CONTAINER
 from enip_farm.config import FarmConfig
-from enip_farm.stack import check_cell
+from enip_farm.engines.compose import API_PORT, CONFIG_IN_CONTAINER
+from enip_farm.engines.stack import check_cell
 
 LABELS = {"app.kubernetes.io/name": "enip-farm"}
 TOKEN_DIR = "/run/secrets/enip-farm"
