@@ -13,10 +13,12 @@ from pathlib import Path
 
 import pytest
 import yaml
+from click.testing import CliRunner
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from pycomm3 import CIPDriver, Services
 
+from enip_farm.cli import main
 from enip_farm.config import parse_config
 from enip_farm.device.build import build_profiles
 from enip_farm.device.catalogue import shipped_catalogue
@@ -610,10 +612,6 @@ def test_cli_refuses_a_bad_base_address(tmp_path: Path) -> None:
 
 
 def test_cli_refuses_a_cut_file_and_writes_nothing(tmp_path: Path) -> None:
-    from click.testing import CliRunner
-
-    from enip_farm.cli import main
-
     (tmp_path / "EIO.cfg").write_text(_cut(11, "      -VendorId 75 -ProductCode 1030 -DeviceType 7 -OutputAssemb"))
     result = CliRunner().invoke(main, ["eio", "import", str(tmp_path / "EIO.cfg"), "-o", str(tmp_path / "c.yaml")])
     assert (result.exit_code, result.output) == (2, f"{tmp_path / 'EIO.cfg'}:12: the file ends inside this line (no "
