@@ -61,6 +61,11 @@ class CyclicIo:
             if expiring:  # a timeout may change the outputs: look before and after
                 before = guard.snapshot()
                 table.handle_timer(now)
+                if self.faults.active:  # the device's fault stopped the I/O: not the originator's timeout
+                    for connection in table.ended:
+                        measure = connection.measure
+                        if measure is not None and measure.ended_at == now and measure.ended == "timeout":
+                            measure.ended = "device fault"
             due, timer = table.produce(now, horizon)
             if expiring:
                 connections = table.pop_events()
