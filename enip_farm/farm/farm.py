@@ -28,6 +28,7 @@ from enip_farm.device.catalogue import Catalogue
 from enip_farm.device.device import Device
 from enip_farm.device.faults import Disconnect, FaultType
 from enip_farm.device.nonvolatile import load_state, save_state
+from enip_farm.device.report import FarmReport, TestBounds, farm_report
 from enip_farm.eds.reader import eds_catalogue
 from enip_farm.farm.listeners import SOCKETS_PER_DEVICE, BindError, Listeners, bind_message, raise_open_file_limit
 from enip_farm.farm.loop import FarmThread, freeze_heap, new_event_loop, until_stopped_or_failed
@@ -77,6 +78,7 @@ class Farm:
         self.handles: dict[str, DeviceHandle] = {name: DeviceHandle(self, d) for name, d in self.devices.items()}
         for device in self.devices.values():
             device.recorder = self.recorder
+            device.table.measuring = config.cyclic_io.measure
         self.state_file = Path(state) if state is not None else None
         if self.state_file is not None:
             try:
@@ -224,6 +226,12 @@ class Farm:
         """The budget (datagrams/s), what the open connections take of it, Forward Opens refused for
         want of it, and how late the I/O thread runs (worst of the last second, overloads)."""
         return self.supervision.cyclic_io_load(self.budget)
+
+    def report(self, bounds: TestBounds = None) -> FarmReport:
+        """The report on the controller under test (cip/report.py: `as_dict()` for JSON): every
+        device's class-1 connections as measured, its reconnections and the reactions measured,
+        judged against the bounds (the configuration's, then `bounds`, a test's own)."""
+        return farm_report(self.config, self.devices.values(), time.monotonic_ns(), (), bounds)
 
     # -- faults (device/faults.py) ---------------------------------------------------------------
 
