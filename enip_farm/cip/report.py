@@ -82,7 +82,11 @@ class Verdict:
 
     @property
     def line(self) -> str:
-        return f"{self.figure} {self.value} {self.unit} > bound {self.bound} ({self.source})"
+        return f"{self.figure} {_number(self.value)} {self.unit} > bound {_number(self.bound)} ({self.source})"
+
+
+def _number(value: float | int | None) -> str:
+    return f"{value:.6g}" if isinstance(value, float) else str(value)
 
 
 @dataclass(frozen=True, slots=True)

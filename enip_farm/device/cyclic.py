@@ -28,7 +28,8 @@ class CyclicIo:
         self.window = window
         self.counters = counters
 
-    def receive_io(self, data: bytes, source: tuple[str, int], now: int, send: SendDatagram) -> bool:
+    def receive_io(self, data: bytes, source: tuple[str, int], now: int, send: SendDatagram,
+                   received_at: int | None = None) -> bool:
         """An O->T datagram from `source` (host, port), received at `now`: True if a connection took it.
         What must answer it at once (CIP Safety time coordination) goes out through `send`, after the lock."""
         if self.faults.io_stopped:
@@ -40,7 +41,7 @@ class CyclicIo:
         guard, table, output = self.guard, self.table, self.guard.output
         with guard.lock:  # O->T changes the outputs only: the inputs need no snapshot
             old = bytes(output.data) if output is not None else b""
-            taken = table.receive_datagram(data, source[0], now, source[1])
+            taken = table.receive_datagram(data, source[0], now, source[1], received_at)
             # the one way out: the answers queued, and whatever T->O is due by now goes with them
             replies = table.datagrams_to_send(now) if table.answers_queued else ()
             connections = table.pop_events() if table.has_events else ()
