@@ -2,7 +2,8 @@
 
 Cosmic Ray (`pip install -e ".[mutation]"`) makes the mutants; this script decides which to run and
 with which tests, so that no mutant runs the whole suite and a run stays within its time budget:
-- per package (`PACKAGES`): the modules mutated, and the fast test files that guard them;
+- per package (`PACKAGES`): the modules mutated, and the fast test files that guard them (their
+  unit and integration tests: `-m "not system"`);
 - a seeded sample of mutation *sites* (a module, a line, a column), one operator drawn per site, so
   the sample spreads over the code rather than over the operators; a site's rank is a hash of its
   text, so the sample of unchanged code stays the same as others change the code around it; no
@@ -41,6 +42,7 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parent.parent
 EQUIVALENTS = ROOT / "bench" / "mutation-equivalents.md"
 VARY = "tests/test_values_that_vary.py"
+PINNED = "tests/test_pinned_details.py"  # what the mutants that survived showed no test pinned
 
 
 @dataclass(frozen=True)
@@ -54,23 +56,24 @@ PACKAGES: dict[str, Package] = {
     "protocol": Package(
         ("enip_farm/protocol/*.py", "enip_farm/protocol/safety/*.py"),
         ("tests/test_protocol.py", "tests/test_framing_and_state.py", "tests/test_encapsulation_errors.py",
-         "tests/test_cip_services_unit.py", "tests/test_safety.py", VARY)),
+         "tests/test_cip_services_unit.py", "tests/test_safety.py", "tests/test_safety_multicast.py", VARY, PINNED)),
     "cip": Package(
         ("enip_farm/cip/*.py", "enip_farm/cip/safety/*.py"),
         ("tests/test_connection_table.py", "tests/test_cip_services_unit.py", "tests/test_cip_errors.py",
          "tests/test_connection_events.py", "tests/test_declared_connections.py", "tests/test_attributes.py",
-         "tests/test_safety_supervisor.py", "tests/test_limits_unit.py", "tests/test_safety.py", VARY)),
+         "tests/test_safety_supervisor.py", "tests/test_limits_unit.py", "tests/test_safety.py",
+         "tests/test_safety_multicast.py", VARY, PINNED)),
     "device-faults": Package(  # the faults and the farm's fault timers
         ("enip_farm/device/faults.py", "enip_farm/device/fault_kinds.py", "enip_farm/device/fault_type.py",
          "enip_farm/farm/farm.py"),
-        ("tests/test_device.py", VARY, "tests/test_control.py"),
+        ("tests/test_device.py", VARY, PINNED, "tests/test_control.py"),
         {"enip_farm/farm/farm.py": ("inject_fault", "_arm_fault_end", "clear_faults", "_cancel_timer")}),
     "device-cyclic": Package(  # one device's class-1 path: cyclic I/O, its lock, its target
         ("enip_farm/device/cyclic.py", "enip_farm/device/guard.py", "enip_farm/device/target.py"),
-        ("tests/test_device.py", "tests/test_reset_effect.py", VARY, "tests/test_implicit.py")),
+        ("tests/test_device.py", "tests/test_reset_effect.py", VARY, PINNED, "tests/test_implicit.py")),
     "server-class1": Package(  # the I/O thread and its sockets
         ("enip_farm/server/implicit.py", "enip_farm/server/batch.py", "enip_farm/server/waits.py"),
-        ("tests/test_implicit.py", "tests/test_batch.py")),
+        ("tests/test_implicit.py", "tests/test_batch.py", PINNED)),
 }
 
 #: The six mutations issue 32 found surviving: (name, module, the code, the mutated code, tests).
@@ -110,7 +113,7 @@ def scratch_copy() -> Path:
 
 
 def pytest_command(tests: list[str]) -> list[str]:
-    return [sys.executable, "-m", "pytest", "-x", "-q", "-p", "no:cacheprovider", *tests]
+    return [sys.executable, "-m", "pytest", "-x", "-q", "-p", "no:cacheprovider", "-m", "not system", *tests]
 
 
 def run_tests(scratch: Path, tests: list[str], timeout: float) -> tuple[str, float, str]:
