@@ -102,7 +102,8 @@ def modes(rpi_ms: float, deadlines: int) -> list[Mode]:
         Mode("repeat", ("--repeat-every", "10"), frozenset({"sequence numbers repeated"}),
              "every 10th packet sent twice", lambda m: _sequence(m, **{"intervals.late": 0})),
         Mode("stale", ("--stale-every", "10"), frozenset({"stale sequence numbers"}),
-             "every 10th packet followed by one 2 sequence numbers back", lambda m: _sequence(m, **{"intervals.late": 0})),
+             "every 10th packet followed by one 2 sequence numbers back",
+             lambda m: _sequence(m, **{"intervals.late": 0})),
         Mode("idle", ("--idle-every", "50"), frozenset(), "run/idle header toggled every 50 deadlines",
              lambda m: _sequence(m, **{"intervals.late": 0, "run_idle.transitions": m["idle_transitions"] + 1})),
     ]
@@ -297,7 +298,8 @@ def run_all(farm: Farm, rpi_ms: float = RPI_MS, deadlines: int = DEADLINES, real
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--rpi-ms", type=float, default=RPI_MS)
-    parser.add_argument("--deadlines", type=int, default=DEADLINES, help="RPIs each mode sends (a multiple of 100 from 300)")
+    parser.add_argument("--deadlines", type=int, default=DEADLINES,
+                        help="RPIs each mode sends (a multiple of 100 from 300)")
     parser.add_argument("--address", default="127.0.238.1", help="the first device's address (127.0.0.0/8)")
     parser.add_argument("--realtime", type=int, default=10, help="SCHED_FIFO priority of the originator (0: not)")
     parser.add_argument("--modes", default=None, help="comma-separated modes (default: all)")
@@ -313,7 +315,8 @@ def main() -> None:
     if args.json:
         args.json.write_text(json.dumps(rows, indent=1))
     if not all(row["ok"] for row in rows):
-        raise SystemExit("a mode did not yield exactly its verdicts: " + ", ".join(r["mode"] for r in rows if not r["ok"]))
+        wrong = ", ".join(row["mode"] for row in rows if not row["ok"])
+        raise SystemExit(f"a mode did not yield exactly its verdicts: {wrong}")
 
 
 if __name__ == "__main__":

@@ -5,7 +5,8 @@ GET /devices, GET /devices/{name}, GET and PUT /devices/{name}/io, GET /devices/
 kind and its parameters' JSON Schema, from device/fault_kinds.py), GET /state (what the dashboard
 shows of each device: signals, connections, counters, faults), GET /overview (every device's state
 in one answer, and recent events: control/overview.py), GET /events (server-sent events,
-control/stream.py), GET /metrics (Prometheus), GET /devices/{name}/timeline (control/measured.py),
+control/stream.py), GET /metrics (Prometheus), GET /report and GET /devices/{name}/timeline (what the
+farm measured of the controller: control/measured.py),
 the dashboard at / (control/dashboard.py),
 and the OpenAPI schema at /openapi.json with /docs and /redoc served from assets shipped in the
 package (no CDN). Bound to a loopback address (localhost, 127.x.y.z, ::1) the API may run without
@@ -162,7 +163,7 @@ def create_app(farm: FarmControl, hub: EventHub | None = None, overview: Overvie
     app = FastAPIOffline(title="enip-farm", description="Drive and observe a farm of virtual EtherNet/IP devices. "
                          "The dashboard is at /.")
     registry = CollectorRegistry()
-    registry.register(FarmCollector(farm.devices.values(), farm.health, farm.cyclic_io_load))
+    registry.register(FarmCollector(farm.devices.values(), farm.health, farm.cyclic_io_load, farm.report))
     hub = hub if hub is not None else EventHub(farm.devices.values())
     overview = overview if overview is not None else Overview(farm.devices.values())
 
@@ -273,7 +274,7 @@ def create_app(farm: FarmControl, hub: EventHub | None = None, overview: Overvie
     def metrics() -> PlainTextResponse:
         return PlainTextResponse(generate_latest(registry), media_type=CONTENT_TYPE_LATEST)
 
-    mount_measured(app, timelines if timelines is not None else Timelines(farm.devices), known)
+    mount_measured(app, timelines if timelines is not None else Timelines(farm.devices), known, farm.report)
     mount_dashboard(app)
     return app
 

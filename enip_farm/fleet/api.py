@@ -1,6 +1,6 @@
 """One HTTP API for a fleet of workers (`serve --workers N --http`): the parent routes a request
-for a device to the worker that serves it, and merges GET /devices, /state, /events and /metrics
-from every worker; the rest (/docs, the dashboard's page) comes from the first worker. It stands
+for a device to the worker that serves it, and merges GET /devices, /state, /events, /metrics and
+/report from every worker; the rest (/docs, the dashboard's page) comes from the first worker. It stands
 behind the farm API's own Guard (Host, token, body size)."""
 
 from __future__ import annotations
@@ -20,6 +20,7 @@ from starlette.requests import Request
 from starlette.responses import JSONResponse, Response, StreamingResponse
 from starlette.routing import Route
 
+from enip_farm.cip.report import worst
 from enip_farm.control.client import merge_events
 from enip_farm.control.guard import Guard
 from enip_farm.control.http import bind_problem, listening_socket, no_such_device
@@ -169,6 +170,30 @@ def create_router(owners: dict[str, int], apis: list[str]) -> Starlette:
         merged.sort(key=lambda device: wanted.get(device.get("name"), len(wanted)))
         return JSONResponse(merged)
 
+    async def report(request: Request) -> Response:
+        """Every worker's report (of the devices asked for) as one: devices in configuration order (or
+        the order asked), reactions one after the other, the verdict the worst, `at_ns` the latest (one
+        host, one monotonic clock)."""
+        names = request.query_params.getlist("device")
+        for name in names:
+            if name not in owners:
+                return JSONResponse({"detail": no_such_device(name, owners)}, status_code=404)
+        workers = sorted({owners[name] for name in names}) if names else list(range(len(apis)))
+        replies = await asyncio.gather(*(client().get(apis[i] + "/report", headers=headers_of(request), params=[
+            ("device", name) for name in names if owners[name] == i]) for i in workers))
+        failed = [reply for reply in replies if reply.status_code != 200]
+        if failed:
+            return response_of(failed[0])
+        answers = [reply.json() for reply in replies]
+        merged = [device for answer in answers for device in answer["devices"]]
+        wanted = {name: position for position, name in enumerate(names)} if names else order
+        merged.sort(key=lambda device: wanted.get(device["device"], len(wanted)))
+        reactions = [reaction for answer in answers for reaction in answer["reactions"]]
+        return JSONResponse({"at_ns": max(answer["at_ns"] for answer in answers),
+                             "verdict": worst([answer["verdict"] for answer in answers]),
+                             "failures": [line for answer in answers for line in answer["failures"]],
+                             "devices": merged, "reactions": reactions})
+
     async def health(request: Request) -> Response:
         """Every worker's /health; 503 unless every worker answers ok (a worker that does not
         answer is not ok)."""
@@ -198,6 +223,7 @@ def create_router(owners: dict[str, int], apis: list[str]) -> Starlette:
         Route("/metrics", metrics, methods=["GET"]),
         Route("/events", events, methods=["GET"]),
         Route("/state", state, methods=["GET"]),
+        Route("/report", report, methods=["GET"]),
         Route("/health", health, methods=["GET"]),
         Route("/{rest:path}", other, methods=methods),
     ], lifespan=lifespan)
