@@ -1,16 +1,22 @@
 """The dashboard's inspector in a real browser (Debian's chromium through chromedriver, as in
-tests/test_dashboard_browser.py): a card's "timeline" button opens a device's signal timeline,
-which draws the test's stimuli and the controller's explicit writes as steps of their signals,
-each marked by who made it; and the SVG drawing modules on their own (timeline.js, histogram.js)."""
+tests/test_dashboard_browser.py): a card's "timeline" button opens a device's inspector: its
+signal timeline, which draws the test's stimuli and the controller's explicit writes as steps of
+their signals, each marked by who made it, and each class-1 connection's measured O->T intervals
+as a histogram (GET /report); and the SVG drawing modules on their own (timeline.js, histogram.js)."""
 
 from __future__ import annotations
 
+import socket
+import time
 from collections.abc import Iterator
 
 import pytest
 from pycomm3 import CIPDriver, Services
 
+from enip_farm.protocol.connection import decode_forward_open_reply, encode_io_packet
 from tests.browser import browser_for_tests, open_page, page_errors, until
+from tests.helpers import RawClient, wait_for
+from tests.test_implicit import forward_close, forward_open
 
 pytestmark = pytest.mark.system
 
@@ -61,6 +67,41 @@ def test_the_timeline_button_shows_stimuli_and_writes_marked(enip_farm, browser)
     assert browser.execute_script(STEPS, "DI1").count(" V") == 0
     browser.find_element("id", "inspect-close").click()
     until(lambda: not browser.execute_script("return document.getElementById('inspect').open"), "closed")
+    assert page_errors(browser) == []
+
+
+HISTOGRAM = """const block = document.querySelector('#inspect .measured');
+return block && {head: block.querySelector('.measured-head').textContent,
+  counts: [...block.querySelectorAll('.bar')].map(b => Number(b.dataset.count)),
+  figures: block.querySelector('.figures').textContent}"""
+
+
+def test_the_inspector_plots_each_connections_interval_histogram(enip_farm, browser) -> None:
+    """A class-1 connection of 30 packets, then closed: its histogram holds the 29 intervals the
+    report counted, bucket by bucket, with the figures under it."""
+    farm = enip_farm(name="io1", model="DSQC1030", implicit={"first_watchdog_s": 0}, http=True)
+    io = farm["io1"]
+    with RawClient(io.address) as client:
+        client.register()
+        message, triad = forward_open(rpi=10_000, multiplier=7)
+        opened = decode_forward_open_reply(client.request(message).data)
+        with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as udp:
+            udp.bind(("127.0.0.1", 0))
+            for sequence in range(1, 31):
+                udp.sendto(encode_io_packet(opened.o_t_connection_id, sequence, sequence, bytes(6)),
+                           (io.address, 2222))
+                time.sleep(0.01)
+            assert wait_for(lambda: farm.report().devices[0].connections[0].sequence.packets == 30)
+        assert client.request(forward_close(triad)).general_status == 0
+    intervals = farm.report().as_dict()["devices"][0]["connections"][0]["intervals"]
+    open_page(browser, f"http://127.0.0.1:{farm.http.port}/", "io1")
+    browser.find_element("css selector", ".card[data-device='io1'] button.inspect").click()
+    until(lambda: browser.execute_script(HISTOGRAM), "the connection's histogram")
+    shown = browser.execute_script(HISTOGRAM)
+    assert shown["counts"] == intervals["histogram"]["counts"] and sum(shown["counts"]) == 29
+    assert shown["head"].startswith(f"O->T 0x{opened.o_t_connection_id:08X} from 127.0.0.1 · ")
+    assert shown["head"].endswith(" · ended: forward close")
+    assert shown["figures"].startswith("API 10 ms · 29 intervals · ")
     assert page_errors(browser) == []
 
 
