@@ -4,7 +4,9 @@
 
 import { fixed, svg } from './svg.js';
 
-export const WIDTH = 420, HEIGHT = 120, BOTTOM = 16;
+export const WIDTH = 900, HEIGHT = 120, BOTTOM = 16;
+// Bounds labelled under their bar (the others in the bar's title): the measurement's buckets are fine near 1 API.
+export const LABELLED = new Set([0.5, 1, 1.5, 2, 4, 8, 16, 64]);
 
 const ms = ns => (ns === null || ns === undefined ? '–' : `${fixed(ns / 1e6)} ms`);
 
@@ -25,6 +27,7 @@ export function draw(intervals) {
       class: 'bar' + (i >= counts.length - 1 || bounds[i] > 2 ? ' late' : ''), x: fixed(i * slot + 1),
       y: fixed(HEIGHT - BOTTOM - h), width: fixed(slot - 2), height: fixed(h), 'data-count': count,
     }, `${labels[i]} API: ${count}`));
+    if (i < bounds.length && !LABELLED.has(bounds[i])) return;
     const label = svg('text', { x: fixed(i * slot + slot / 2), y: HEIGHT - 4, class: 'bucket' });
     label.textContent = labels[i];
     root.appendChild(label);
