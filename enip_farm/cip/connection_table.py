@@ -24,7 +24,7 @@ called back.
 from __future__ import annotations
 
 import random
-from collections import Counter
+from collections import Counter, deque
 from collections.abc import Callable, Mapping
 from typing import NamedTuple
 
@@ -45,6 +45,9 @@ from enip_farm.cip.connection_events import (
 )
 from enip_farm.cip.connection_path import KeyIdentity
 from enip_farm.cip.connection_policy import ConnectionPolicy, Refusal, SafetyOpen
+from enip_farm.cip.o_t_measure import OriginatorMeasure, end_word, forward_open_asked
+from enip_farm.cip.reconnection import Reconnections
+from enip_farm.cip.report import ReconnectAfter
 from enip_farm.protocol.commands import SocketAddress, encode_sockaddr
 from enip_farm.protocol.connection import ConnectionTriad, ForwardOpenRequest
 from enip_farm.protocol.cpf import ItemType
@@ -81,6 +84,8 @@ class Opened(NamedTuple):
 
 
 _RUN_HEADER = b"\x01\x00\x00\x00"  # a T->O 32-bit run/idle header: run
+#: Ended connections whose measurement the table keeps (the report shows them after the open ones).
+ENDED_KEPT = 16
 
 
 class ConnectionTable(ClassOneIo):
@@ -105,6 +110,10 @@ class ConnectionTable(ClassOneIo):
         self._short_data_reported: set[int] = set()
         self._outbox: list[Datagram] = []  # to send at once (CIP Safety time coordination): datagrams_to_send
         self._safety_connections = 0
+        #: Measure every I/O connection's O->T stream (cip/o_t_measure.py); the last ENDED_KEPT ended ones stay.
+        self.measuring = True
+        self.ended: deque[Connection] = deque(maxlen=ENDED_KEPT)
+        self.reconnections = Reconnections()
 
     # -- what the table says -------------------------------------------------------------------
 
@@ -164,11 +173,18 @@ class ConnectionTable(ClassOneIo):
             return connection
         if type(connection) is SafetyOpen:
             refusal = self._reserve(connection.connection, request, originator, now)
+            if refusal is None and self.measuring:
+                connection.connection.measure = OriginatorMeasure(
+                    connection.connection.o_t_rpi * 1000, now,
+                    forward_open_asked(request, connection.connection.timeout_ns))
             return refusal if refusal is not None else self._safety_opened(connection, now)
         if connection.is_io:
             refusal = self._reserve(connection, request, originator, now)
             if refusal is not None:
                 return refusal
+            if self.measuring:
+                connection.measure = OriginatorMeasure(connection.o_t_rpi * 1000, now,
+                                                       forward_open_asked(request, connection.timeout_ns))
         self.connections[connection.o_t_id] = connection
         self._by_triad[connection.triad] = connection
         items: ReplyItems = ()
@@ -189,6 +205,8 @@ class ConnectionTable(ClassOneIo):
                     point=connection.t_o_point if self.policy.declared else None,
                     header=_RUN_HEADER if connection.t_o_run_idle_header else b"", heartbeat=connection.t_o_heartbeat)
             items = _multicast_items(connection)
+        if connection.is_io:
+            self.reconnections.opened(originator.host, now, connection.measure)
         self._events.append(ConnectionOpened(now, connection))
         return Opened(connection, items)
 
@@ -244,6 +262,10 @@ class ConnectionTable(ClassOneIo):
                 f"originator serial 0x{triad.originator_serial:08X})")))
         return connection
 
+    def device_back(self, after: ReconnectAfter, now: int) -> None:
+        """The device answers again (a fault cleared, a reset done): its originators are expected back."""
+        self.reconnections.device_back(after, now, {c.originator_host for c in self.connections.values() if c.is_io})
+
     def session_closed(self, session: object, now: int) -> None:
         """The TCP connection of a session ended: its class-3 connections end with it."""
         for connection in [c for c in self.connections.values() if c.owner is session]:
@@ -278,6 +300,9 @@ class ConnectionTable(ClassOneIo):
             if self.policy.outputs_off_on_idle if ended is ConnectionClosed else self.policy.outputs_off_on_fault:
                 output.data[:] = bytes(len(output.data))
         self._events.append(ended(now, connection, reason))
+        if connection.measure is not None:
+            connection.measure.end(now, end_word(ended.kind, reason), reason)
+            self.ended.append(connection)
         if connection.kind is ConnectionKind.SAFETY_OUTPUT:  # whatever ends it: the safe state
             output = self.assemblies["output"]
             output.owned = False
@@ -307,6 +332,7 @@ class ConnectionTable(ClassOneIo):
                 reason = f"safety timeout: no time coordination for {(safety.timeout_pi + 2)} ping intervals"
             else:
                 reason = f"no packet for {connection.timeout_ns / 1e6:g} ms"
+            self.reconnections.timed_out(connection.originator_host, now)
             self.close(connection, reason, now, ConnectionTimedOut)
 
     # -- class-3 consumption -----------------------------------------------------------------------
