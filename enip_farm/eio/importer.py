@@ -122,7 +122,8 @@ def _run(cell: CellImport) -> ImportResult:
 
 def network_groups(cell: CellImport, networks: list[Entry]) -> list[dict[str, Any]]:
     """A group (kind network) per network the devices are on: a device's -Network, else the file's one
-    EtherNet/IP network (INDUSTRIAL_NETWORK; its only network), else none. Named as the network, made a valid group name."""
+    EtherNet/IP network (INDUSTRIAL_NETWORK; its only network), else none. Named as the network,
+    made a valid group name."""
     named = [str(n.get("Name")) for n in networks if isinstance(n.get("Name"), str)]
     ethernetip = [name for name in named if "ethernetip" in name.casefold()] or named
     default = ethernetip[0] if len(ethernetip) == 1 else None
