@@ -27,6 +27,27 @@
  * k RPI, rounded, misses k - 1), duplicates, period error |interval - RPI|
  * p50/p99/max; and how late this program sent (so "the originator sent on time" is checked, not
  * assumed). Every loop is bounded in time.
+ *
+ * Misbehaviour (issue 27: a controller's faults, made on purpose so that the farm's verdicts on them
+ * can be checked exactly). Each applies to every connection and counts per connection what it did,
+ * over the whole run (the JSON's "made" per connection), so a test compares the farm's counts with
+ * these, not with a guess. Deadline k (1-based) of a connection is nominally k RPI after its start:
+ *   --jitter-us J       deadlines of odd k leave J us late (J < RPI): the intervals alternate
+ *                       RPI + J and RPI - J, each J from the RPI (a square wave, not noise: exact);
+ *   --gap-every N       deadline k with k % N == 0 sends nothing, its sequence number is used up: a
+ *                       gap of one in the 32-bit sequence and one interval of 2 RPI;
+ *   --burst-every N --burst-size K
+ *                       the K deadlines before each k % N == 0 are held and leave with it, in one
+ *                       sendmmsg: a silence of K + 1 RPI, then K + 1 packets at once (K < N);
+ *   --repeat-every N    after deadline k % N == 0 its packet is sent again (same 32-bit sequence);
+ *   --stale-every N [--stale-by M]
+ *                       after deadline k % N == 0 a copy with the sequence M back (2) is sent too
+ *                       (stale: older than one already sent; k > M);
+ *   --idle-every N      run for N deadlines, then idle (run/idle header bit 0 clear) for N, and so
+ *                       on: a transition every N deadlines;
+ *   --stop-after N      send nothing after deadline N: the connection falls silent and the target
+ *                       times it out (the driver then waits its reconnect delay, Forward Opens again
+ *                       and starts this program anew: the delay before reconnecting lives there).
  */
 #define _GNU_SOURCE
 #include <arpa/inet.h>
@@ -66,6 +87,8 @@ struct connection {
     uint32_t sequence;
     /* sender thread */
     uint64_t sent_window, sent_total;
+    uint64_t deadlines, datagrams, gaps, repeats, stale, bursts, idle_transitions; /* what it made */
+    int idle;
     /* receiver thread */
     int have_last;
     int64_t last_stamp;
@@ -77,7 +100,8 @@ struct connection {
 };
 
 struct deadline {
-    int64_t when;
+    int64_t when;    /* when it leaves: nominal + this deadline's shift */
+    int64_t nominal; /* k RPI after the connection's start */
     int index;
 };
 
@@ -96,6 +120,9 @@ static int realtime;                      /* --realtime: SCHED_FIFO for both thr
 static int64_t batch_ns = 100000;         /* --batch-us */
 static int64_t receive_pause_ns = 1000000; /* the receiver reads the socket this often when it is drained */
 static uint32_t *table; /* T->O id -> index + 1, open addressing */
+/* misbehaviour (see the header): 0 = off */
+static int64_t jitter_ns;
+static uint64_t gap_every, burst_every, burst_size, repeat_every, stale_every, stale_by = 2, idle_every, stop_after;
 static uint32_t table_mask;
 
 static int64_t now_ns(clockid_t clock) {
@@ -172,18 +199,44 @@ static struct deadline heap_pop(struct deadline *heap, int *size) {
     return top;
 }
 
+/* How late deadline k (1-based) of a connection leaves, past its nominal time. */
+static int64_t shift(const struct connection *c, uint64_t k) {
+    if (burst_every && burst_size) { /* held: it leaves with the release, whatever the jitter */
+        uint64_t to_release = (burst_every - k % burst_every) % burst_every; /* deadlines until k % N == 0 */
+        if (to_release && to_release <= burst_size) return (int64_t)to_release * c->rpi_ns;
+    }
+    return jitter_ns && (k & 1) ? jitter_ns : 0;
+}
+
+/* Deadline k's packet into out (the connection's template, its sequence numbers and run/idle bit). */
+static int compose(const struct connection *c, uint8_t *out, uint32_t sequence, int run) {
+    memcpy(out, c->packet, c->packet_length);
+    put_le32(out + 10, sequence);
+    put_le16(out + 18, sequence & 0xffff);
+    if (c->o_t_size >= 6) put_le32(out + 20, run ? 1 : 0);
+    return c->packet_length;
+}
+
 static void *sender(void *unused) {
     (void)unused;
     prctl(PR_SET_TIMERSLACK, 1UL);
     struct deadline *heap = calloc(connection_count, sizeof *heap);
     struct mmsghdr *messages = calloc(BATCH, sizeof *messages);
     struct iovec *vectors = calloc(BATCH, sizeof *vectors);
+    uint8_t (*out)[600] = calloc(BATCH, sizeof *out); /* a burst sends one connection's packets in one batch */
     int size = 0;
-    for (int k = 0; k < connection_count; k++)
-        heap_push(heap, &size, (struct deadline){t_start + connections[k].rpi_ns * k / connection_count, k});
+    for (int k = 0; k < connection_count; k++) {
+        int64_t nominal = t_start + connections[k].rpi_ns * k / connection_count;
+        heap_push(heap, &size, (struct deadline){nominal + shift(&connections[k], 1), nominal, k});
+    }
     while (!atomic_load(&stopping)) {
         int64_t now = now_ns(CLOCK_MONOTONIC);
         if (now >= t_hard_end) break;
+        if (!size) { /* every connection has stopped (--stop-after) */
+            struct timespec pause = to_timespec(10000000);
+            nanosleep(&pause, NULL);
+            continue;
+        }
         if (heap[0].when > now) {
             /* wake on a grid of --batch-us: the sends due in one step leave in one sendmmsg */
             int64_t wake = (heap[0].when + batch_ns - 1) / batch_ns * batch_ns;
@@ -192,27 +245,49 @@ static void *sender(void *unused) {
             continue;
         }
         int n = 0;
-        while (n < BATCH && size && heap[0].when <= now) {
+        while (n + 3 <= BATCH && size && heap[0].when <= now) { /* up to 3 datagrams per deadline */
             struct deadline d = heap_pop(heap, &size);
             struct connection *c = &connections[d.index];
+            uint64_t k = ++c->deadlines;
             int64_t lag = now - d.when;
             int in_window = d.when >= t0 && d.when < t1;
-            if (in_window) {
-                c->sent_window++;
-                if (lag > send_lag_max_ns) send_lag_max_ns = lag;
-                if (lag > LATE_SEND_NS) sends_late++;
-            }
-            c->sent_total++;
             c->sequence++;
-            put_le32(c->packet + 10, c->sequence);
-            put_le16(c->packet + 18, c->sequence & 0xffff);
-            vectors[n] = (struct iovec){c->packet, (size_t)c->packet_length};
-            messages[n].msg_hdr = (struct msghdr){.msg_name = &c->destination,
-                                                  .msg_namelen = sizeof c->destination,
-                                                  .msg_iov = &vectors[n],
-                                                  .msg_iovlen = 1};
-            n++;
-            d.when += c->rpi_ns;
+            int idle = idle_every && (k - 1) / idle_every % 2 == 1;
+            if (k > 1 && idle != c->idle) c->idle_transitions++;
+            c->idle = idle;
+            if (gap_every && k % gap_every == 0) {
+                c->gaps++; /* its sequence number is used up, nothing leaves */
+            } else {
+                if (in_window) {
+                    c->sent_window++;
+                    if (lag > send_lag_max_ns) send_lag_max_ns = lag;
+                    if (lag > LATE_SEND_NS) sends_late++;
+                }
+                c->sent_total++;
+                int copies = 1;
+                uint32_t sequences[3] = {c->sequence, c->sequence, c->sequence - (uint32_t)stale_by};
+                if (repeat_every && k % repeat_every == 0) {
+                    copies = 2;
+                    c->repeats++;
+                }
+                if (stale_every && k % stale_every == 0 && k > stale_by) {
+                    sequences[copies++] = c->sequence - (uint32_t)stale_by;
+                    c->stale++;
+                }
+                if (burst_every && burst_size && k % burst_every == 0) c->bursts++;
+                for (int copy = 0; copy < copies; copy++, n++) {
+                    int length = compose(c, out[n], sequences[copy], !idle);
+                    vectors[n] = (struct iovec){out[n], (size_t)length};
+                    messages[n].msg_hdr = (struct msghdr){.msg_name = &c->destination,
+                                                          .msg_namelen = sizeof c->destination,
+                                                          .msg_iov = &vectors[n],
+                                                          .msg_iovlen = 1};
+                    c->datagrams++;
+                }
+            }
+            if (stop_after && k >= stop_after) continue; /* silent from here on */
+            d.nominal += c->rpi_ns;
+            d.when = d.nominal + shift(c, k + 1);
             heap_push(heap, &size, d);
         }
         for (int offset = 0, tries = 0; offset < n && tries < 8; tries++) {
@@ -229,6 +304,7 @@ static void *sender(void *unused) {
     free(heap);
     free(messages);
     free(vectors);
+    free(out);
     return NULL;
 }
 
@@ -377,8 +453,17 @@ static int read_connections(const char *path) {
 
 static void usage(void) {
     fprintf(stderr, "usage: cyclic_originator --connections FILE (--fd N | --bind ADDR:PORT) --seconds S "
-                    "[--warmup S] [--hold S] [--batch-us US] [--realtime PRIORITY] --json FILE\n");
+                    "[--warmup S] [--hold S] [--batch-us US] [--realtime PRIORITY] --json FILE\n"
+                    "  misbehaviour: [--jitter-us J] [--gap-every N] [--burst-every N --burst-size K] "
+                    "[--repeat-every N] [--stale-every N [--stale-by M]] [--idle-every N] [--stop-after N]\n");
     exit(2);
+}
+
+static uint64_t count_argument(const char *text) {
+    char *end;
+    long long value = strtoll(text, &end, 10);
+    if (*end || value < 1 || value > 1000000000LL) usage();
+    return (uint64_t)value;
 }
 
 int main(int argc, char **argv) {
@@ -394,15 +479,31 @@ int main(int argc, char **argv) {
         else if (!strcmp(argv[i], "--json")) json_path = argv[i + 1];
         else if (!strcmp(argv[i], "--realtime")) realtime = atoi(argv[i + 1]);
         else if (!strcmp(argv[i], "--batch-us")) batch_ns = (int64_t)(atof(argv[i + 1]) * 1000);
+        else if (!strcmp(argv[i], "--jitter-us")) jitter_ns = (int64_t)count_argument(argv[i + 1]) * 1000;
+        else if (!strcmp(argv[i], "--gap-every")) gap_every = count_argument(argv[i + 1]);
+        else if (!strcmp(argv[i], "--burst-every")) burst_every = count_argument(argv[i + 1]);
+        else if (!strcmp(argv[i], "--burst-size")) burst_size = count_argument(argv[i + 1]);
+        else if (!strcmp(argv[i], "--repeat-every")) repeat_every = count_argument(argv[i + 1]);
+        else if (!strcmp(argv[i], "--stale-every")) stale_every = count_argument(argv[i + 1]);
+        else if (!strcmp(argv[i], "--stale-by")) stale_by = count_argument(argv[i + 1]);
+        else if (!strcmp(argv[i], "--idle-every")) idle_every = count_argument(argv[i + 1]);
+        else if (!strcmp(argv[i], "--stop-after")) stop_after = count_argument(argv[i + 1]);
         else usage();
     }
     if (!connections_path || !json_path || seconds <= 0 || seconds > 3600 || warmup < 0 || hold < 0 || hold > 600 || batch_ns < 1 || batch_ns > 1000000 ||
         (sock < 0 && !bind_to))
         usage();
+    if ((burst_every > 0) != (burst_size > 0) || (burst_every && burst_size >= burst_every) || stale_by > 1000000)
+        usage();
     if (read_connections(connections_path) <= 0) {
         fprintf(stderr, "no connections read from %s\n", connections_path);
         return 2;
     }
+    for (int k = 0; k < connection_count; k++)
+        if (jitter_ns >= connections[k].rpi_ns) {
+            fprintf(stderr, "--jitter-us must be less than the RPI\n");
+            return 2;
+        }
     if (sock < 0) {
         char host[64];
         int port;
@@ -503,6 +604,10 @@ int main(int argc, char **argv) {
     }
     fprintf(out, "{\n \"connections\": %d, \"window_s\": %.6f, \"realtime\": %d,\n", connection_count,
             (t1 - t0) / 1e9, realtime);
+    fprintf(out, " \"misbehaviour\": {\"jitter_us\": %ld, \"gap_every\": %lu, \"burst_every\": %lu, \"burst_size\": %lu, "
+                 "\"repeat_every\": %lu, \"stale_every\": %lu, \"stale_by\": %lu, \"idle_every\": %lu, \"stop_after\": %lu},\n",
+            jitter_ns / 1000, gap_every, burst_every, burst_size, repeat_every, stale_every, stale_by, idle_every,
+            stop_after);
     fprintf(out, " \"o_t_sent_window\": %lu, \"o_t_sent_total\": %lu, \"send_errors\": %lu,\n", sent_window,
             sent_total, send_errors);
     fprintf(out, " \"sends_late\": %lu, \"send_lag_max_ms\": %.3f,\n", sends_late, send_lag_max_ns / 1e6);
@@ -521,11 +626,14 @@ int main(int argc, char **argv) {
         struct connection *c = &connections[k];
         uint64_t count = 0;
         for (int b = 0; b < CONN_BUCKETS; b++) count += c->histogram[b];
-        fprintf(out, "  {\"host\": \"%s\", \"t_o_id\": %u, \"o_t_sent\": %lu, \"received\": %lu, \"lost\": %lu, "
-                     "\"late\": %lu, \"missed\": %lu, \"duplicates\": %lu, \"p50_us\": %ld, \"p99_us\": %ld, \"max_us\": %ld}%s\n",
-                c->host, c->t_o_id, c->sent_window, c->received_window, c->lost, c->late, c->missed, c->duplicates,
-                quantile_us(c->histogram, count, 0.5), quantile_us(c->histogram, count, 0.99),
-                c->max_error_ns / 1000, k + 1 < connection_count ? "," : "");
+        fprintf(out, "  {\"host\": \"%s\", \"o_t_id\": %u, \"t_o_id\": %u, \"o_t_sent\": %lu, \"received\": %lu, \"lost\": %lu, "
+                     "\"late\": %lu, \"missed\": %lu, \"duplicates\": %lu, \"p50_us\": %ld, \"p99_us\": %ld, \"max_us\": %ld,\n"
+                     "   \"made\": {\"deadlines\": %lu, \"sent\": %lu, \"datagrams\": %lu, \"last_sequence\": %u, \"gaps\": %lu, "
+                     "\"bursts\": %lu, \"repeats\": %lu, \"stale\": %lu, \"idle_transitions\": %lu}}%s\n",
+                c->host, c->o_t_id, c->t_o_id, c->sent_window, c->received_window, c->lost, c->late, c->missed,
+                c->duplicates, quantile_us(c->histogram, count, 0.5), quantile_us(c->histogram, count, 0.99),
+                c->max_error_ns / 1000, c->deadlines, c->sent_total, c->datagrams, c->sequence, c->gaps, c->bursts,
+                c->repeats, c->stale, c->idle_transitions, k + 1 < connection_count ? "," : "");
     }
     fprintf(out, " ]\n}\n");
     fclose(out);

@@ -27,6 +27,8 @@ from pydantic import (
 )
 from pydantic_core import InitErrorDetails, PydanticCustomError
 
+from enip_farm.bounds import BoundsConfig
+
 _MAC = re.compile(r"^([0-9A-Fa-f]{2}[:-]){5}[0-9A-Fa-f]{2}$")
 
 #: An attribute of a RobotWare EIO.cfg entry kept as it was: a string, a number, or true for a flag.
@@ -167,6 +169,7 @@ class DeviceConfig(_Strict):
         "answer (no TCP listener, UDP dropped) after it has replied, as a module restarts")
     signals: list[SignalConfig] = Field([], description="named signals (RobotWare EIO_SIGNAL) beside DI1.., DO1..")
     safety: SafetyConfig = SafetyConfig()
+    bounds: BoundsConfig = Field(BoundsConfig(), description="the report's bounds for this device, over the cell's")
     extra: dict[str, EioValue] = Field({}, description="other attributes of the controller's ETHERNETIP_DEVICE "
                                        "entry (VendorName, Label...), kept as they were for `enip-farm eio export`")
     _entry: int = PrivateAttr(0)
@@ -252,7 +255,7 @@ class CyclicIoConfig(_Strict):
         "auto", description="class-1 datagrams per second (O->T taken plus T->O sent) one worker admits "
         "connections for; past it a Forward Open gets 0x01/0x0113. auto: measured at start (the CPU cost of "
         "a consumed and produced packet on this machine, for 70 % of a core)")
-
+    measure: bool = Field(True, description="measure every O->T stream for the report (cip/o_t_measure.py)")
     @field_validator("budget_datagrams_per_s")
     @classmethod
     def _positive(cls, value: int | str) -> int | str:
@@ -269,8 +272,7 @@ class FarmConfig(_Strict):
                                      "bounded by the open-file limit)")
     wires: list[WireConfig] = []
     rules: list[RuleConfig] = []
-
-
+    bounds: BoundsConfig = Field(BoundsConfig(), description="the report's bounds (enip_farm/bounds.py)")
     _source: str = PrivateAttr("<config>")
 
     @property

@@ -15,7 +15,6 @@ teardown every socket and the thread are gone.
 
 from __future__ import annotations
 
-import itertools
 import os
 import warnings
 from collections.abc import Callable, Iterator
@@ -31,19 +30,10 @@ from enip_farm.device.catalogue import shipped_catalogue
 from enip_farm.eio.cfg import parse_cfg
 from enip_farm.eio.importer import EioImportWarning, import_eio
 from enip_farm.farm.farm import BindError, Farm
+from enip_farm.farm.loopback import LoopbackPool
 
-
-class AddressPool:
-    """Fresh 127.x addresses for one test process: its own block (the second octet, from the pid),
-    never one address twice. Calling the pool gives the next address."""
-
-    def __init__(self, block: int) -> None:
-        self.block = block
-        self._next = itertools.count(1)
-
-    def __call__(self) -> str:
-        n = next(self._next)
-        return f"127.{self.block}.{n // 250 % 250}.{n % 250 + 1}"
+#: Kept under its first name: tests and users import it from here.
+AddressPool = LoopbackPool
 
 
 @pytest.fixture(scope="session")

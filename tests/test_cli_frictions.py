@@ -59,16 +59,35 @@ def test_ctrl_c_on_workers_with_http_is_quiet_and_the_banner_shows_the_dashboard
 
 
 @pytest.mark.integration
-def test_golden_beside_a_running_farm_hints_at_address(enip_farm, tmp_path: Path) -> None:
+def test_golden_runs_beside_a_farm_serving_the_same_cell(enip_farm, tmp_path: Path) -> None:
+    """The README's golden example beside the README's running cell: golden serves the cell on
+    loopback addresses of its own (issue 30)."""
     farm = enip_farm(name="io1", model="DSQC1030")
-    address = farm["io1"].address
-    result = CliRunner().invoke(main, ["golden", str(SEED), "--config", str(_cell(tmp_path, address))])
-    assert result.exit_code == 1
-    assert result.output.splitlines() == [
-        f"device 'io1': cannot bind TCP {address}:44818: the port is already in use there (another farm or "
-        "EtherNet/IP stack?).",
-        "golden starts its own farm (the default cell, or --config); to replay against a farm that is already "
-        "running, give the device's address: --address ADDRESS"]
+    result = CliRunner().invoke(main, ["golden", str(SEED), "--config", str(_cell(tmp_path, farm["io1"].address)),
+                                       "--device", "io1"])
+    assert (result.exit_code, result.output.splitlines()[-1]) == (0, "4 exchanges: 4 passed, 0 failed"), result.output
+
+
+@pytest.mark.integration
+def test_golden_where_nothing_answers_is_one_line_and_exit_1(free_address: AddressPool) -> None:
+    address = free_address()  # nothing listens there
+    result = CliRunner().invoke(main, ["golden", str(SEED), "--address", address])
+    assert (result.exit_code, result.output) == (1, f"cannot replay against {address}:44818: Connection refused; "
+                                                 "is a farm serving there? Start one (enip-farm serve), or leave out "
+                                                 "--address to let golden start its own\n")
+
+
+@pytest.mark.parametrize(("args", "error"), [
+    (["--address", "127.0.0.1", "--device", "nope"], "Error: --device: only for the farm golden starts itself; with "
+     "--address, what answers at 127.0.0.1 is compared: leave out --device or --address"),
+    (["--device", "nope"], "Error: no device 'nope' in {default}; known: io1, io2, io3, io4, io5, io6, harness, "
+     "safety1"),
+])
+def test_golden_refuses_a_device_it_would_not_use(args: list[str], error: str) -> None:
+    from enip_farm.config import default_config_path
+
+    result = CliRunner().invoke(main, ["golden", str(SEED), *args])
+    assert (result.exit_code, result.output.splitlines()[-1]) == (2, error.format(default=default_config_path()))
 
 
 @pytest.mark.integration

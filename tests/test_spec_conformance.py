@@ -58,14 +58,40 @@ def test_message_router_attribute_2_is_the_maximum_number_of_connections() -> No
     assert len(data) == 2 + 2 * count + 4 and count == 6  # object list: 1, 2, 4, 6, 0xF5, 0xF6
 
 
-def test_tcpip_claims_no_dhcp_and_configuration_control_stays_static() -> None:
+def _set_control(device: object, data: bytes) -> int:
+    reply = ask(device, encode_request(0x10, encode_request_path(0xF5, 1, 3), data))  # type: ignore[arg-type]
+    assert reply.data == b""
+    return reply.general_status
+
+
+def _control(device: object) -> bytes:
+    return ask(device, encode_request(0x0E, encode_request_path(0xF5, 1, 3))).data  # type: ignore[arg-type]
+
+
+def test_tcpip_configuration_control_takes_what_the_capabilities_offer() -> None:
+    """Vol. 2, 5-4: attribute 3 is settable (Get/Set); attribute 2 says which methods the device
+    offers. With no BOOTP, DNS or DHCP client (capability 0) only static (0) is taken: 0x09 for the
+    others and for reserved methods and bits; the wrong size is 0x13 / 0x15."""
     device = make_device()
     capability = ask(device, encode_request(0x0E, encode_request_path(0xF5, 1, 2)))
-    assert capability.data == bytes(4)  # no BOOTP, no DHCP client, configuration not settable
-    for control in (0, 2):  # static, DHCP: not settable since bit 4 of attribute 2 is clear
-        reply = ask(device, encode_request(0x10, encode_request_path(0xF5, 1, 3), struct.pack("<I", control)))
-        assert reply.general_status == 0x0E
-    assert ask(device, encode_request(0x0E, encode_request_path(0xF5, 1, 3))).data == bytes(4)
+    assert capability.data == bytes(4)  # no BOOTP, no DNS, no DHCP client, configuration not settable
+    assert _set_control(device, bytes(4)) == 0x00
+    for control in (1, 2, 3, 0x0F, 0x10, 0x12, 0x20, 0x8000_0000):  # BOOTP, DHCP, reserved, DNS, reserved bits
+        assert _set_control(device, struct.pack("<I", control)) == 0x09, control
+    assert _set_control(device, bytes(3)) == 0x13 and _set_control(device, bytes(5)) == 0x15
+    assert _control(device) == bytes(4)
+
+
+def test_tcpip_configuration_control_with_dhcp_and_dns_offered() -> None:
+    device = make_device()
+    tcpip = device._tcpip
+    tcpip.capability = 0x04 | 0x02  # a DHCP and a DNS client
+    assert _set_control(device, struct.pack("<I", 0x12)) == 0x00  # DHCP, DNS enabled
+    assert _control(device) == b"\x12\x00\x00\x00"
+    assert _set_control(device, struct.pack("<I", 1)) == 0x09  # BOOTP: not offered
+    assert _control(device) == b"\x12\x00\x00\x00"
+    tcpip.restore_defaults()  # Identity Reset type 1: out of the box, static
+    assert _control(device) == bytes(4)
 
 
 _CLASSES = (0x01, 0x02, 0x04, 0x06, 0xF5, 0xF6, 0x39, 0x3A)

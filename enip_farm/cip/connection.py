@@ -12,6 +12,7 @@ from dataclasses import dataclass, field
 from enum import Enum
 
 from enip_farm.cip.budget import Reservation
+from enip_farm.cip.o_t_measure import OriginatorMeasure
 from enip_farm.protocol.connection import ConnectionTriad
 from enip_farm.protocol.safety.multicast import MulticastConsumer, MulticastProducer
 from enip_farm.protocol.safety.segment import Unid
@@ -65,6 +66,7 @@ class Connection:
     ounid: Unid | None = None  # CIP Safety: the originator's UNID
     t_o_sequence: int = 0  # CIP Safety server: the sequence of its time coordination messages
     reservation: Reservation | None = None  # what it holds of the I/O thread's budget (cip/budget.py)
+    measure: OriginatorMeasure | None = None  # the originator's O->T stream measured (cip/o_t_measure.py)
     #: Connection timeout: O->T RPI x 2^(2 + multiplier) (Vol. 1, 3-4.4.9), ns; both are fixed at the Forward Open.
     timeout_ns: int = field(init=False)
     #: When the connection times out unless a valid packet arrives before: the first watchdog (from the

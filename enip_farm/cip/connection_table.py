@@ -25,7 +25,7 @@ called back.
 from __future__ import annotations
 
 import random
-from collections import Counter
+from collections import Counter, deque
 from collections.abc import Callable, Mapping
 from typing import NamedTuple
 
@@ -47,6 +47,9 @@ from enip_farm.cip.connection_path import KeyIdentity
 from enip_farm.cip.connection_policy import ConnectionPolicy, Refusal, SafetyOpen
 from enip_farm.cip.io_packets import DROP_REASONS, Datagram, IoPackets
 from enip_farm.cip.io_schedule import IoSchedule
+from enip_farm.cip.o_t_measure import OriginatorMeasure, end_word, forward_open_asked
+from enip_farm.cip.reconnection import Reconnections
+from enip_farm.cip.report import ReconnectAfter
 from enip_farm.protocol.commands import SocketAddress, encode_sockaddr
 from enip_farm.protocol.connection import ConnectionTriad, ForwardOpenRequest
 from enip_farm.protocol.cpf import ItemType
@@ -79,6 +82,8 @@ class Opened(NamedTuple):
 
 
 _RUN_HEADER = b"\x01\x00\x00\x00"  # a T->O 32-bit run/idle header: run
+#: Ended connections whose measurement the table keeps (the report shows them after the open ones).
+ENDED_KEPT = 16
 
 
 class ConnectionTable:
@@ -112,6 +117,10 @@ class ConnectionTable:
         self.produce = self.schedule.produce
         self.get_timer = self.schedule.get_timer  # the earliest time something is due
         self.supervision_due = self.schedule.supervision_due  # whether `handle_timer(now)` would close one
+        #: Measure every I/O connection's O->T stream (cip/o_t_measure.py); the last ENDED_KEPT ended ones stay.
+        self.measuring = True
+        self.ended: deque[Connection] = deque(maxlen=ENDED_KEPT)
+        self.reconnections = Reconnections()
 
     # -- what the table says -------------------------------------------------------------------
 
@@ -163,11 +172,18 @@ class ConnectionTable:
             return connection
         if type(connection) is SafetyOpen:
             refusal = self._reserve(connection.connection, request, originator, now)
+            if refusal is None and self.measuring:
+                connection.connection.measure = OriginatorMeasure(
+                    connection.connection.o_t_rpi * 1000, now,
+                    forward_open_asked(request, connection.connection.timeout_ns))
             return refusal if refusal is not None else self._safety_opened(connection, now)
         if connection.is_io:
             refusal = self._reserve(connection, request, originator, now)
             if refusal is not None:
                 return refusal
+            if self.measuring:
+                connection.measure = OriginatorMeasure(connection.o_t_rpi * 1000, now,
+                                                       forward_open_asked(request, connection.timeout_ns))
         self._opened(connection, now)
         if not connection.is_io:
             return Opened(connection, ())
@@ -180,6 +196,7 @@ class ConnectionTable:
         self.schedule.add(connection, now, point=connection.t_o_point if self.policy.declared else None,
                           header=_RUN_HEADER if connection.t_o_run_idle_header else b"",
                           heartbeat=connection.t_o_heartbeat)
+        self.reconnections.opened(originator.host, now, connection.measure)
         return Opened(connection, _multicast_items(connection))
 
     def _opened(self, connection: Connection, now: int) -> None:
@@ -227,6 +244,10 @@ class ConnectionTable:
                 f"originator serial 0x{triad.originator_serial:08X})")))
         return connection
 
+    def device_back(self, after: ReconnectAfter, now: int) -> None:
+        """The device answers again (a fault cleared, a reset done): its originators are expected back."""
+        self.reconnections.device_back(after, now, {c.originator_host for c in self.connections.values() if c.is_io})
+
     def session_closed(self, session: object, now: int) -> None:
         """The TCP connection of a session ended: its class-3 connections end with it."""
         for connection in [c for c in self.connections.values() if c.owner is session]:
@@ -253,6 +274,9 @@ class ConnectionTable:
             if self.policy.outputs_off_on_idle if ended is ConnectionClosed else self.policy.outputs_off_on_fault:
                 output.data[:] = bytes(len(output.data))
         self._events.append(ended(now, connection, reason))
+        if connection.measure is not None:
+            connection.measure.end(now, end_word(ended.kind, reason), reason)
+            self.ended.append(connection)
         if connection.kind is ConnectionKind.SAFETY_OUTPUT:  # whatever ends it: the safe state
             output = self.assemblies["output"]
             output.owned = False
@@ -282,6 +306,7 @@ class ConnectionTable:
                 reason = f"safety timeout: no time coordination for {(safety.timeout_pi + 2)} ping intervals"
             else:
                 reason = f"no packet for {connection.timeout_ns / 1e6:g} ms"
+            self.reconnections.timed_out(connection.originator_host, now)
             self.close(connection, reason, now, ConnectionTimedOut)
 
     # -- class-3 consumption -----------------------------------------------------------------------

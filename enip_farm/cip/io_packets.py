@@ -68,13 +68,16 @@ class IoPackets:
 
     # -- O->T ----------------------------------------------------------------------------------
 
-    def receive(self, data: bytes, host: str, now: int, port: int | None = None) -> bool:
+    def receive(self, data: bytes, host: str, now: int, port: int | None = None,
+                received_at: int | None = None) -> bool:
         """An O->T datagram on UDP 2222 (Vol. 2, 3-2) from `host`:`port`: True if it was a valid
         packet of one of the table's connections. O->T is taken only from the originator's address
         and, once a first valid packet came, only from that packet's port (a forger on another port
         of the same host cannot advance the sequence). Every other datagram is counted by why it
         was not taken. A CIP Safety packet is valid when its Safety Validator accepts it: a forged
-        one cannot pin another port or push the sequence past the real packets'."""
+        one cannot pin another port or push the sequence past the real packets'. `received_at`:
+        the kernel's receive time (default `now`), which the connection's measurement
+        (cip/o_t_measure.py) takes: repeats and stale ones included."""
         fields = unpack_io_header(data)
         if fields is None:
             return self._drop("malformed")
@@ -86,6 +89,9 @@ class IoPackets:
             return self._drop("wrong_originator")
         if port is not None and connection.o_t_port is not None and port != connection.o_t_port:
             return self._drop("wrong_port")
+        measure = connection.measure  # every datagram of the originator's stream, stale ones too
+        if measure is not None:
+            measure.o_t(now if received_at is None else received_at, sequence, sequence_count)
         last = connection.last_sequence
         if last is not None and not 0 < (sequence - last) & 0xFFFFFFFF < _HALF:
             return self._drop("stale")  # a duplicate or older than what was consumed (Vol. 2, 3-2.1)
@@ -125,6 +131,8 @@ class IoPackets:
         if safety is not None:
             self._consume_safety(connection, result, now)
             return True
+        if run is not connection.run and measure is not None:
+            measure.run_idle(run, now if received_at is None else received_at)
         connection.run = run
         self.counters["o_t_packets"] += 1
         if image is None:

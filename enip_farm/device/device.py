@@ -21,6 +21,7 @@ from enip_farm.cip.ethernet_link import InterfaceCounters
 from enip_farm.cip.identity import STATE_OPERATIONAL, STATE_SELF_TESTING
 from enip_farm.cip.object import ReplyItems
 from enip_farm.device.cyclic import CyclicIo, SendDatagram
+from enip_farm.device.events import Event
 from enip_farm.device.faults import DeviceFaults
 from enip_farm.device.guard import DeviceGuard, Observer, describe, replace_image
 from enip_farm.device.latency import LatencyHistogram
@@ -71,6 +72,13 @@ class Device:
         #: 44818) count into `traffic`, the cyclic I/O thread's (UDP 2222) into `io_traffic`.
         self.traffic: InterfaceCounters = self.link.new_counters()
         self.io_traffic: InterfaceCounters = self.link.new_counters()
+        guard.observe(self._came_back)
+
+    def _came_back(self, event: Event) -> None:
+        """A fault cleared or a reset done: the table expects its originators back (the report's reconnections)."""
+        if event.kind in ("fault cleared", "reset done"):
+            with self.lock:
+                self.table.device_back(event.kind, event.monotonic_ns)  # type: ignore[arg-type]
 
     @property
     def name(self) -> str:
@@ -208,9 +216,11 @@ class Device:
 
     # -- class-1 I/O (device/cyclic.py, the cyclic I/O thread) -------------------------------------
 
-    def receive_io(self, data: bytes, source: tuple[str, int], now: int, send: SendDatagram) -> bool:
-        """An O->T datagram from `source` (host, port), received at `now`: True if a connection took it."""
-        return self.cyclic.receive_io(data, source, now, send)
+    def receive_io(self, data: bytes, source: tuple[str, int], now: int, send: SendDatagram,
+                   received_at: int | None = None) -> bool:
+        """An O->T datagram from `source` (host, port), taken at `now` (`received_at`: the kernel's
+        receive time, which the report measures by): True if a connection took it."""
+        return self.cyclic.receive_io(data, source, now, send, received_at)
 
     def service_io(self, now: int, send: SendDatagram, horizon: int | None = None) -> int | None:
         """Supervise the connections at `now` and send the T->O packets due by `now` (or `horizon`);

@@ -2,7 +2,8 @@
 from the devices' events (`Device.observe`, device/events.py), as `DEVICE ADDRESS: KIND: DETAIL`.
 
 - WARNING: connection timed out; connection refused (a Forward Open or Close, with the general and
-  extended status in hex and words); encapsulation refused (with the encapsulation status); fault
+  extended status in hex and words); encapsulation refused (with the encapsulation status);
+  encapsulation ignored (a request that carried a non-zero status, Vol. 2, 2-3.5); fault
   injected; CIP Safety: safety crc fault, safety timing fault, connection faulted, safe state.
 - INFO: tcp connected, closed, inactive; session registered, ended; connection opened (originator,
   RPI and sizes), closed, short data; request refused (its CIP status); fault cleared.
@@ -34,7 +35,8 @@ LOG_FORMAT = "%(asctime)s %(levelname)s %(message)s"
 
 _LEVELS: Mapping[str, int] = MappingProxyType({
     "connection timed out": logging.WARNING, "connection refused": logging.WARNING,
-    "encapsulation refused": logging.WARNING, "fault injected": logging.WARNING,
+    "encapsulation refused": logging.WARNING, "encapsulation ignored": logging.WARNING,
+    "fault injected": logging.WARNING,
     # CIP Safety (cip/connection_table.py): a faulted safety connection and its safe state
     "connection faulted": logging.WARNING, "safety crc fault": logging.WARNING,
     "safety timing fault": logging.WARNING, "safe state": logging.WARNING,

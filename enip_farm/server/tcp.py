@@ -131,7 +131,7 @@ class EncapsulationProtocol(asyncio.Protocol):
             transport.close()  # type: ignore[union-attr]
             return
         closing = session.closing  # type: ignore[union-attr]
-        if session.refusals:  # type: ignore[union-attr]
+        if session.refusals or session.ignored:  # type: ignore[union-attr]
             self._report_refusals()
         if replies:
             out = replies[0] if len(replies) == 1 else b"".join(replies)
@@ -163,13 +163,18 @@ class EncapsulationProtocol(asyncio.Protocol):
         self._set_reading(paused=backlog or self._write_paused)
 
     def _report_refusals(self) -> None:
-        """An event per request answered with an encapsulation error status."""
+        """An event per request answered with an encapsulation error status, and per request
+        ignored for the non-zero status it carried (Vol. 2, 2-3.5)."""
         session = self.session
         peer = self._peer_text()
         for command, status in session.refusals:  # type: ignore[union-attr]
             self.device.record("encapsulation refused", f"{command_name(command)} from {peer}: encapsulation status "
                                f"{describe_encapsulation_status(status)}")
         session.refusals.clear()  # type: ignore[union-attr]
+        for command, status in session.ignored:  # type: ignore[union-attr]
+            self.device.record("encapsulation ignored", f"{command_name(command)} from {peer} carried status "
+                               f"0x{status:08X}; a request's status must be 0 (Vol. 2, 2-3.5): no reply")
+        session.ignored.clear()  # type: ignore[union-attr]
 
     def _peer_text(self) -> str:
         return f"{self._peer[0]}:{self._peer[1]}" if self._peer else "?"
