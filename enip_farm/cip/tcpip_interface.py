@@ -108,6 +108,8 @@ class TcpIpSettings:
 class TcpIpInterfaceObject(CipClass):
     class_id = ClassCode.TCP_IP_INTERFACE
     revision = 4
+    #: Get Attributes All of the class: 1-7 (Vol. 2's layout, which Wireshark's ENIP dissector decodes)
+    class_get_all = (1, 2, 3, 4, 5, 6, 7)
 
     def __init__(self, *, address: str, netmask: str, gateway: str, host_name: str,
                  inactivity_timeout_s: int = 120, multicast_group: str = "0.0.0.0",
