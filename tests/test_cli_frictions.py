@@ -208,6 +208,23 @@ def test_the_cli_imports_only_click_until_a_command_runs() -> None:
     assert helped.returncode == 0 and "serve " in helped.stdout and "fault " in helped.stdout
 
 
+@pytest.mark.system
+def test_the_public_api_is_at_the_top_and_imported_on_first_use() -> None:
+    """`from enip_farm import Farm` (issue 30), without making `import enip_farm.protocol.cip` or
+    the CLI pay for the farm's imports."""
+    code = ("import sys; import enip_farm.protocol.cip; import enip_farm; heavy = {'pydantic', 'enip_farm.farm.farm'}; "
+            "print(sorted(heavy & set(sys.modules))); from enip_farm import Farm, BindError, ConfigError, DeviceHandle; "
+            "from enip_farm import EioImportWarning, FarmConfig, load_config, parse_config; "
+            "print(Farm.__module__, BindError.__name__, sorted(heavy & set(sys.modules)), set(enip_farm.__all__) <= set(dir(enip_farm)))")
+    loaded = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60, cwd=ROOT)
+    assert (loaded.returncode, loaded.stdout) == (
+        0, "[]\nenip_farm.farm.farm BindError ['enip_farm.farm.farm', 'pydantic'] True\n"), loaded.stderr
+    import enip_farm
+
+    with pytest.raises(AttributeError, match="module 'enip_farm' has no attribute 'Farms'"):
+        enip_farm.Farms  # noqa: B018
+
+
 def test_the_cli_run_in_process_leaves_the_modules_it_marked_missing_importable() -> None:
     """The CLI marks modules it never uses as missing while a command runs (a quick start); a test
     calling it in its own process gets them back when it returns."""
