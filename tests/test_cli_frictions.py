@@ -212,10 +212,12 @@ def test_the_cli_imports_only_click_until_a_command_runs() -> None:
 def test_the_public_api_is_at_the_top_and_imported_on_first_use() -> None:
     """`from enip_farm import Farm` (issue 30), without making `import enip_farm.protocol.cip` or
     the CLI pay for the farm's imports."""
-    code = ("import sys; import enip_farm.protocol.cip; import enip_farm; heavy = {'pydantic', 'enip_farm.farm.farm'}; "
-            "print(sorted(heavy & set(sys.modules))); from enip_farm import Farm, BindError, ConfigError, DeviceHandle; "
+    code = ("import sys; import enip_farm.protocol.cip; import enip_farm; "
+            "heavy = {'pydantic', 'enip_farm.farm.farm'}; print(sorted(heavy & set(sys.modules))); "
+            "from enip_farm import Farm, BindError, ConfigError, DeviceHandle; "
             "from enip_farm import EioImportWarning, FarmConfig, load_config, parse_config; "
-            "print(Farm.__module__, BindError.__name__, sorted(heavy & set(sys.modules)), set(enip_farm.__all__) <= set(dir(enip_farm)))")
+            "print(Farm.__module__, BindError.__name__, sorted(heavy & set(sys.modules)), "
+            "set(enip_farm.__all__) <= set(dir(enip_farm)))")
     loaded = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60, cwd=ROOT)
     assert (loaded.returncode, loaded.stdout) == (
         0, "[]\nenip_farm.farm.farm BindError ['enip_farm.farm.farm', 'pydantic'] True\n"), loaded.stderr
