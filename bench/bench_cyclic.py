@@ -35,6 +35,7 @@ Every loop is bounded in count and time; traffic goes to 127.0.0.0/8 only.
     python bench/bench_cyclic.py                   # the six rows, 60 s each (+ the same against C)
     python bench/bench_cyclic.py --quick           # the same rows, 3 s each
     python bench/bench_cyclic.py --rows 1600@10 --seconds 20    # past the farm's budget
+    python bench/bench_cyclic.py --measure-cost --no-responder --repeat 3   # what the report's measurement costs
 """
 
 from __future__ import annotations
@@ -185,11 +186,12 @@ def originator_socket() -> socket.socket:
     return udp
 
 
-def write_farm_config(path: Path, count: int, first: str, implicit: str = "") -> None:
+def write_farm_config(path: Path, count: int, first: str, implicit: str = "", measure: bool = True) -> None:
     """N DSQC1030; the watchdog before the first O->T is 60 s (the default 10 s could pass while
-    Python opens 1600 connections on a busy machine, and it is not what this measures)."""
+    Python opens 1600 connections on a busy machine, and it is not what this measures). `measure`:
+    the report's measurement of every O->T stream (`cyclic_io: {measure: false}` turns it off)."""
     with path.open("w") as config:
-        config.write("discovery: false\ndevices:\n")
+        config.write(f"discovery: false\ncyclic_io: {{measure: {'true' if measure else 'false'}}}\ndevices:\n")
         for i in range(count):
             config.write(f"  - {{name: c{i}, address: {address(i, first)}, model: DSQC1030, "
                          f"implicit: {{first_watchdog_s: 60{', ' + implicit if implicit else ''}}}}}\n")
@@ -366,9 +368,10 @@ def drive(binary: Path, connections: list[Connection], rpi_us: int, udp: socket.
     return figures
 
 
-def run_farm(count: int, rpi_us: int, args: argparse.Namespace, originator: Path, work: Path) -> dict:
+def run_farm(count: int, rpi_us: int, args: argparse.Namespace, originator: Path, work: Path,
+             measure: bool = True) -> dict:
     config = work / "cell.yaml"
-    write_farm_config(config, count, args.first_address, args.implicit)
+    write_farm_config(config, count, args.first_address, args.implicit, measure)
     farm = start_farm(config, args.workers, args.farm_cpus, work / "farm.log")
     try:
         pids = descendants(farm.pid)
@@ -475,6 +478,10 @@ COLUMNS = [
     ("pairs/CPU-s farm / C", lambda r: f"{r['farm']['pairs_per_cpu_s']:,.0f} / " +
      ("-" if not r.get("c") else f"{r['c']['pairs_per_cpu_s']:,.0f}")),
     ("ratio", lambda r: "-" if not r.get("c") else f"{r['farm']['pairs_per_cpu_s'] / r['c']['pairs_per_cpu_s']:.3f}"),
+    # --measure-cost: the farm again without the report's measurement; CPU per pair with it / without it - 1
+    ("pairs/CPU-s unmeasured, measuring costs", lambda r: "-" if not r.get("unmeasured") else
+     f"{r['unmeasured']['pairs_per_cpu_s']:,.0f}, "
+     f"{(r['unmeasured']['pairs_per_cpu_s'] / r['farm']['pairs_per_cpu_s'] - 1) * 100:+.1f} %"),
 ]
 
 
@@ -504,6 +511,9 @@ def main() -> None:
                         help="the originator's threads run SCHED_FIFO at this priority (root; 0: not), so that "
                              "the machine's other load does not make it late (10)")
     parser.add_argument("--no-responder", action="store_true", help="leave out the C responder's runs")
+    parser.add_argument("--measure-cost", action="store_true",
+                        help="also run the farm with the report's measurement off (cyclic_io: {measure: false}), "
+                             "interleaved: the CPU it costs per pair")
     parser.add_argument("--first-address", default=FIRST_ADDRESS,
                         help="the first device's address (127.0.0.0/8); 250 per /24 from there")
     parser.add_argument("--json", type=Path, default=None, help="also write every figure here")
@@ -536,6 +546,11 @@ def main() -> None:
                       f"{farm['t_o_received_window']}/{farm['t_o_expected_window']}, p99 {farm['err_p99_ms']:.2f} ms, "
                       f"{farm['timeouts']} timed out, {farm['sends_late']} late sends, "
                       f"CPU {farm['peer_cpu_percent']:.0f}%", file=sys.stderr, flush=True)
+                if args.measure_cost:
+                    u = run["unmeasured"] = run_farm(count, rpi_us, args, originator, work, measure=False)
+                    print(f"  farm, not measuring: {u['admitted']} admitted, CPU {u['peer_cpu_percent']:.0f}%, "
+                          f"{u['pairs_per_cpu_s']:,.0f} pairs/CPU-s (measuring: {farm['pairs_per_cpu_s']:,.0f})",
+                          file=sys.stderr, flush=True)
                 if not args.no_responder:
                     c = run["c"] = run_responder(farm["admitted"], rpi_us, args, originator, responder, work)
                     print(f"  C responder: T->O {c['t_o_received_window']}/{c['t_o_expected_window']}, p99 "
@@ -554,7 +569,7 @@ def main() -> None:
         args.json.parent.mkdir(parents=True, exist_ok=True)
         for result in results:
             for figures in [result, *result.get("runs", [])]:
-                for side in ("farm", "c"):
+                for side in ("farm", "c", "unmeasured"):
                     if side in figures and not args.per_connection:
                         figures[side].pop("per_connection", None)
         args.json.write_text(json.dumps({"args": {k: str(v) for k, v in vars(args).items()}, "rows": results},

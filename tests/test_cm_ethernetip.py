@@ -7,7 +7,6 @@ version 0.1.0 needs (none in the farm)."""
 
 from __future__ import annotations
 
-import os
 import subprocess
 from collections.abc import Callable, Iterator
 from pathlib import Path
@@ -33,9 +32,7 @@ def cm_python(tmp_path_factory: pytest.TempPathFactory) -> Path:
         return make_venv(tmp_path_factory.mktemp("cm-ethernetip-venv"))
     except (subprocess.CalledProcessError, subprocess.TimeoutExpired) as error:
         message = f"cannot install cm-ethernetip from PyPI: {getattr(error, 'stderr', '') or error}"
-        if os.environ.get("CI"):
-            pytest.fail(message)
-        pytest.skip(message)
+        pytest.skip(message)  # fails on CI (tests/conftest.py)
 
 
 @pytest.fixture

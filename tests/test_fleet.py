@@ -149,7 +149,9 @@ def test_one_http_port_drives_the_devices_of_every_worker(free_address: AddressP
             metrics = client.get("/metrics").text
             assert metrics.count("# HELP enip_farm_tcp_connections_total") == 1
             assert [f.name for f in text_string_to_metric_families(metrics)].count("enip_farm_tcp_connections") == 1
-            assert metric_samples(metrics, "enip_farm_tcp_connections_total") == {(("device", n),): 0.0 for n in names}
+            assert metric_samples(metrics, "enip_farm_tcp_connections_total") == {
+                (("device", n), ("worker", str(owners[n] + 1))): 0.0 for n in names}  # each sample says its worker
+            assert metric_samples(metrics, "enip_farm_worker_up") == {(("worker", str(i)),): 1.0 for i in (1, 2, 3)}
             with ApiClient(api, "s3cret") as reader, reader.events({"kind": "fault injected"}, STARTUP_S) as events:
                 for name in ("io1", "io6"):
                     injected = client.post(f"/devices/{name}/faults", json={"kind": "delay", "delay_ms": 1})

@@ -82,7 +82,11 @@ class Verdict:
 
     @property
     def line(self) -> str:
-        return f"{self.figure} {self.value} {self.unit} > bound {self.bound} ({self.source})"
+        return f"{self.figure} {_number(self.value)} {self.unit} > bound {_number(self.bound)} ({self.source})"
+
+
+def _number(value: float | int | None) -> str:
+    return f"{value:.6g}" if isinstance(value, float) else str(value)
 
 
 @dataclass(frozen=True, slots=True)
@@ -348,20 +352,19 @@ class FarmReport:
 
     @property
     def failures(self) -> list[str]:
-        """One line per broken bound: what, where, the figure and the bound."""
+        """One line per broken bound: where, the figure and the bound."""
+        return [f"{where}: {verdict.line}" for where, verdict in self.failed()]
+
+    def failed(self) -> list[tuple[str, Verdict]]:
+        """Every broken bound with where it was broken ("io1 O->T 0x... from 127.0.0.1", "reaction ...")."""
         out = []
         for device in self.devices:
-            for verdict in device.verdicts:
-                if verdict.verdict == FAIL:
-                    out.append(f"{device.device}: {verdict.line}")
+            out += [(device.device, v) for v in device.verdicts if v.verdict == FAIL]
             for c in device.connections:
-                for verdict in c.verdicts:
-                    if verdict.verdict == FAIL:
-                        out.append(f"{device.device} O->T 0x{c.o_t_id:08X} from {c.originator}: {verdict.line}")
+                where = f"{device.device} O->T 0x{c.o_t_id:08X} from {c.originator}"
+                out += [(where, v) for v in c.verdicts if v.verdict == FAIL]
         for reaction in self.reactions:
-            for verdict in reaction.verdicts:
-                if verdict.verdict == FAIL:
-                    out.append(f"reaction {reaction.name}: {verdict.line}")
+            out += [(f"reaction {reaction.name}", v) for v in reaction.verdicts if v.verdict == FAIL]
         return out
 
     def device(self, name: str) -> DeviceReport:

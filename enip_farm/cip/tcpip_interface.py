@@ -3,7 +3,8 @@ attributes 1-13 from the device's own address and configuration.
 
 | # | attribute | here |
 |---|---|---|
-| 1-3 | status, capability, control | valid configuration; 0: no BOOTP/DHCP, not settable; static; read-only |
+| 1-2 | status, capability | valid configuration; 0: no BOOTP, DNS or DHCP client, configuration not settable |
+| 3 | configuration control (DWORD) | settable to what attribute 2 offers: static (0) here; else 0x09 |
 | 4 | physical link object | path to Ethernet Link instance 1 |
 | 5 | interface configuration | address, mask, gateway of the device; no name servers or domain; read-only |
 | 6 | host name (STRING) | settable: up to 64 letters, digits and inner hyphens (RFC 1123 label) |
@@ -35,12 +36,14 @@ from enip_farm.protocol.status import GeneralStatus
 
 #: Attribute 1: interface configuration status 1 = "valid configuration obtained".
 _STATUS_VALID = 1
-#: Attribute 2: configuration capability (Vol. 2, 5-4): no bit set. Bits 0 BOOTP client and 2
-#: DHCP client stay clear because no BOOTP or DHCP runs, bit 4 configuration settable because the
-#: address is the device's configured one (attribute 3 is then read-only, as the spec ties it to bit 4).
+#: Attribute 2: configuration capability (Vol. 2, 5-4): no bit set. Bits 0 BOOTP client, 1 DNS
+#: client and 2 DHCP client stay clear because none runs, bit 4 configuration settable because the
+#: address (attribute 5) is the device's configured one.
 _CAPABILITY = 0x00
-#: Attribute 3: configuration control 0 = static configuration.
-_CONTROL_STATIC = 0
+CAPABILITY_BOOTP, CAPABILITY_DNS, CAPABILITY_DHCP = 0x01, 0x02, 0x04
+#: Attribute 3: configuration control, bits 0-3 the method (0 static, 1 BOOTP, 2 DHCP, 3-15
+#: reserved), bit 4 DNS enable, bits 5-31 reserved. Out of the box: static.
+CONTROL_STATIC, CONTROL_BOOTP, CONTROL_DHCP, CONTROL_METHOD_MASK, CONTROL_DNS_ENABLE = 0, 1, 2, 0x0F, 0x10
 #: Attribute 13: the largest encapsulation inactivity timeout, seconds.
 MAX_INACTIVITY_TIMEOUT_S = 3600
 #: Attribute 6: the longest host name (RFC 1123), and what a name may be made of.
@@ -85,9 +88,10 @@ INTERFACE_CONFIGURATION = Encoded("STRUCT of UDINT[5], STRING", _configuration_s
 class TcpIpSettings:
     """The settable attributes, as configured (out of box) or as clients set them."""
 
-    __slots__ = ("host_name", "ttl", "select_acd", "quick_connect", "inactivity_timeout_s")
+    __slots__ = ("configuration_control", "host_name", "ttl", "select_acd", "quick_connect", "inactivity_timeout_s")
 
     def __init__(self, host_name: str, inactivity_timeout_s: int) -> None:
+        self.configuration_control = CONTROL_STATIC
         self.host_name = host_name
         self.ttl = 1
         self.select_acd = 0
@@ -97,17 +101,21 @@ class TcpIpSettings:
     def copy(self) -> TcpIpSettings:
         settings = TcpIpSettings(self.host_name, self.inactivity_timeout_s)
         settings.ttl, settings.select_acd, settings.quick_connect = self.ttl, self.select_acd, self.quick_connect
+        settings.configuration_control = self.configuration_control
         return settings
 
 
 class TcpIpInterfaceObject(CipClass):
     class_id = ClassCode.TCP_IP_INTERFACE
     revision = 4
+    #: Get Attributes All of the class: 1-7 (Vol. 2's layout, which Wireshark's ENIP dissector decodes)
+    class_get_all = (1, 2, 3, 4, 5, 6, 7)
 
     def __init__(self, *, address: str, netmask: str, gateway: str, host_name: str,
                  inactivity_timeout_s: int = 120, multicast_group: str = "0.0.0.0",
                  multicast_configured: bool = False, safety_network_number: bytes | None = None) -> None:
         super().__init__()
+        self.capability = _CAPABILITY
         self._out_of_box = TcpIpSettings(host_name, inactivity_timeout_s)
         self.settings = self._out_of_box.copy()
         interface_configuration = (
@@ -122,8 +130,8 @@ class TcpIpInterfaceObject(CipClass):
         self.safety_network_number: Callable[[], bytes] = lambda: safety_network_number or _NO_SAFETY_NETWORK_NUMBER
         self.instances[1] = CipInstance((
             Attribute(1, DWORD, value=_STATUS_VALID),
-            Attribute(2, DWORD, value=_CAPABILITY),
-            Attribute(3, DWORD, value=_CONTROL_STATIC),
+            Attribute(2, DWORD, lambda: self.capability),
+            Attribute(3, DWORD, lambda: self.settings.configuration_control, self._set_configuration_control),
             # physical link object: path size 2 words, path 20 F6 24 01 (Ethernet Link 1)
             Attribute(4, PHYSICAL_LINK, value=UINT.encode(2) + encode_request_path(ClassCode.ETHERNET_LINK, 1)),
             Attribute(5, INTERFACE_CONFIGURATION, value=interface_configuration),
@@ -149,6 +157,20 @@ class TcpIpInterfaceObject(CipClass):
         self.settings = self._out_of_box.copy()
 
     # -- setters: encoded data in, a general status out ------------------------------------------
+
+    def _set_configuration_control(self, value: int) -> int:
+        """Attribute 3: a method, and DNS enable, that attribute 2 offers (static always is); a
+        reserved method or bit, or one the capabilities do not offer, is 0x09."""
+        offered = {CONTROL_STATIC}
+        if self.capability & CAPABILITY_BOOTP:
+            offered.add(CONTROL_BOOTP)
+        if self.capability & CAPABILITY_DHCP:
+            offered.add(CONTROL_DHCP)
+        if (value & ~(CONTROL_METHOD_MASK | CONTROL_DNS_ENABLE) or value & CONTROL_METHOD_MASK not in offered
+                or value & CONTROL_DNS_ENABLE and not self.capability & CAPABILITY_DNS):
+            return GeneralStatus.INVALID_ATTRIBUTE_VALUE
+        self.settings.configuration_control = value
+        return GeneralStatus.SUCCESS
 
     def _set_inactivity_timeout(self, value: int) -> int:
         if value > MAX_INACTIVITY_TIMEOUT_S:

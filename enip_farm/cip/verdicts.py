@@ -20,7 +20,8 @@ from enip_farm.cip.report import (
 
 def verdict(figure: str, value: float | int | None, bound: float | int, unit: str, needs: int, have: int,
             source: str) -> Verdict:
-    """`value` <= `bound` passes; fewer than `needs` samples, or no value, is too short to judge."""
+    """`value` <= `bound` passes (exactly: figures are not rounded before they are judged); fewer than
+    `needs` samples, or no value, is too short to judge."""
     if have < needs or value is None:
         return Verdict(figure, TOO_SHORT, value, bound, unit, needs, have, source)  # type: ignore[arg-type]
     return Verdict(figure, PASS if value <= bound else FAIL, value, bound, unit, needs, have, source)  # type: ignore[arg-type]
@@ -40,9 +41,9 @@ def judge_connection(figures: ConnectionFigures, bounds: ResolvedBounds) -> Conn
             out.append(verdict(figure, value, bound * scale if scale != 1.0 else bound, unit, need, got,
                                bounds.source(name)))
 
-    add("interval_p99_api", "interval p99", None if i.p99_ns is None else round(i.p99_ns / api, 4), "API",
+    add("interval_p99_api", "interval p99", None if i.p99_ns is None else i.p99_ns / api, "API",
         max(P99_NEEDS, needs), have)
-    add("interval_max_api", "interval max", None if i.max_ns is None else round(i.max_ns / api, 4), "API", needs, have)
+    add("interval_max_api", "interval max", None if i.max_ns is None else i.max_ns / api, "API", needs, have)
     add("late_intervals", "intervals of 2 API or more", i.late, "intervals", needs, have)
     s = figures.sequence
     add("lost", "sequence numbers lost", s.lost, "packets", needs, have)
@@ -50,7 +51,7 @@ def judge_connection(figures: ConnectionFigures, bounds: ResolvedBounds) -> Conn
     add("stale", "stale sequence numbers", s.stale, "packets", needs, have)
     fo = figures.forward_open
     if fo is not None and fo.timeout_ns:
-        add("silence_timeout", "longest silence", round(i.longest_silence_ns / fo.timeout_ns, 4), "timeouts", 0, have)
+        add("silence_timeout", "longest silence", i.longest_silence_ns / fo.timeout_ns, "timeouts", 0, have)
         for direction, asked in (("o_t", fo.o_t_rpi_us), ("t_o", fo.t_o_rpi_us)):
             expected = getattr(fo, f"expected_{direction}_rpi_us")
             if expected is not None and bounds["rpi_deviation_us"] is not None:
@@ -68,7 +69,7 @@ def judge_reconnection(reconnection: Reconnection, bounds: ResolvedBounds) -> li
                                 ("reconnect_first_o_t_s", "reconnection: first O->T", reconnection.first_o_t_after_ns)):
         bound = bounds[name]
         if bound is not None:
-            value = None if after is None else round(after / 1e9, 6)
+            value = None if after is None else after / 1e9
             out.append(verdict(f"{figure} after {reconnection.after} ({reconnection.originator})", value, bound, "s",
                                1, 0 if after is None else 1, bounds.source(name)))
     return out
@@ -79,10 +80,10 @@ def judge_reaction(reaction: ReactionFigures, bounds: ResolvedBounds) -> Reactio
     n = reaction.count
     if bounds["reaction_p99_ms"] is not None:
         p99 = reaction.percentile(0.99)
-        out.append(verdict("reaction p99", None if p99 is None else round(p99 / 1e6, 6), bounds["reaction_p99_ms"],
+        out.append(verdict("reaction p99", None if p99 is None else p99 / 1e6, bounds["reaction_p99_ms"],
                            "ms", 1, n, bounds.source("reaction_p99_ms")))
     if bounds["reaction_max_ms"] is not None:
-        out.append(verdict("reaction max", round(max(reaction.samples_ns) / 1e6, 6) if n else None,
+        out.append(verdict("reaction max", max(reaction.samples_ns) / 1e6 if n else None,
                            bounds["reaction_max_ms"], "ms", 1, n, bounds.source("reaction_max_ms")))
     if bounds["reaction_timeouts"] is not None:
         out.append(verdict("reactions timed out", reaction.timeouts, bounds["reaction_timeouts"], "repetitions", 1,

@@ -12,6 +12,7 @@ from collections.abc import Callable
 
 from enip_farm.device.faults import DeviceFaults
 from enip_farm.device.guard import DeviceGuard
+from enip_farm.device.reaction import ReactionProbe
 from enip_farm.device.reset import ResetWindow
 
 #: Sends one datagram (the server's socket): data, destination.
@@ -27,8 +28,13 @@ class CyclicIo:
         self.faults = faults
         self.window = window
         self.counters = counters
+        #: Reaction probes (device/reaction.py) whose stimulus is an input of this device, and those
+        #: whose expected output is one of its outputs; replaced whole (copy on write), never edited.
+        self.stimuli: tuple[ReactionProbe, ...] = ()
+        self.expectations: tuple[ReactionProbe, ...] = ()
 
-    def receive_io(self, data: bytes, source: tuple[str, int], now: int, send: SendDatagram) -> bool:
+    def receive_io(self, data: bytes, source: tuple[str, int], now: int, send: SendDatagram,
+                   received_at: int | None = None) -> bool:
         """An O->T datagram from `source` (host, port), received at `now`: True if a connection took it.
         What must answer it at once (CIP Safety time coordination) goes out through `send`, after the lock."""
         if self.faults.io_stopped:
@@ -40,7 +46,7 @@ class CyclicIo:
         guard, table, output = self.guard, self.table, self.guard.output
         with guard.lock:  # O->T changes the outputs only: the inputs need no snapshot
             old = bytes(output.data) if output is not None else b""
-            taken = table.receive_datagram(data, source[0], now, source[1])
+            taken = table.receive_datagram(data, source[0], now, source[1], received_at)
             # the one way out: the answers queued, and whatever T->O is due by now goes with them
             replies = table.datagrams_to_send(now) if table.answers_queued else ()
             connections = table.pop_events() if table.has_events else ()
@@ -48,6 +54,9 @@ class CyclicIo:
             new = bytes(output.data) if changed else old
         for packet, address in replies:
             send(packet, address)
+        if changed and self.expectations:
+            for probe in self.expectations:
+                probe.consumed(new, now if received_at is None else received_at)
         if connections or changed:
             guard.publish((old, b""), (new, b""), now, (), connections)
         return taken
@@ -67,12 +76,17 @@ class CyclicIo:
                         if measure is not None and measure.ended_at == now and measure.ended == "timeout":
                             measure.ended = "device fault"
             due, timer = table.produce(now, horizon)
+            # the inputs the T->O of this turn carried, read in the same hold of the lock
+            carried = bytes(table.assemblies["input"].data) if due and self.stimuli else None
             if expiring:
                 connections = table.pop_events()
                 after = guard.snapshot()
         if due and not self.faults.io_stopped:
             for packet, address in due:
                 send(packet, address)
+            if carried is not None:
+                for probe in self.stimuli:
+                    probe.produced(carried, now)
         if expiring and connections:
             guard.publish(before, after, now, (), connections)
         return timer

@@ -216,9 +216,11 @@ class Device:
 
     # -- class-1 I/O (device/cyclic.py, the cyclic I/O thread) -------------------------------------
 
-    def receive_io(self, data: bytes, source: tuple[str, int], now: int, send: SendDatagram) -> bool:
-        """An O->T datagram from `source` (host, port), received at `now`: True if a connection took it."""
-        return self.cyclic.receive_io(data, source, now, send)
+    def receive_io(self, data: bytes, source: tuple[str, int], now: int, send: SendDatagram,
+                   received_at: int | None = None) -> bool:
+        """An O->T datagram from `source` (host, port), taken at `now` (`received_at`: the kernel's
+        receive time, which the report measures by): True if a connection took it."""
+        return self.cyclic.receive_io(data, source, now, send, received_at)
 
     def service_io(self, now: int, send: SendDatagram, horizon: int | None = None) -> int | None:
         """Supervise the connections at `now` and send the T->O packets due by `now` (or `horizon`);

@@ -19,11 +19,13 @@ TestBounds = BoundsConfig | Mapping[str, Any] | None
 __all__ = ["FarmReport", "TestBounds", "device_bounds", "device_report", "farm_report"]
 
 
-def device_bounds(config: FarmConfig, name: str, test: TestBounds = None) -> ResolvedBounds:
-    """The bounds in force for device `name`: the defaults, the cell's, the device's entry's, the test's."""
+def device_bounds(config: FarmConfig, name: str, *tests: TestBounds) -> ResolvedBounds:
+    """The bounds in force for device `name`: the defaults, the cell's, the device's entry's, then
+    each of the test's (a reaction's own, then the report's)."""
     entry = next((d for d in config.devices if d.name == name), None)
     return resolve(("cell configuration", config.bounds),
-                   (f"device configuration ({name})", entry.bounds if entry is not None else None), ("test", test))
+                   (f"device configuration ({name})", entry.bounds if entry is not None else None),
+                   *(("test", test) for test in tests))
 
 
 def connection_figures(device: Device, connection: Connection, now: int) -> ConnectionFigures:
@@ -49,9 +51,10 @@ def device_report(device: Device, now: int, bounds: ResolvedBounds) -> DeviceRep
     return DeviceReport(device.name, tuple(judged), tuple(reconnections), verdicts)
 
 
-def farm_report(config: FarmConfig, devices: Iterable[Device], now: int, reactions: Iterable[ReactionFigures] = (),
-                test: TestBounds = None) -> FarmReport:
-    """The cell's report at `now`; `test`: bounds over the configuration's (a test's own)."""
+def farm_report(config: FarmConfig, devices: Iterable[Device], now: int,
+                reactions: Iterable[tuple[ReactionFigures, TestBounds]] = (), test: TestBounds = None) -> FarmReport:
+    """The cell's report at `now`; `test`: bounds over the configuration's (a test's own). Each
+    reaction is judged by its stimulus device's bounds, then its own, then `test`."""
     reports = tuple(device_report(d, now, device_bounds(config, d.name, test)) for d in devices)
-    cell = resolve(("cell configuration", config.bounds), ("test", test))
-    return FarmReport(now, reports, tuple(judge_reaction(r, cell) for r in reactions))
+    return FarmReport(now, reports, tuple(
+        judge_reaction(r, device_bounds(config, r.stimulus.split(".", 1)[0], own, test)) for r, own in reactions))

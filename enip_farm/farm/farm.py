@@ -12,6 +12,7 @@ from __future__ import annotations
 import asyncio
 import logging
 import time
+from collections import deque
 from collections.abc import Coroutine, Iterator, Mapping
 from contextlib import contextmanager
 from pathlib import Path
@@ -19,16 +20,19 @@ from typing import Any, TypeVar
 
 from enip_farm.capture.recorder import Recorder
 from enip_farm.cip.budget import CyclicBudget
+from enip_farm.cip.report import ReactionFigures
+from enip_farm.cip.verdicts import judge_reaction
 from enip_farm.config import ConfigError, FarmConfig, as_config
 from enip_farm.control.handle import DeviceHandle
 from enip_farm.control.http import HttpApi, bind_problem
+from enip_farm.control.reaction import SignalValue, measure_reaction
 from enip_farm.control.wiring import Wiring
 from enip_farm.device.build import build_profiles
 from enip_farm.device.catalogue import Catalogue
 from enip_farm.device.device import Device
 from enip_farm.device.faults import Disconnect, FaultType
 from enip_farm.device.nonvolatile import load_state, save_state
-from enip_farm.device.report import FarmReport, TestBounds, farm_report
+from enip_farm.device.report import FarmReport, TestBounds, device_bounds, farm_report
 from enip_farm.eds.reader import eds_catalogue
 from enip_farm.farm.listeners import SOCKETS_PER_DEVICE, BindError, Listeners, bind_message, raise_open_file_limit
 from enip_farm.farm.loop import FarmThread, freeze_heap, new_event_loop, until_stopped_or_failed
@@ -79,6 +83,8 @@ class Farm:
         for device in self.devices.values():
             device.recorder = self.recorder
             device.table.measuring = config.cyclic_io.measure
+        #: The last reactions measured, each with the bounds its test gave, for the report.
+        self.reactions: deque[tuple[ReactionFigures, TestBounds]] = deque(maxlen=32)
         self.state_file = Path(state) if state is not None else None
         if self.state_file is not None:
             try:
@@ -231,7 +237,17 @@ class Farm:
         """The report on the controller under test (cip/report.py: `as_dict()` for JSON): every
         device's class-1 connections as measured, its reconnections and the reactions measured,
         judged against the bounds (the configuration's, then `bounds`, a test's own)."""
-        return farm_report(self.config, self.devices.values(), time.monotonic_ns(), (), bounds)
+        return farm_report(self.config, self.devices.values(), time.monotonic_ns(), list(self.reactions), bounds)
+
+    def reaction(self, set: SignalValue, expect: SignalValue, timeout: float = 1.0, repeat: int = 1,
+                 reset: int | float | None = None, bounds: TestBounds = None, name: str | None = None
+                 ) -> ReactionFigures:
+        """The controller's reaction time (action latency), `repeat` times, judged against the bounds
+        (the stimulus device's, then `bounds`): farm.reaction(set=("io1", "DI3", 1), expect=("io2",
+        "DO5", 1), timeout=1, repeat=20). Blocks (not on the farm's loop); control/reaction.py."""
+        figures = measure_reaction(self.handles, set, expect, timeout, repeat, reset, name)
+        self.reactions.append((figures, bounds))
+        return judge_reaction(figures, device_bounds(self.config, set[0], bounds))
 
     # -- faults (device/faults.py) ---------------------------------------------------------------
 

@@ -46,7 +46,7 @@ import time
 
 from enip_farm.device.device import Device
 from enip_farm.protocol.connection import IO_PORT
-from enip_farm.server.batch import Datagrams, Message, sockaddr
+from enip_farm.server.batch import SO_TIMESTAMPNS, Datagrams, Message, sockaddr
 from enip_farm.server.limits import RateLimitedLog
 from enip_farm.server.udp import udp_socket
 from enip_farm.server.waits import os_wait_ns
@@ -58,8 +58,11 @@ OVERLOAD_LAG_NS = 5_000_000
 
 
 def io_socket(host: str, port: int = IO_PORT) -> socket.socket:
-    """UDP 2222 of one device: SO_REUSEADDR, and multicast sent from the device's own address."""
+    """UDP 2222 of one device: SO_REUSEADDR, multicast sent from the device's own address, and each
+    datagram stamped with the kernel's receive time (SO_TIMESTAMPNS: the report measures the
+    originator by it, so the farm's own scheduling never counts against the controller)."""
     sock = udp_socket(host, port)
+    sock.setsockopt(socket.SOL_SOCKET, SO_TIMESTAMPNS, 1)
     sock.setsockopt(socket.IPPROTO_IP, socket.IP_MULTICAST_IF, socket.inet_aton(host))
     sock.setsockopt(socket.IPPROTO_IP, socket.IP_MULTICAST_LOOP, 1)
     sock.setsockopt(socket.IPPROTO_IP, socket.IP_MULTICAST_TTL, 1)
@@ -206,10 +209,10 @@ class CyclicIoThread(threading.Thread):
                     else:
                         fds.append(fd)
                 if fds:
-                    for fd, data, host, port in receive(fds):
+                    for fd, data, host, port, received_at in receive(fds):
                         endpoint = readers.get(fd)
                         if endpoint is not None:
-                            endpoint.take(data, host, port, now)
+                            endpoint.take(data, host, port, now, received_at or now)
             horizon = now + turn_ns  # what falls due before the next turn is served in this one
             if heap and heap[0][0] <= horizon:
                 if heap[0][0] < now and lag.observe(now - heap[0][0], now):
@@ -260,8 +263,9 @@ class DeviceIo:
         """A connection opened (a new stream and a new watchdog): the device's timer may be earlier."""
         self.thread.reschedule(self)
 
-    def take(self, data: bytes, host: str, port: int, now: int) -> None:
-        """In the I/O thread: one O->T datagram from host:port, read at `now`, to the device."""
+    def take(self, data: bytes, host: str, port: int, now: int, received_at: int | None = None) -> None:
+        """In the I/O thread: one O->T datagram from host:port, read at `now` (`received_at`: the
+        kernel's receive time), to the device."""
         device = self.device
         traffic = device.io_traffic
         traffic.received(len(data))
@@ -269,7 +273,7 @@ class DeviceIo:
         if recorder is not None:
             recorder.udp((host, port), self._address, data)
         try:
-            taken = device.receive_io(data, (host, port), now, self.send)
+            taken = device.receive_io(data, (host, port), now, self.send, received_at)
         except Exception:  # last resort: the other devices' cyclic I/O goes on
             self._failed("taking an O->T datagram", now)
             taken = False

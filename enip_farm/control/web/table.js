@@ -44,7 +44,8 @@ function buildCard(device) {
   $('.name', card).textContent = device.name;
   $('.address', card).textContent = info.address;
   $('.model', card).textContent = [info.model, ...info.addons].join(' + ')
-    + (info.shard_up === false ? ` \u00b7 shard ${info.shard} down` : '');  // the fleet API over shards
+    + (info.shard_up === false ? ` \u00b7 shard ${info.shard} down` : '')  // the fleet's router over shards
+    + (info.worker_up === false ? ` \u00b7 worker ${info.worker} down` : '');  // or over workers
   fillIdentity($('.identity', card), info);
   fillForm(card);
   device.card = card;
