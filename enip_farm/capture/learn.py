@@ -354,9 +354,8 @@ def _profile(capture: str, address: str, evidence: _Evidence, name: str | None, 
     identity = {**_PLACEHOLDER, "revision": list(_PLACEHOLDER["revision"]), **evidence.identity}
     assemblies, sizes, unverified_assemblies = _assemblies(evidence)
     unverified += unverified_assemblies + ["io layout"]
-    model_name = name or words.model_name(str(identity["product_name"])) or "learned"
-    if several:
-        model_name += "_" + address.replace(".", "_")
+    model_name = (name or words.model_name(str(identity["product_name"])) or "learned") + (
+        "_" + address.replace(".", "_") if several else "")
     while model_name in taken:
         model_name += "_learned"
     model: dict[str, Any] = {
