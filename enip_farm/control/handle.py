@@ -11,6 +11,7 @@ import time
 from collections.abc import Callable, Coroutine, Mapping
 from typing import Any, Protocol, TypeVar, runtime_checkable
 
+from enip_farm.cip.report import FarmReport
 from enip_farm.config import FarmConfig
 from enip_farm.device.device import Device, replace_image
 from enip_farm.device.events import Event
@@ -46,6 +47,8 @@ class FarmControl(Protocol):
     def health(self) -> dict[str, Any]: ...
 
     def cyclic_io_load(self) -> dict[str, Any]: ...
+
+    def report(self) -> FarmReport: ...
 
 
 class DeviceHandle:
