@@ -139,7 +139,7 @@ def test_the_fault_kinds_are_listed_with_their_parameters(enip_farm) -> None:
 
 
 def test_a_parameter_no_kind_takes_is_refused_and_another_kinds_is_ignored() -> None:
-    with pytest.raises(FaultError, match=r"^delay_msec: is not a parameter of any fault kind \(boot_time_s, .*delay_ms, "):
+    with pytest.raises(FaultError, match=r"^delay_msec: is not a parameter of any fault kind \(.*delay_ms, "):
         Fault("delay", delay_msec=800)
     assert Fault("drop", delay_ms=0.0, service=None).parameters() == {"kind": "drop"}  # what the CLI sends
     assert Fault("close", duration_s=2).duration_ns == 2_000_000_000
