@@ -91,3 +91,11 @@ def test_the_configuration_assembly_is_served_at_its_eds_size(enip_farm, tmp_pat
         short = path + bytes((0x80, 12)) + bytes(24)  # data for another configuration
         reply, _ = _open(client, short, entry, 2, False)
         assert (reply.general_status, reply.additional_status) == (0x01, (0x0129,))
+
+
+def test_an_assembly_entry_naming_a_tag_is_not_served() -> None:
+    text = _eds(DEVICE, PARAMS, ASSEMBLY + '        Assem7 = "Tag", "SYMBOL_ANSI", 4, 0x0000, , ;\n', CONNECTIONS)
+    name, document, notes = eds_profile(read_eds(text, "tags.eds"), "tags.eds")
+    assert notes[0] == ("line 21: [Assembly] Assem7: path 'SYMBOL_ANSI': a tag the user names, not an assembly "
+                        "instance; not served")
+    assert 7 not in document["models"][name]["points"]

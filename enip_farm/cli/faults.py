@@ -30,6 +30,14 @@ def _number(text: str) -> int | float | str:
     return text
 
 
+def _flag_number(text: str) -> int | float:
+    """A flag's number as written: 800 an integer (the farm's messages say 800, not 800.0), 2.5 a decimal."""
+    value = _number(text)
+    if isinstance(value, str):
+        raise ValueError(f"{text!r} is not a number")
+    return value
+
+
 def in_flags(detail: str) -> str:
     """A parameter problem (`field: message`, the farm's words) in the CLI's: flags, not field names."""
     field, _, message = detail.partition(": ")
@@ -40,12 +48,14 @@ def in_flags(detail: str) -> str:
     return f"{flag}: {message}{EXAMPLES.get(flag, '')}"
 
 
-def _listing(kinds: list[dict[str, Any]]) -> str:
+def _listing(kinds: list[dict[str, Any]], parameters: bool = True) -> str:
+    """One line per kind (its summary), and one per parameter under it unless `parameters` is False."""
     width = max(len(kind["kind"]) for kind in kinds)
     lines = []
     for kind in kinds:
-        lines.append(f"{kind['kind']:{width}}  {kind['summary']}")
-        for name, schema in kind["parameters"].get("properties", {}).items():
+        lines.append(f"{'  ' if not parameters else ''}{kind['kind']:{width}}  {kind['summary']}")
+        for name in kind["parameters"].get("properties", {}) if parameters else ():
+            schema = kind["parameters"]["properties"][name]
             flag = f" ({FLAGS[name]})" if name in FLAGS else ""
             lines.append(f"{'':{width}}    {name}=VALUE{flag}: {schema.get('description', schema.get('type', ''))}")
     return "\n".join(lines)
@@ -55,11 +65,12 @@ def _listing(kinds: list[dict[str, Any]]) -> str:
 @click.argument("first", required=False, metavar="DEVICE|clear")
 @click.argument("rest", nargs=-1, metavar="KIND [NAME=VALUE...] | DEVICE [KIND]")
 @click.option("--list", "list_kinds", is_flag=True, help="list the farm's fault kinds and their parameters")
-@click.option("--delay-ms", type=float, default=None, help="delay: how long to hold each reply")
-@click.option("--max-delay-ms", type=float, default=None, help="delay: random up to this")
+@click.option("--delay-ms", type=_flag_number, default=None, help="delay: how long to hold each reply")
+@click.option("--max-delay-ms", type=_flag_number, default=None, help="delay: random up to this")
 @click.option("--service", type=lambda v: int(v, 0), default=None, help="status: the CIP service, e.g. 0x0E")
 @click.option("--status", type=lambda v: int(v, 0), default=None, help="status: the general status, e.g. 0x08")
-@click.option("--duration", "duration_s", type=float, default=None, help="seconds until the fault ends by itself")
+@click.option("--duration", "duration_s", type=_flag_number, default=None,
+              help="seconds until the fault ends by itself")
 @api_option
 @token_option
 def fault(first: str | None, rest: tuple[str, ...], list_kinds: bool, api: str, token: str | None,
@@ -94,7 +105,12 @@ def fault(first: str | None, rest: tuple[str, ...], list_kinds: bool, api: str, 
         body[name], said[name] = _number(value), name
     kinds = {item["kind"]: item for item in call(api, token, "GET", "/fault-kinds")}
     if kind not in kinds:
-        click.echo(f"fault {first} {kind}: unknown kind {kind!r}; one of {', '.join(kinds)}", err=True)
+        import difflib
+
+        close = difflib.get_close_matches(kind, kinds, n=1)
+        hint = f" (did you mean {close[0]}?)" if close else ""
+        click.echo(f"fault {first} {kind}: unknown kind {kind!r}{hint}; the farm's kinds (fault --list: their "
+                   f"parameters):\n" + _listing(list(kinds.values()), parameters=False), err=True)
         sys.exit(2)
     known = set(kinds[kind]["parameters"].get("properties", {})) | {"duration_s"}
     for name in body:

@@ -11,12 +11,12 @@ import time
 from collections.abc import Callable, Coroutine, Mapping
 from typing import Any, Protocol, TypeVar, runtime_checkable
 
-from enip_farm.cip.report import FarmReport
 from enip_farm.config import FarmConfig
 from enip_farm.device.device import Device, replace_image
 from enip_farm.device.events import Event
 from enip_farm.device.faults import Fault, FaultKind, FaultType
 from enip_farm.device.named_signals import NamedSignal
+from enip_farm.device.report import FarmReport, TestBounds
 from enip_farm.device.signals import Signal, SignalError, SignalMap
 
 T = TypeVar("T")
@@ -48,7 +48,7 @@ class FarmControl(Protocol):
 
     def cyclic_io_load(self) -> dict[str, Any]: ...
 
-    def report(self) -> FarmReport: ...
+    def report(self, bounds: TestBounds = None) -> FarmReport: ...
 
 
 class DeviceHandle:

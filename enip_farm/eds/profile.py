@@ -11,6 +11,7 @@ from __future__ import annotations
 import re
 from typing import Any
 
+from enip_farm import words
 from enip_farm.cip.data_types import ELEMENTARY
 from enip_farm.device.catalogue import MAX_ASSEMBLY_SIZE, Catalogue, shipped_catalogue
 from enip_farm.eds.entries import FORMATS, EdsConnection, EdsDevice, EdsError, EdsParam
@@ -182,7 +183,7 @@ def eds_profile(device: EdsDevice, source: str, name: str | None = None,
     model["connections"] = [e for _, e in served]
     model["points"] = dict(sorted(points.items()))
     model["unverified"] = list(dict.fromkeys(["io layout", *device.unverified]))
-    model_name = name or product_name.replace(" ", "_") or "eds"
+    model_name = name or words.model_name(device.product_name) or "eds"  # the whole name, not the 32 served
     while model_name in catalogue.models:
         model_name += "_eds"
     return model_name, {"models": {model_name: model}}, notes

@@ -6,7 +6,8 @@ the sans-IO encapsulation session and writing each batch of whole replies with o
 - Backpressure: while the replies not yet sent exceed `WRITE_HIGH_WATER` (the peer does not
   read), the connection is not read; it is read again below `WRITE_LOW_WATER`. Memory per
   connection is bounded: one read (at most 256 KiB with uvloop) plus one partial frame (at most
-  64 KiB + 24) waiting, and at most the high-water mark plus one batch of replies unsent.
+  4096 + 24 bytes: the data of a longer message is dropped as it arrives, Vol. 2, 2-3.3) waiting,
+  and at most the high-water mark plus one batch of replies unsent.
 - Limits (server/limits.py): caps on TCP connections per device and for the farm; a connection
   over a cap is closed at once.
 - Encapsulation inactivity timeout (TCP/IP Interface attribute 13): a connection with no whole
