@@ -34,8 +34,10 @@
  * these, not with a guess. Deadline k (1-based) of a connection is nominally k RPI after its start:
  *   --jitter-us J       deadlines of odd k leave J us late (J < RPI): the intervals alternate
  *                       RPI + J and RPI - J, each J from the RPI (a square wave, not noise: exact);
- *   --gap-every N       deadline k with k % N == 0 sends nothing, its sequence number is used up: a
- *                       gap of one in the 32-bit sequence and one interval of 2 RPI;
+ *   --gap-every N [--gap-size K]
+ *                       from each deadline k % N == 0, K deadlines (1) send nothing, their sequence
+ *                       numbers used up: a gap of K in the 32-bit sequence and an interval of K + 1
+ *                       RPI (K >= 2 for an interval that no scheduling noise takes below 2 RPI);
  *   --burst-every N --burst-size K
  *                       the K deadlines before each k % N == 0 are held and leave with it, in one
  *                       sendmmsg: a silence of K + 1 RPI, then K + 1 packets at once (K < N);
@@ -87,7 +89,7 @@ struct connection {
     uint32_t sequence;
     /* sender thread */
     uint64_t sent_window, sent_total;
-    uint64_t deadlines, datagrams, gaps, repeats, stale, bursts, idle_transitions; /* what it made */
+    uint64_t deadlines, datagrams, gaps, gap_runs, repeats, stale, bursts, idle_transitions; /* what it made */
     int idle;
     /* receiver thread */
     int have_last;
@@ -122,7 +124,7 @@ static int64_t receive_pause_ns = 1000000; /* the receiver reads the socket this
 static uint32_t *table; /* T->O id -> index + 1, open addressing */
 /* misbehaviour (see the header): 0 = off */
 static int64_t jitter_ns;
-static uint64_t gap_every, burst_every, burst_size, repeat_every, stale_every, stale_by = 2, idle_every, stop_after;
+static uint64_t gap_every, gap_size = 1, burst_every, burst_size, repeat_every, stale_every, stale_by = 2, idle_every, stop_after;
 static uint32_t table_mask;
 
 static int64_t now_ns(clockid_t clock) {
@@ -255,8 +257,9 @@ static void *sender(void *unused) {
             int idle = idle_every && (k - 1) / idle_every % 2 == 1;
             if (k > 1 && idle != c->idle) c->idle_transitions++;
             c->idle = idle;
-            if (gap_every && k % gap_every == 0) {
+            if (gap_every && k >= gap_every && k % gap_every < gap_size) { /* k % N == 0 starts a run of --gap-size */
                 c->gaps++; /* its sequence number is used up, nothing leaves */
+                if (k % gap_every == 0) c->gap_runs++;
             } else {
                 if (in_window) {
                     c->sent_window++;
@@ -454,7 +457,7 @@ static int read_connections(const char *path) {
 static void usage(void) {
     fprintf(stderr, "usage: cyclic_originator --connections FILE (--fd N | --bind ADDR:PORT) --seconds S "
                     "[--warmup S] [--hold S] [--batch-us US] [--realtime PRIORITY] --json FILE\n"
-                    "  misbehaviour: [--jitter-us J] [--gap-every N] [--burst-every N --burst-size K] "
+                    "  misbehaviour: [--jitter-us J] [--gap-every N [--gap-size K]] [--burst-every N --burst-size K] "
                     "[--repeat-every N] [--stale-every N [--stale-by M]] [--idle-every N] [--stop-after N]\n");
     exit(2);
 }
@@ -481,6 +484,7 @@ int main(int argc, char **argv) {
         else if (!strcmp(argv[i], "--batch-us")) batch_ns = (int64_t)(atof(argv[i + 1]) * 1000);
         else if (!strcmp(argv[i], "--jitter-us")) jitter_ns = (int64_t)count_argument(argv[i + 1]) * 1000;
         else if (!strcmp(argv[i], "--gap-every")) gap_every = count_argument(argv[i + 1]);
+        else if (!strcmp(argv[i], "--gap-size")) gap_size = count_argument(argv[i + 1]);
         else if (!strcmp(argv[i], "--burst-every")) burst_every = count_argument(argv[i + 1]);
         else if (!strcmp(argv[i], "--burst-size")) burst_size = count_argument(argv[i + 1]);
         else if (!strcmp(argv[i], "--repeat-every")) repeat_every = count_argument(argv[i + 1]);
@@ -493,7 +497,8 @@ int main(int argc, char **argv) {
     if (!connections_path || !json_path || seconds <= 0 || seconds > 3600 || warmup < 0 || hold < 0 || hold > 600 || batch_ns < 1 || batch_ns > 1000000 ||
         (sock < 0 && !bind_to))
         usage();
-    if ((burst_every > 0) != (burst_size > 0) || (burst_every && burst_size >= burst_every) || stale_by > 1000000)
+    if ((burst_every > 0) != (burst_size > 0) || (burst_every && burst_size >= burst_every) || stale_by > 1000000 ||
+        (gap_every && gap_size >= gap_every))
         usage();
     if (read_connections(connections_path) <= 0) {
         fprintf(stderr, "no connections read from %s\n", connections_path);
@@ -604,9 +609,9 @@ int main(int argc, char **argv) {
     }
     fprintf(out, "{\n \"connections\": %d, \"window_s\": %.6f, \"realtime\": %d,\n", connection_count,
             (t1 - t0) / 1e9, realtime);
-    fprintf(out, " \"misbehaviour\": {\"jitter_us\": %ld, \"gap_every\": %lu, \"burst_every\": %lu, \"burst_size\": %lu, "
+    fprintf(out, " \"misbehaviour\": {\"jitter_us\": %ld, \"gap_every\": %lu, \"gap_size\": %lu, \"burst_every\": %lu, \"burst_size\": %lu, "
                  "\"repeat_every\": %lu, \"stale_every\": %lu, \"stale_by\": %lu, \"idle_every\": %lu, \"stop_after\": %lu},\n",
-            jitter_ns / 1000, gap_every, burst_every, burst_size, repeat_every, stale_every, stale_by, idle_every,
+            jitter_ns / 1000, gap_every, gap_size, burst_every, burst_size, repeat_every, stale_every, stale_by, idle_every,
             stop_after);
     fprintf(out, " \"o_t_sent_window\": %lu, \"o_t_sent_total\": %lu, \"send_errors\": %lu,\n", sent_window,
             sent_total, send_errors);
@@ -628,11 +633,11 @@ int main(int argc, char **argv) {
         for (int b = 0; b < CONN_BUCKETS; b++) count += c->histogram[b];
         fprintf(out, "  {\"host\": \"%s\", \"o_t_id\": %u, \"t_o_id\": %u, \"o_t_sent\": %lu, \"received\": %lu, \"lost\": %lu, "
                      "\"late\": %lu, \"missed\": %lu, \"duplicates\": %lu, \"p50_us\": %ld, \"p99_us\": %ld, \"max_us\": %ld,\n"
-                     "   \"made\": {\"deadlines\": %lu, \"sent\": %lu, \"datagrams\": %lu, \"last_sequence\": %u, \"gaps\": %lu, "
+                     "   \"made\": {\"deadlines\": %lu, \"sent\": %lu, \"datagrams\": %lu, \"last_sequence\": %u, \"gaps\": %lu, \"gap_runs\": %lu, "
                      "\"bursts\": %lu, \"repeats\": %lu, \"stale\": %lu, \"idle_transitions\": %lu}}%s\n",
                 c->host, c->o_t_id, c->t_o_id, c->sent_window, c->received_window, c->lost, c->late, c->missed,
                 c->duplicates, quantile_us(c->histogram, count, 0.5), quantile_us(c->histogram, count, 0.99),
-                c->max_error_ns / 1000, c->deadlines, c->sent_total, c->datagrams, c->sequence, c->gaps, c->bursts,
+                c->max_error_ns / 1000, c->deadlines, c->sent_total, c->datagrams, c->sequence, c->gaps, c->gap_runs, c->bursts,
                 c->repeats, c->stale, c->idle_transitions, k + 1 < connection_count ? "," : "");
     }
     fprintf(out, " ]\n}\n");

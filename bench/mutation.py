@@ -78,7 +78,7 @@ PACKAGES: dict[str, Package] = {
 
 #: The six mutations issue 32 found surviving: (name, module, the code, the mutated code, tests).
 NAMED: tuple[tuple[str, str, str, str, tuple[str, ...]], ...] = (
-    ("stale check without & 0xFFFFFFFF", "enip_farm/cip/class1_io.py",
+    ("stale check without & 0xFFFFFFFF", "enip_farm/cip/io_packets.py",
      "not 0 < (sequence - last) & 0xFFFFFFFF < _HALF", "not 0 < (sequence - last) < _HALF", (VARY,)),
     ("timeout from the T->O RPI", "enip_farm/cip/connection.py",
      "self.timeout_ns = self.o_t_rpi * 1000", "self.timeout_ns = self.t_o_rpi * 1000", (VARY,)),

@@ -28,6 +28,7 @@ from pydantic import (
 from pydantic_core import InitErrorDetails, PydanticCustomError
 
 from enip_farm.bounds import BoundsConfig
+from enip_farm.topology import GroupConfig, Topology, resolve, subnet_problem
 
 _MAC = re.compile(r"^([0-9A-Fa-f]{2}[:-]){5}[0-9A-Fa-f]{2}$")
 
@@ -207,7 +208,7 @@ class DeviceConfig(_Strict):
             raise ValueError("the only placeholder in a name is {n}")
         if int(self.address) + self.count - 1 > 0xFFFFFFFF:
             raise ValueError("the addresses run past 255.255.255.255")
-        problem = _subnet_problem(self.address, self.count, self.netmask)
+        problem = subnet_problem(self.address, self.count, self.netmask)
         if problem:
             raise ValueError(problem)
         seen: dict[str, str] = {}
@@ -266,6 +267,8 @@ class CyclicIoConfig(_Strict):
 
 class FarmConfig(_Strict):
     devices: list[DeviceConfig] = Field(min_length=1)
+    groups: list[GroupConfig] = Field([], description="the topology (enip_farm/topology.py): named groups of "
+                                      "devices (a rack, a switch, a power feed, a ring) a fault or a scenario names")
     cyclic_io: CyclicIoConfig = CyclicIoConfig()
     discovery: bool = Field(True, description="answer broadcast ListIdentity on 0.0.0.0:44818")
     max_tcp_connections: int = Field(60000, ge=1, description="TCP connections of all devices at once (also "
@@ -274,6 +277,12 @@ class FarmConfig(_Strict):
     rules: list[RuleConfig] = []
     bounds: BoundsConfig = Field(BoundsConfig(), description="the report's bounds (enip_farm/bounds.py)")
     _source: str = PrivateAttr("<config>")
+    _topology: Topology = PrivateAttr(default_factory=Topology)
+
+    @property
+    def topology(self) -> Topology:
+        """The groups resolved to their devices (`targets(name)`: a device's or a group's devices)."""
+        return self._topology
 
     @property
     def source(self) -> str:
@@ -302,31 +311,12 @@ class FarmConfig(_Strict):
                         f" (here by {device.name!r})" if field == "address" else "")
                     errors.append(InitErrorDetails(type=PydanticCustomError("duplicate", message),
                                                    loc=("devices", device.entry, field), input=str(value)))
+        self._topology, problems = resolve(self.groups, ((d.name, d.address) for d in self.devices))
+        errors += [InitErrorDetails(type=PydanticCustomError("group", message), loc=("groups", index, *where),
+                                    input=value) for index, where, message, value in problems]
         if errors:
             raise ValidationError.from_exception_data(type(self).__name__, errors)
         return self
-
-
-def _subnet_problem(first: IPv4Address, count: int, netmask: IPv4Address) -> str | None:
-    """Why the addresses first .. first + count - 1 cannot all be hosts of first's subnet, if they
-    cannot: a network or broadcast address, or a range that runs past the subnet. /31 and /32 have
-    neither (RFC 3021), so any address of theirs is a host."""
-    network = IPv4Network(f"{first}/{netmask}", strict=False)
-    if network.prefixlen >= 31:
-        return None
-    last = first + count - 1
-    subnet = f"the subnet {network} (netmask {netmask})"
-    for address, what in ((network.network_address, "network"), (network.broadcast_address, "broadcast")):
-        if count == 1 and first == address:
-            return (f"address {first} is the {what} address of {subnet}: no device can have it; "
-                    f"choose a host address ({network.network_address + 1} .. {network.broadcast_address - 1})")
-    if first == network.network_address:
-        return f"count {count} from {first} starts at the network address of {subnet}: start at {first + 1}"
-    if last >= network.broadcast_address:
-        return (f"count {count} from {first} runs past {subnet}: the addresses would end at {last}, the last "
-                f"host is {network.broadcast_address - 1}; start lower, use fewer, or widen the netmask "
-                "(e.g. netmask: 255.255.0.0)")
-    return None
 
 
 def as_config(source: FarmConfig | Mapping[str, Any] | str | Path) -> FarmConfig:
@@ -354,13 +344,14 @@ def device_location(index: int, name: str | None = None) -> str:
 def _describe(error: dict[str, Any], data: Any) -> str:
     location = list(error["loc"])
     where = ""
-    if len(location) >= 2 and location[0] == "devices" and isinstance(location[1], int):
-        index = location[1]
+    if len(location) >= 2 and location[0] in ("devices", "groups") and isinstance(location[1], int):
+        index, part = location[1], location[0]
         name = None
-        if isinstance(data, dict) and isinstance(data.get("devices"), list) and index < len(data["devices"]):
-            entry = data["devices"][index]
+        if isinstance(data, dict) and isinstance(data.get(part), list) and index < len(data[part]):
+            entry = data[part][index]
             name = entry.get("name") if isinstance(entry, dict) else None
-        where = device_location(index, name)
+        where = device_location(index, name) if part == "devices" else (
+            f"group {name!r} (groups[{index}])" if name else f"groups[{index}]")
         location = location[2:]
     field = ".".join(str(part) for part in location)
     message = error["msg"].removeprefix("Value error, ")

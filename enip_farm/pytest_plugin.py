@@ -12,7 +12,7 @@ property `enip_farm_report`, so `--junitxml` carries it), and a test marked
 a bound it asked for: the marker's, or the cell's YAML `bounds:` (the defaults only inform).
 
 `enip_farm(...)` takes a config file path (a cell's YAML, or a controller's EIO.cfg, imported as
-`enip-farm eio import` does, its warnings raised as `EioImportWarning`s), a config dict, or one
+`enip-farm eio import` does, its warnings raised as one `EioImportWarning`), a config dict, or one
 device's fields as keyword arguments. Devices go on fresh 127.x addresses (each test process takes
 its own block, so parallel tests never collide) unless `keep_addresses=True`. The farm serves from
 a background thread, so synchronous clients (pycomm3) and async tests alike can talk to it; at
@@ -58,10 +58,16 @@ def _config_dict(source: str | Path | dict[str, Any] | None, device: dict[str, A
         return dict(source)
     if str(source).lower().endswith(".cfg"):  # the controller's EIO.cfg, as `enip-farm eio import` reads it
         result = import_eio(parse_cfg(Path(source).read_text(), str(source)), shipped_catalogue())
-        for warning in result.warnings:  # what `eio import` prints: pytest shows them in its summary
-            warnings.warn(warning, EioImportWarning, stacklevel=4)
+        if result.warnings:  # what `eio import` prints, as one warning: pytest's summary shows it once per import
+            warnings.warn(eio_summary(str(source), result.warnings), EioImportWarning, stacklevel=4)
         return result.document
     return yaml.safe_load(Path(source).read_text())
+
+
+def eio_summary(source: str, lines: list[str]) -> str:
+    """An EIO.cfg import's warnings as one message: a count, then each line as `eio import` prints it."""
+    return f"{source}: imported with {len(lines)} warning{'s' if len(lines) != 1 else ''}:\n" + "\n".join(
+        f"  {line}" for line in lines)
 
 
 def start_farm(stack: ExitStack, addresses: Callable[[], str], source: str | Path | dict[str, Any] | None = None, *,

@@ -16,6 +16,7 @@ from enip_farm.device.device import Device, replace_image
 from enip_farm.device.events import Event
 from enip_farm.device.faults import Fault, FaultKind, FaultType
 from enip_farm.device.named_signals import NamedSignal
+from enip_farm.device.report import FarmReport, TestBounds
 from enip_farm.device.signals import Signal, SignalError, SignalMap
 
 T = TypeVar("T")
@@ -46,6 +47,8 @@ class FarmControl(Protocol):
     def health(self) -> dict[str, Any]: ...
 
     def cyclic_io_load(self) -> dict[str, Any]: ...
+
+    def report(self, bounds: TestBounds = None) -> FarmReport: ...
 
 
 class DeviceHandle:

@@ -10,6 +10,8 @@ field, like the schema's own errors.
 from __future__ import annotations
 
 from collections.abc import Collection, Mapping
+from dataclasses import replace
+from pathlib import Path
 
 import yaml
 from pydantic import ValidationError
@@ -38,8 +40,9 @@ def build_profiles(config: FarmConfig, catalogue: Catalogue) -> list[DeviceProfi
                 seen.add((device.entry, field, message))
                 where = device_location(device.entry, device.name)
                 problems.append(f"{config.source}: {where}" + (f", {field}: " if field else ": ") + message)
-    profiles = [resolve(device.model_copy(update={"model": models[device.model]}) if device.model in models
-                        else device, catalogue) for device in config.devices if device.name not in failed]
+    profiles = [replace(resolve(device.model_copy(update={"model": models[device.model]}), catalogue),
+                        model_file=Path(device.model).name) if device.model in models
+                else resolve(device, catalogue) for device in config.devices if device.name not in failed]
     problems += list(dict.fromkeys(  # a `count` entry's devices share their problems
         f"{config.source}: {device_location(device.entry)}, {field}: {message}"
         for device, profile in zip([d for d in config.devices if d.name not in failed], profiles, strict=True)

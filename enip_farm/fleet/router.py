@@ -2,7 +2,8 @@
 --http` (fleet/api.py) and the shards that an engine runs (`enip-farm fleet-api`, fleet/shard_api.py).
 
 Each farm is asked what it serves (GET /devices); a device's requests go to the farm serving its
-part of the cell; GET /devices, /state, /events, /metrics and /health merge every farm's answer; a
+part of the cell; GET /devices, /state, /events, /metrics, /report (fleet/reports.py) and /health
+merge every farm's answer; a
 farm that does not answer is **down, not missing**: its devices are listed with `"<part>_up":
 false`, a request for one gets 503 `<part> I/N (devices A..B) is down`, `enip_farm_<part>_up` is 0,
 GET /<part>s lists each part, its endpoint and whether it is up. The routes are the same for both;
@@ -30,6 +31,7 @@ from starlette.routing import Route
 from enip_farm.config import FarmConfig
 from enip_farm.control.client import merge_events
 from enip_farm.control.http import no_such_device
+from enip_farm.fleet.reports import down_device, merge_reports
 
 _FORWARD_TIMEOUT = 30.0
 _PROBE_TIMEOUT = 3.0
@@ -292,6 +294,28 @@ def create_router(config: FarmConfig, slices: list[FarmConfig], finder: Finder, 
         merged.sort(key=lambda device: position.get(device.get("name"), len(position)))
         return JSONResponse(merged)
 
+    async def report(request: Request) -> Response:
+        names = asked(request)
+        if isinstance(names, Response):
+            return names
+        await refresh(force=True)
+        wanted = set(names) if names else set(view.owner)
+        parts = [part for part in view.parts if wanted & set(part.devices)]
+        up = [part for part in parts if part.up]
+        replies = await asyncio.gather(*(client().get(f"{part.endpoint}/report", headers=headers_of(request), params=[
+            ("device", name) for name in names if name in part.devices]) for part in up), return_exceptions=True)
+        answers, answered = [], set()
+        for part, reply in zip(up, replies, strict=True):
+            if isinstance(reply, httpx.Response) and reply.status_code == 200:
+                answers.append((reply.json(), view.marks(part, True)))
+                answered.add(part.index)
+            elif isinstance(reply, httpx.Response):
+                return response_of(reply)
+        down = [down_device(name, view.marks(part, False)) for part in parts if part.index not in answered
+                for name in part.devices if name in wanted]
+        position = {name: i for i, name in enumerate(names)} if names else view.order
+        return JSONResponse(merge_reports(answers, down, position))
+
     async def events(request: Request) -> Response:
         names = asked(request)
         if isinstance(names, Response):
@@ -354,6 +378,7 @@ def create_router(config: FarmConfig, slices: list[FarmConfig], finder: Finder, 
         Route("/metrics", metrics, methods=["GET"]),
         Route("/events", events, methods=["GET"]),
         Route("/state", state, methods=["GET"]),
+        Route("/report", report, methods=["GET"]),
         Route("/health", health, methods=["GET"]),
         Route("/{rest:path}", other, methods=methods),
     ], lifespan=lifespan)

@@ -6,13 +6,15 @@ the sans-IO encapsulation session and writing each batch of whole replies with o
 - Backpressure: while the replies not yet sent exceed `WRITE_HIGH_WATER` (the peer does not
   read), the connection is not read; it is read again below `WRITE_LOW_WATER`. Memory per
   connection is bounded: one read (at most 256 KiB with uvloop) plus one partial frame (at most
-  64 KiB + 24) waiting, and at most the high-water mark plus one batch of replies unsent.
+  4096 + 24 bytes: the data of a longer message is dropped as it arrives, Vol. 2, 2-3.3) waiting,
+  and at most the high-water mark plus one batch of replies unsent.
 - Limits (server/limits.py): caps on TCP connections per device and for the farm; a connection
   over a cap is closed at once.
 - Encapsulation inactivity timeout (TCP/IP Interface attribute 13): a connection with no whole
   request for that long is closed, whether it sent nothing or half a header.
 Injected faults act through their hooks (device/fault_type.py): `on_reply` holds replies back or
-drops them, `on_tcp_connection` closes or resets a new connection. A device
+drops them, `on_tcp_connection` closes or resets a new connection, `hears` (False: no power, no link)
+discards what arrives unread. A device
 in its reset window (Identity Reset) takes no connection. Every read and write is counted in the
 device's interface counters (Ethernet Link attribute 4)."""
 
@@ -108,6 +110,9 @@ class EncapsulationProtocol(asyncio.Protocol):
         if self.session is None:  # refused at connection_made
             return
         device = self.device
+        if not device.faults.hears:  # no power or no link: nothing arrives
+            device.traffic.discarded()
+            return
         device.traffic.received(len(data))
         recorder = device.recorder
         if recorder is not None:
