@@ -18,8 +18,9 @@ def merge_reports(answers: list[tuple[dict[str, Any], Mapping[str, Any]]], down:
                   position: Mapping[str, int]) -> dict[str, Any]:
     """`answers`: each farm's report with the marks of its part (e.g. {"worker": 2, "worker_up": True});
     `down`: the devices of parts that did not answer. Devices in `position`'s order, reactions one
-    after the other, the verdict the worst of all (a part down is not judged, never a pass), `at_ns`
-    the latest (one host, one monotonic clock; 0 when none answered)."""
+    after the other, the verdict the worst of the farms' (a part that is down is listed, not judged;
+    with nothing else judged the verdict is "not judged"), `at_ns` the latest (one host, one
+    monotonic clock; 0 when none answered)."""
     devices = [{**device, **marks} for answer, marks in answers for device in answer["devices"]] + list(down)
     devices.sort(key=lambda device: position.get(device["device"], len(position)))
     verdicts = [answer["verdict"] for answer, _ in answers] + [NOT_JUDGED for _ in down]
