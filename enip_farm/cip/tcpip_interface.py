@@ -11,11 +11,13 @@ attributes 1-13 from the device's own address and configuration.
 | 7 | safety network number | a CIP Safety target's SNN, read-only; else 0x14 (six zero bytes in Get Attributes All) |
 | 8 | TTL value (USINT) | settable 1-255, default 1 |
 | 9 | multicast configuration | the device's T->O group: allocation 0 (CIP algorithm) or 1 (configured); read-only |
-| 10 | SelectAcd (BOOL) | settable 0/1, default 0 (stored; the farm runs no address conflict detection) |
-| 11 | last conflict detected | no conflict: 35 zero bytes; read-only |
+| 10 | SelectAcd (BOOL) | settable 0/1, default 0: whether the module detects an address conflict |
+| 11 | last conflict detected | ACD activity, remote MAC, ARP PDU (35 bytes): zeros until an `address-conflict` fault |
 | 12 | EtherNet/IP Quick Connect (BOOL) | settable 0/1, default 0 (stored) |
 | 13 | encapsulation inactivity timeout (UINT, s) | settable 0-3600, default 120 (server/tcp.py applies it) |
 
+Attribute 1's bits 6 (AcdStatus: a conflict detected) and 7 (AcdFault: the address given up) follow
+an `address-conflict` fault (device/hardware.py) while SelectAcd is 1; attribute 11 keeps the last one.
 Set values live until the device is reset to its out-of-box configuration (Identity Reset type 1,
 `restore_defaults`): like the module's non-volatile settings they survive a type-0 reset.
 Get Attributes All returns 1-13 in order, 7 as six zero bytes: 96 bytes plus the padded domain
@@ -53,6 +55,10 @@ _HOST_NAME = re.compile(r"^[A-Za-z0-9](?:[A-Za-z0-9-]*[A-Za-z0-9])?$")
 _NO_SAFETY_NETWORK_NUMBER = bytes(6)
 #: Attribute 11: ACD activity 0 (no conflict), remote MAC and ARP PDU all zero.
 _NO_CONFLICT = bytes(1 + 6 + 28)
+#: Attribute 1: AcdStatus (a conflict detected) and AcdFault (the address given up), Vol. 2, 5-4.3.2.1.
+ACD_STATUS, ACD_FAULT = 0x40, 0x80
+#: Attribute 11's ACD activity: no conflict, probing the address, ongoing detection (Vol. 2, 5-4.3.2.11).
+ACD_NONE, ACD_PROBE, ACD_ONGOING = 0, 1, 2
 #: Attribute 9's allocation control: 0 the CIP algorithm (Vol. 2, 3-5.3), 1 a configured group.
 ALLOC_ALGORITHM, ALLOC_CONFIGURED = 0, 1
 #: Attribute 9: allocation control, reserved, number of groups, the first group's address.
@@ -129,7 +135,7 @@ class TcpIpInterfaceObject(CipClass):
         #: device replaces this getter with one that follows Apply_TUNID).
         self.safety_network_number: Callable[[], bytes] = lambda: safety_network_number or _NO_SAFETY_NETWORK_NUMBER
         self.instances[1] = CipInstance((
-            Attribute(1, DWORD, value=_STATUS_VALID),
+            Attribute(1, DWORD, lambda: _STATUS_VALID | self.acd_bits),
             Attribute(2, DWORD, lambda: self.capability),
             Attribute(3, DWORD, lambda: self.settings.configuration_control, self._set_configuration_control),
             # physical link object: path size 2 words, path 20 F6 24 01 (Ethernet Link 1)
@@ -142,11 +148,26 @@ class TcpIpInterfaceObject(CipClass):
             Attribute(8, USINT, lambda: self.settings.ttl, self._set_ttl),
             Attribute(9, _MCAST_CONFIG, value=multicast),
             Attribute(10, BOOL, lambda: self.settings.select_acd, self._setter_bool("select_acd")),
-            Attribute(11, Octets(len(_NO_CONFLICT)), value=_NO_CONFLICT),
+            Attribute(11, Octets(len(_NO_CONFLICT)), lambda: self.last_conflict),
             Attribute(12, BOOL, lambda: self.settings.quick_connect, self._setter_bool("quick_connect")),
             Attribute(13, UINT, lambda: self.settings.inactivity_timeout_s, self._set_inactivity_timeout),
         ))
         self.optional_attributes = tuple(i for i in self.instances[1].served_ids() if i > 5)
+        self.acd_bits = 0  # attribute 1's bits 6 and 7
+        self.last_conflict = _NO_CONFLICT
+
+    def conflict_detected(self, activity: int, remote_mac: bytes, arp_pdu: bytes, address_given_up: bool) -> bool:
+        """An address conflict (Vol. 2, 5-4.3.2.11): attribute 11 records it and attribute 1 says so, if
+        the module detects conflicts (SelectAcd, attribute 10, is 1). False: it detected nothing."""
+        if not self.settings.select_acd:
+            return False
+        self.last_conflict = bytes([activity]) + remote_mac + arp_pdu
+        self.acd_bits = ACD_STATUS | (ACD_FAULT if address_given_up else 0)
+        return True
+
+    def conflict_over(self) -> None:
+        """The other host left: the module holds its address again; attribute 11 keeps the record."""
+        self.acd_bits = 0
 
     @property
     def inactivity_timeout_s(self) -> int:

@@ -75,8 +75,9 @@ def _listing(kinds: list[dict[str, Any]], parameters: bool = True) -> str:
 @token_option
 def fault(first: str | None, rest: tuple[str, ...], list_kinds: bool, api: str, token: str | None,
           **flags: Any) -> None:
-    """Inject a fault: `fault DEVICE KIND [NAME=VALUE...] [options]`, or end them: `fault clear
-    DEVICE [KIND]`. `fault --list` lists the kinds the farm has and their parameters."""
+    """Inject a fault: `fault DEVICE|GROUP KIND [NAME=VALUE...] [options]` (a group: every member at
+    once), or end them: `fault clear DEVICE|GROUP [KIND]`. `fault --list` lists the kinds the farm has
+    and their parameters."""
     from urllib.parse import quote
 
     from enip_farm.cli.api import call
@@ -86,9 +87,10 @@ def fault(first: str | None, rest: tuple[str, ...], list_kinds: bool, api: str, 
         return
     if first == "clear":
         if len(rest) not in (1, 2):
-            raise click.UsageError("fault clear DEVICE [KIND]")
+            raise click.UsageError("fault clear DEVICE|GROUP [KIND]")
         params = {"kind": rest[1]} if len(rest) == 2 else None
-        cleared = call(api, token, "DELETE", f"/devices/{quote(rest[0], safe='')}/faults", params=params)
+        cleared = call(api, token, "DELETE", f"{_where(api, token, rest[0])}/{quote(rest[0], safe='')}/faults",
+                       params=params)
         click.echo(f"{rest[0]}: cleared {', '.join(cleared['cleared']) or 'nothing'}")
         return
     if first is None or not rest:
@@ -121,7 +123,15 @@ def fault(first: str | None, rest: tuple[str, ...], list_kinds: bool, api: str, 
     click.echo(f"{first}: active faults: " + ", ".join(f["kind"] for f in active))
 
 
+def _where(api: str, token: str | None, name: str) -> str:
+    """/groups for a group of the farm's topology, /devices otherwise."""
+    from enip_farm.cli.api import call
+
+    return "/groups" if any(group["name"] == name for group in call(api, token, "GET", "/groups")) else "/devices"
+
+
 def _inject(api: str, token: str | None, device: str, kind: str, body: dict[str, Any]) -> list[dict[str, Any]]:
+    """A fault on a device (its active faults) or on every device of a group (the first member's)."""
     from urllib.parse import quote
 
     from enip_farm.cli.api import ApiError, call
@@ -131,7 +141,12 @@ def _inject(api: str, token: str | None, device: str, kind: str, body: dict[str,
             click.echo(f"fault {device} {kind}: {in_flags(error.detail)}", err=True)
             sys.exit(2)
 
-    return call(api, token, "POST", f"/devices/{quote(device, safe='')}/faults", refused, json={"kind": kind, **body})
+    where = _where(api, token, device)
+    answer = call(api, token, "POST", f"{where}/{quote(device, safe='')}/faults", refused, json={"kind": kind, **body})
+    if where == "/groups":
+        click.echo(f"{device}: {kind} on {', '.join(answer)}")
+        return next(iter(answer.values()), [])
+    return answer
 
 
 @click.command()

@@ -22,7 +22,6 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import errno
-import math
 import socket
 import time
 from collections.abc import Iterable, Iterator
@@ -30,14 +29,14 @@ from typing import Annotated, Any
 
 import uvicorn
 from fastapi import FastAPI, HTTPException, Query
-from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse, PlainTextResponse
 from fastapi_offline import FastAPIOffline
 from prometheus_client import CollectorRegistry, generate_latest
 from prometheus_client.exposition import CONTENT_TYPE_LATEST
-from pydantic import BaseModel, ConfigDict, Field, field_validator
+from pydantic import BaseModel, Field, field_validator
 
 from enip_farm.control.dashboard import mount_dashboard
+from enip_farm.control.fault_routes import FaultRequest, group_routes, requested_fault
 from enip_farm.control.guard import Guard, needs_token
 from enip_farm.control.handle import FarmControl
 from enip_farm.control.measured import mount_measured
@@ -46,7 +45,7 @@ from enip_farm.control.overview import RECENT, Overview
 from enip_farm.control.stream import EventHub, EventStream
 from enip_farm.control.timeline import Timelines
 from enip_farm.device.device import Device
-from enip_farm.device.faults import Fault, FaultError, FaultKind, fault_kinds
+from enip_farm.device.faults import FaultKind, fault_kinds
 from enip_farm.device.signals import SignalError
 
 
@@ -69,16 +68,6 @@ class IoWrite(BaseModel):
                         isinstance(given, list) and any(isinstance(item, float) for item in items)):
                     raise ValueError(f"{name}: expected a number, or a list of integers for a range, got {given!r}")
         return value
-
-
-class FaultRequest(BaseModel):
-    """A kind and its parameters, side by side, e.g. {"kind": "delay", "delay_ms": 800, "duration_s": 10}:
-    GET /fault-kinds lists each kind's parameters (a JSON Schema); `Fault` checks them."""
-
-    model_config = ConfigDict(extra="allow")
-
-    kind: FaultKind
-    duration_s: float | None = Field(None, description="end the fault by itself after this long (> 0)")
 
 
 class FaultKindInfo(BaseModel):
@@ -214,12 +203,7 @@ def create_app(farm: FarmControl, hub: EventHub | None = None, overview: Overvie
     @app.post("/devices/{name}/faults", status_code=201)
     async def inject(name: str, body: FaultRequest) -> list[dict]:
         known(name)
-        try:
-            fault = Fault(**body.model_dump())
-        except FaultError as error:
-            raise RequestValidationError([{"type": "value_error", "loc": ("body", error.field), "msg": str(error),
-                                           "input": _json_safe(error.value)}]) from None
-        await farm.inject_fault(name, fault)
+        await farm.inject_fault(name, requested_fault(body))
         return farm[name].faults
 
     @app.delete("/devices/{name}/faults")
@@ -270,6 +254,8 @@ def create_app(farm: FarmControl, hub: EventHub | None = None, overview: Overvie
         answer = farm.health()
         return JSONResponse(answer, status_code=200 if answer["ok"] else 503)
 
+    app.include_router(group_routes(farm))
+
     @app.get("/metrics", response_class=PlainTextResponse)
     def metrics() -> PlainTextResponse:
         return PlainTextResponse(generate_latest(registry), media_type=CONTENT_TYPE_LATEST)
@@ -277,10 +263,6 @@ def create_app(farm: FarmControl, hub: EventHub | None = None, overview: Overvie
     mount_measured(app, timelines if timelines is not None else Timelines(farm.devices), known, farm.report)
     mount_dashboard(app)
     return app
-
-
-def _json_safe(value: object) -> object:
-    return repr(value) if isinstance(value, float) and not math.isfinite(value) else value
 
 
 def _hex(field: str, text: str | None) -> bytes | None:

@@ -24,6 +24,7 @@ from enip_farm.device.cyclic import CyclicIo, SendDatagram
 from enip_farm.device.events import Event
 from enip_farm.device.faults import DeviceFaults
 from enip_farm.device.guard import DeviceGuard, Observer, describe, replace_image
+from enip_farm.device.hardware import ModuleHardware
 from enip_farm.device.latency import LatencyHistogram
 from enip_farm.device.objects import build_objects
 from enip_farm.device.profile import DeviceProfile
@@ -55,6 +56,7 @@ class Device:
         self.counters: Counter[str] = Counter(dict.fromkeys(COUNTERS, 0))
         self.latency = LatencyHistogram()
         objects = build_objects(profile, self.counters, budget, product_code=lambda: self.product_code,
+                                revision=lambda: self.revision,
                                 identity_state=lambda: self.identity_state, resetting=lambda: self.resetting,
                                 forced_status=self.faults.forced_status)
         self.assemblies, self.table, self.router, self.link = (objects.assemblies, objects.table, objects.router,
@@ -66,8 +68,12 @@ class Device:
         self.resets = Resets(objects, guard, self.session_handles, profile.reset_time_s)
         self.reset_window = self.resets.window
         self.target = EncapsulationTarget(profile, guard, objects.router, self.resets,
-                                          lambda: self.product_code, lambda: self.identity_state)
+                                          lambda: self.product_code, lambda: self.identity_state,
+                                          lambda: self.revision)
         self.cyclic = CyclicIo(guard, self.faults, self.reset_window, self.counters)
+        #: What faults do to the module itself: its power, its address (device/hardware.py).
+        self.hardware = ModuleHardware(objects, guard, self.session_handles, self.reset_window, profile.address,
+                                       profile.mac)
         #: Interface counters (Ethernet Link attribute 4): the event loop's sockets (TCP and UDP
         #: 44818) count into `traffic`, the cyclic I/O thread's (UDP 2222) into `io_traffic`.
         self.traffic: InterfaceCounters = self.link.new_counters()
@@ -138,6 +144,11 @@ class Device:
     def product_code(self) -> int:
         """The product code the device shows; an `identity` fault changes it so keys stop matching."""
         return self.faults.product_code(self.profile.product_code)
+
+    @property
+    def revision(self) -> tuple[int, int]:
+        """The revision the device shows; a `wrong-module` fault changes it."""
+        return self.faults.revision(self.profile.revision)
 
     @property
     def status(self) -> int:

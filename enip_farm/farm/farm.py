@@ -22,7 +22,7 @@ from enip_farm.capture.recorder import Recorder
 from enip_farm.cip.budget import CyclicBudget
 from enip_farm.cip.report import ReactionFigures
 from enip_farm.cip.verdicts import judge_reaction
-from enip_farm.config import ConfigError, FarmConfig, as_config
+from enip_farm.config import ConfigError, FarmConfig, as_config, load_config
 from enip_farm.control.handle import DeviceHandle
 from enip_farm.control.http import HttpApi, bind_problem
 from enip_farm.control.reaction import SignalValue, measure_reaction
@@ -30,10 +30,11 @@ from enip_farm.control.wiring import Wiring
 from enip_farm.device.build import build_profiles
 from enip_farm.device.catalogue import Catalogue
 from enip_farm.device.device import Device
-from enip_farm.device.faults import Disconnect, FaultType
+from enip_farm.device.faults import Disconnect, Fault, FaultType
 from enip_farm.device.nonvolatile import load_state, save_state
 from enip_farm.device.report import FarmReport, TestBounds, device_bounds, farm_report
 from enip_farm.eds.reader import eds_catalogue
+from enip_farm.farm.faulting import FarmFaults
 from enip_farm.farm.listeners import SOCKETS_PER_DEVICE, BindError, Listeners, bind_message, raise_open_file_limit
 from enip_farm.farm.loop import FarmThread, freeze_heap, new_event_loop, until_stopped_or_failed
 from enip_farm.farm.resets import FarmResets
@@ -44,7 +45,6 @@ from enip_farm.server.calibrate import DEFAULT_DATAGRAMS_PER_S, measure_budget
 from enip_farm.server.implicit import ImplicitIo
 from enip_farm.server.limits import TcpLimits
 from enip_farm.server.udp import DeviceDatagramProtocol, DiscoveryResponder, udp_socket
-from enip_farm.server.waits import os_wait_s
 
 #: What callers import from here (the serve command, the workers, the tests).
 __all__ = ["SOCKETS_PER_DEVICE", "SUPERVISE_S", "BindError", "Farm", "FarmThread", "freeze_heap", "new_event_loop",
@@ -69,8 +69,10 @@ class Farm:
         non-volatile state (a safety target's TUNID, configuration and owner), restored now if it
         exists and written at `stop` (device/nonvolatile.py). Raises ConfigError if the configuration
         is invalid or its devices cannot be built, or the state file is not one."""
-        self.config = config = as_config(config)
-        profiles = build_profiles(config, eds_catalogue(catalogue))
+        models = eds_catalogue(catalogue)
+        known = (models.bases(), models.addons())  # a file's unknown models are told with its other problems
+        self.config = config = load_config(config, known) if isinstance(config, (str, Path)) else as_config(config)
+        profiles = build_profiles(config, models)
         self.recorder = Recorder(record) if record else None
         self._http_address = http
         self._http_token = token
@@ -97,9 +99,9 @@ class Farm:
         self._datagram_transports: list[asyncio.DatagramTransport] = []
         self._discovery: DiscoveryResponder | None = None
         self._implicit: ImplicitIo | None = None
-        self._fault_timers: dict[tuple[str, str], asyncio.TimerHandle] = {}
         self._tasks: set[asyncio.Task] = set()
         self.resets = FarmResets(self.listeners, self._spawn)
+        self.faults = FarmFaults(self.devices, self.listeners, self.resets, self._spawn, lambda: self.running)
         for device in self.devices.values():
             device.observe(lambda event, d=device: self.resets.on_event(d, event))
         self.loop: asyncio.AbstractEventLoop | None = None
@@ -211,9 +213,7 @@ class Farm:
         for transport in self._datagram_transports:
             transport.close()
         self._datagram_transports.clear()
-        for timer in self._fault_timers.values():
-            timer.cancel()
-        self._fault_timers.clear()
+        self.faults.stop()
         await self.listeners.close()
         if self.recorder is not None:
             self.recorder.close()
@@ -249,33 +249,32 @@ class Farm:
         self.reactions.append((figures, bounds))
         return judge_reaction(figures, device_bounds(self.config, set[0], bounds))
 
-    # -- faults (device/faults.py) ---------------------------------------------------------------
+    # -- faults (device/faults.py; farm/faulting.py) ---------------------------------------------
 
-    async def inject_fault(self, name: str, fault: FaultType) -> None:
-        """Switch a fault on for one device, on the farm's loop; `fault.duration_s` ends it by itself.
-        Its hooks (device/fault_type.py) say whether open connections end and TCP stops listening."""
-        device = self.devices[name]
-        self._cancel_timer(name, fault.name)
-        device.faults.set(fault, time.monotonic_ns())
-        device.record("fault injected", fault.parameters())
-        end = fault.on_tcp_connection()
-        if end is not None or not fault.listens():
-            self._close_connections(device, end or Disconnect.CLOSE)
-        if not fault.listens() and name in self._servers:
-            server = self._servers.pop(name)
-            server.close()
-        if fault.duration_ns is not None:
-            self._arm_fault_end(name, fault.name, asyncio.get_running_loop().time() + fault.duration_ns / 1e9)
+    async def inject_fault(self, name: str, fault: FaultType) -> tuple[str, ...]:
+        """Switch a fault on for a device, or for every device of a group at once, on the farm's loop;
+        `fault.duration_s` ends it by itself. The devices it was set on."""
+        names = self.config.topology.targets(name)
+        await self.faults.inject(names, fault)
+        return names
 
-    def _arm_fault_end(self, name: str, kind: str, end: float) -> None:
-        """Clear the fault at `end` (loop time), in bounded steps (server/waits.py)."""
-        loop = asyncio.get_running_loop()
-        delay = end - loop.time()
-        if delay > 0 and os_wait_s(delay) < delay:
-            self._fault_timers[name, kind] = loop.call_later(os_wait_s(delay), self._arm_fault_end, name, kind, end)
-            return
-        self._fault_timers[name, kind] = loop.call_later(
-            os_wait_s(delay), lambda: self._spawn(self.clear_faults(name, kind)))
+    async def clear_faults(self, name: str, kind: str | None = None) -> list[str]:
+        """Switch one fault kind (or all) off for a device or a group's devices: the kinds cleared."""
+        cleared: list[str] = []
+        for device in self.config.topology.targets(name):
+            cleared += [k for k in await self.faults.clear(device, kind) if k not in cleared]
+        return cleared
+
+    def inject(self, target: str, kind: str, duration_s: float | None = None, **params: Any) -> tuple[str, ...]:
+        """A fault on a device or a group (every member at once), from another thread:
+        farm.inject("rack2", "power-loss", duration_s=4, boot_time_s=2). KeyError for an unknown
+        target, `FaultError` (a ValueError naming the field) for a bad parameter: nothing is set."""
+        self.config.topology.targets(target)  # KeyError before anything runs
+        return self.run(self.inject_fault(target, Fault(kind, duration_s=duration_s, **params)))
+
+    def clear(self, target: str, kind: str | None = None) -> list[str]:
+        """End one fault kind (or all) on a device or a group, from another thread."""
+        return self.run(self.clear_faults(target, kind))
 
     def _spawn(self, coroutine: Coroutine[Any, Any, Any]) -> None:
         """A task of the farm, kept until it ends; its exception reaches the loop's handler."""
@@ -288,24 +287,6 @@ class Farm:
         if not task.cancelled() and task.exception() is not None and self.loop is not None:
             self.loop.call_exception_handler({"message": "a farm task failed", "exception": task.exception(),
                                               "task": task})
-
-    async def clear_faults(self, name: str, kind: str | None = None) -> list[str]:
-        """Switch one fault (or all) off; normal behaviour returns without a restart."""
-        device = self.devices[name]
-        listens_again = not device.faults.listens and device.faults.listens_without(kind)
-        if listens_again and self.running and name not in self._servers and not device.resetting:
-            await self._listen(device)  # listening again before the fault is seen gone (a reset's end listens)
-        cleared = device.faults.clear(kind)
-        for k in cleared:
-            self._cancel_timer(name, k)
-        if cleared:
-            device.record("fault cleared", {"kind": ", ".join(cleared)})
-        return cleared
-
-    def _cancel_timer(self, name: str, kind: str) -> None:
-        timer = self._fault_timers.pop((name, kind), None)
-        if timer is not None:
-            timer.cancel()
 
     def run(self, coroutine: Coroutine[Any, Any, T], timeout: float = 30.0) -> T:
         """Run a farm coroutine from another thread (e.g. a synchronous test while the farm runs in

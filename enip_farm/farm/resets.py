@@ -16,6 +16,7 @@ from typing import Any
 
 from enip_farm.device.device import Device
 from enip_farm.device.events import Event
+from enip_farm.device.faults import Disconnect
 from enip_farm.device.reset import DeviceReset
 from enip_farm.farm.listeners import BindError, Listeners
 from enip_farm.server.waits import os_wait_s
@@ -55,6 +56,15 @@ class FarmResets:
         if self.loop is None:
             return
         self.listeners.close_connections(device)
+        self.listeners.stop_listening(device.name)
+        self._arm_end(device)
+
+    def power_returned(self, device: Device) -> None:
+        """On the loop: a device whose power came back boots (its reset window): the TCP connections it
+        had are reset, as a rebooted stack answers their next segment, and it listens once booted."""
+        if self.loop is None:
+            return
+        self.listeners.close_connections(device, Disconnect.RESET)
         self.listeners.stop_listening(device.name)
         self._arm_end(device)
 

@@ -13,7 +13,8 @@ the sans-IO encapsulation session and writing each batch of whole replies with o
 - Encapsulation inactivity timeout (TCP/IP Interface attribute 13): a connection with no whole
   request for that long is closed, whether it sent nothing or half a header.
 Injected faults act through their hooks (device/fault_type.py): `on_reply` holds replies back or
-drops them, `on_tcp_connection` closes or resets a new connection. A device
+drops them, `on_tcp_connection` closes or resets a new connection, `hears` (False: no power, no link)
+discards what arrives unread. A device
 in its reset window (Identity Reset) takes no connection. Every read and write is counted in the
 device's interface counters (Ethernet Link attribute 4)."""
 
@@ -109,6 +110,9 @@ class EncapsulationProtocol(asyncio.Protocol):
         if self.session is None:  # refused at connection_made
             return
         device = self.device
+        if not device.faults.hears:  # no power or no link: nothing arrives
+            device.traffic.discarded()
+            return
         device.traffic.received(len(data))
         recorder = device.recorder
         if recorder is not None:
