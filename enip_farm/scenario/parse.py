@@ -16,7 +16,7 @@ not exist, a clear of what no step sets).
       - clear: rack2                  # `kind:` one kind; default every fault
     expect:
       - io1.DO5 == 0 within 100 ms of step 1
-      - rack2 reconnected within 3 s of end of step loss
+      - rack2 reconnected within 3 s of end of step loss   # a fault's end: its duration's
       - no connection timed out outside rack2
       - count(connection timed out, rack2) == 2
 

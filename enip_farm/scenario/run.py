@@ -77,6 +77,9 @@ async def run_scenario(farm: ScenarioFarm, scenario: Scenario, progress: Callabl
         for stop in unsubscribe:
             stop()
     recording.started, recording.ended = dict(schedule.started), dict(schedule.ended)
+    for number, step in schedule.steps.items():  # a fault's step ends when its duration does
+        if isinstance(step.action, FaultAction) and step.action.duration_ns and number in schedule.started:
+            recording.ended[number] = schedule.started[number] + step.action.duration_ns
     verdicts = judge(scenario, recording, {name: farm[name].signals for name in scenario.devices})
     if status == "passed" and (any(not v.passed for v in verdicts) or any(
             state is not StepState.DONE for state in schedule.state.values())):
