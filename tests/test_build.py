@@ -106,7 +106,7 @@ def test_problems_of_a_count_entry_are_reported_once() -> None:
     with pytest.raises(ConfigError) as error:
         build_profiles(config, shipped_catalogue())
     assert str(error.value).splitlines() == [
-        "cell.yaml: device 'io1' (devices[0]), addons: unknown add-on 'DSQC9'; known: "
+        "cell.yaml: device 'io1' (devices[0]), addons: unknown add-on 'DSQC9' (did you mean DSQC1033?); known: "
         + ", ".join(shipped_catalogue().addons())]
 
 
@@ -119,8 +119,8 @@ def test_validate_reports_model_addon_and_wiring_problems(tmp_path: Path) -> Non
     result = subprocess.run([*CLI, "validate", str(path)], capture_output=True, text=True, timeout=60)
     assert result.returncode == 2 and "Traceback" not in result.stderr
     assert result.stderr.splitlines() == [
-        f"{path}: wire a.DO1-8 -> b.DI1-7: both ends need the same kind and number of signals",
-        f"{path}: wire a.DI1 -> b.DI2: wires go from outputs (DO, AO) to inputs (DI, AI)"]
+        f"{path}:9: wire a.DO1-8 -> b.DI1-7: both ends need the same kind and number of signals",
+        f"{path}:11: wire a.DI1 -> b.DI2: wires go from outputs (DO, AO) to inputs (DI, AI)"]
 
 
 def _identity_capture(path: Path, product_name: str) -> Path:

@@ -22,7 +22,7 @@ from enip_farm.capture.recorder import Recorder
 from enip_farm.cip.budget import CyclicBudget
 from enip_farm.cip.report import ReactionFigures
 from enip_farm.cip.verdicts import judge_reaction
-from enip_farm.config import ConfigError, FarmConfig, as_config
+from enip_farm.config import ConfigError, FarmConfig, as_config, load_config
 from enip_farm.control.handle import DeviceHandle
 from enip_farm.control.http import HttpApi, bind_problem
 from enip_farm.control.reaction import SignalValue, measure_reaction
@@ -73,8 +73,10 @@ class Farm:
         non-volatile state (a safety target's TUNID, configuration and owner), restored now if it
         exists and written at `stop` (device/nonvolatile.py). Raises ConfigError if the configuration
         is invalid or its devices cannot be built, or the state file is not one."""
-        self.config = config = as_config(config)
-        profiles = build_profiles(config, eds_catalogue(catalogue))
+        models = eds_catalogue(catalogue)
+        known = (models.bases(), models.addons())  # a file's unknown models are told with its other problems
+        self.config = config = load_config(config, known) if isinstance(config, (str, Path)) else as_config(config)
+        profiles = build_profiles(config, models)
         self.recorder = Recorder(record) if record else None
         self._http_address = http
         self._http_token = token
