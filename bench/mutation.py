@@ -2,9 +2,12 @@
 
 Cosmic Ray (`pip install -e ".[mutation]"`) makes the mutants; this script decides which to run and
 with which tests, so that no mutant runs the whole suite and a run stays within its time budget:
-- per package (`PACKAGES`): the modules mutated, and the fast test files that guard them;
+- per package (`PACKAGES`): the modules mutated, and the fast test files that guard them (their
+  unit and integration tests: `-m "not system"`);
 - a seeded sample of mutation *sites* (a module, a line, a column), one operator drawn per site, so
-  the sample spreads over the code rather than over the operators;
+  the sample spreads over the code rather than over the operators; a site's rank is a hash of its
+  text, so the sample of unchanged code stays the same as others change the code around it; no
+  mutant of an annotation (a string, never evaluated: equivalent by construction);
 - each mutant in a scratch copy of the tree (the checkout is never written), its tests run with
   `pytest -x`, the run niced; a package stops starting mutants once its budget (seconds) is spent.
 
@@ -22,9 +25,10 @@ hand (each must be killed). Not a CI step: it takes minutes.
 from __future__ import annotations
 
 import argparse
+import ast
+import hashlib
 import json
 import os
-import random
 import re
 import shutil
 import subprocess
@@ -38,6 +42,7 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parent.parent
 EQUIVALENTS = ROOT / "bench" / "mutation-equivalents.md"
 VARY = "tests/test_values_that_vary.py"
+PINNED = "tests/test_pinned_details.py"  # what the mutants that survived showed no test pinned
 
 
 @dataclass(frozen=True)
@@ -51,23 +56,24 @@ PACKAGES: dict[str, Package] = {
     "protocol": Package(
         ("enip_farm/protocol/*.py", "enip_farm/protocol/safety/*.py"),
         ("tests/test_protocol.py", "tests/test_framing_and_state.py", "tests/test_encapsulation_errors.py",
-         "tests/test_cip_services_unit.py", "tests/test_safety.py", VARY)),
+         "tests/test_cip_services_unit.py", "tests/test_safety.py", "tests/test_safety_multicast.py", VARY, PINNED)),
     "cip": Package(
         ("enip_farm/cip/*.py", "enip_farm/cip/safety/*.py"),
         ("tests/test_connection_table.py", "tests/test_cip_services_unit.py", "tests/test_cip_errors.py",
          "tests/test_connection_events.py", "tests/test_declared_connections.py", "tests/test_attributes.py",
-         "tests/test_safety_supervisor.py", "tests/test_limits_unit.py", "tests/test_safety.py", VARY)),
+         "tests/test_safety_supervisor.py", "tests/test_limits_unit.py", "tests/test_safety.py",
+         "tests/test_safety_multicast.py", VARY, PINNED)),
     "device-faults": Package(  # the faults and the farm's fault timers
         ("enip_farm/device/faults.py", "enip_farm/device/fault_kinds.py", "enip_farm/device/fault_type.py",
          "enip_farm/farm/farm.py"),
-        ("tests/test_device.py", VARY, "tests/test_control.py"),
+        ("tests/test_device.py", VARY, PINNED, "tests/test_control.py"),
         {"enip_farm/farm/farm.py": ("inject_fault", "_arm_fault_end", "clear_faults", "_cancel_timer")}),
     "device-cyclic": Package(  # one device's class-1 path: cyclic I/O, its lock, its target
         ("enip_farm/device/cyclic.py", "enip_farm/device/guard.py", "enip_farm/device/target.py"),
-        ("tests/test_device.py", "tests/test_reset_effect.py", VARY, "tests/test_implicit.py")),
+        ("tests/test_device.py", "tests/test_reset_effect.py", VARY, PINNED, "tests/test_implicit.py")),
     "server-class1": Package(  # the I/O thread and its sockets
         ("enip_farm/server/implicit.py", "enip_farm/server/batch.py", "enip_farm/server/waits.py"),
-        ("tests/test_implicit.py", "tests/test_batch.py")),
+        ("tests/test_implicit.py", "tests/test_batch.py", PINNED)),
 }
 
 #: The six mutations issue 32 found surviving: (name, module, the code, the mutated code, tests).
@@ -107,7 +113,7 @@ def scratch_copy() -> Path:
 
 
 def pytest_command(tests: list[str]) -> list[str]:
-    return [sys.executable, "-m", "pytest", "-x", "-q", "-p", "no:cacheprovider", *tests]
+    return [sys.executable, "-m", "pytest", "-x", "-q", "-p", "no:cacheprovider", "-m", "not system", *tests]
 
 
 def run_tests(scratch: Path, tests: list[str], timeout: float) -> tuple[str, float, str]:
@@ -137,27 +143,49 @@ def mutation_key(scratch: Path, spec) -> str:
     return f"{spec.module_path}::{spec.definition_name}::{spec.operator_name}::{line}"
 
 
-def sample_mutants(scratch: Path, package: Package, sample: int, rng: random.Random) -> tuple[list, int, int]:
-    """(the sampled mutation specs, all mutants, all sites) of a package."""
+def _annotations(path: Path) -> list[tuple[tuple[int, int], tuple[int, int]]]:
+    """The spans of a module's annotations: strings under `from __future__ import annotations`,
+    never evaluated, so a mutant there is equivalent by construction (left out of the population)."""
+    spans = []
+    for node in ast.walk(ast.parse(path.read_text())):
+        found = [getattr(node, "returns", None), getattr(node, "annotation", None)]
+        spans += [((a.lineno, a.col_offset), (a.end_lineno, a.end_col_offset)) for a in found if a is not None]
+    return spans
+
+
+def _rank(*parts: object) -> str:
+    return hashlib.sha256(":".join(map(str, parts)).encode()).hexdigest()
+
+
+def sample_mutants(scratch: Path, package: Package, sample: int, seed: str) -> tuple[list, int, int]:
+    """(the sampled mutation specs, all mutants, all sites) of a package. A site is ranked by a hash
+    of the seed, its module, its line's text and its column, and so is each operator at a site: the
+    sample stays the same when the code changes elsewhere (a new line only adds a site)."""
     from cosmic_ray.commands.init import _all_work_items  # the enumeration `cosmic-ray init` does
 
     modules = sorted({p.relative_to(scratch) for pattern in package.modules for p in scratch.glob(pattern)})
-    sites: dict[tuple, list] = defaultdict(list)
+    sites: dict[str, list] = defaultdict(list)
     total = 0
     cwd = os.getcwd()
     os.chdir(scratch)  # module paths relative to the scratch copy
     try:
+        texts = {str(m): m.read_text().splitlines() for m in modules}
+        annotations = {str(m): _annotations(m) for m in modules}
         for item in _all_work_items(modules, {}):
             spec = item.mutations[0]
-            only = package.definitions.get(str(spec.module_path))
+            module = str(spec.module_path)
+            only = package.definitions.get(module)
             if only is not None and spec.definition_name not in only:
                 continue
+            if any(a <= spec.start_pos < b for a, b in annotations[module]):
+                continue
             total += 1
-            sites[str(spec.module_path), spec.start_pos].append(spec)
+            line = texts[module][spec.start_pos[0] - 1].strip()
+            sites[_rank(seed, module, line, spec.start_pos[1])].append(spec)
     finally:
         os.chdir(cwd)
-    chosen = rng.sample(sorted(sites), min(sample, len(sites)))
-    return [rng.choice(sites[site]) for site in chosen], total, len(sites)
+    chosen = sorted(sites)[:sample]
+    return [min(sites[site], key=lambda s: _rank(site, s.operator_name)) for site in chosen], total, len(sites)
 
 
 def run_package(name: str, package: Package, args: argparse.Namespace, known: dict[str, str]) -> dict:
@@ -170,7 +198,11 @@ def run_package(name: str, package: Package, args: argparse.Namespace, known: di
         clean, clean_s, output = run_tests(scratch, tests, 600)
         if clean != "passed":
             return {"package": name, "error": f"the tests fail without a mutant:\n{output}"}
-        specs, total, sites = sample_mutants(scratch, package, args.sample, random.Random(f"{args.seed}:{name}"))
+        specs, total, sites = sample_mutants(scratch, package, args.sample, f"{args.seed}:{name}")
+        if args.replay is not None:  # only the survivors of an earlier run
+            again = {r["key"] for s in json.loads(args.replay.read_text()) for r in s.get("results", [])
+                     if r["verdict"] == "survived"}
+            specs = [spec for spec in specs if mutation_key(scratch, spec) in again]
         results: list[dict] = []
         deadline = time.monotonic() + args.budget_s
         for spec in specs:
@@ -191,8 +223,8 @@ def run_package(name: str, package: Package, args: argparse.Namespace, known: di
             verdict = {"passed": "survived", "failed": "killed", "timeout": "killed"}[outcome]
             if verdict == "survived" and key in known:
                 verdict = "equivalent"
-            results.append({"key": key, "verdict": verdict, "seconds": round(seconds, 1),
-                            "line": spec.start_pos[0], "mutated": changed})
+            results.append({"key": key, "verdict": verdict, "seconds": round(seconds, 1), "line": spec.start_pos[0],
+                            "occurrence": spec.occurrence, "mutated": changed})
             print(f"  {name}: {verdict:10} {key}", flush=True)
         counts = {v: sum(r["verdict"] == v for r in results) for v in ("killed", "survived", "equivalent")}
         scored = counts["killed"] + counts["survived"]
@@ -238,6 +270,7 @@ def main() -> int:
     parser.add_argument("--seed", default="32")
     parser.add_argument("--omit-tests", action="append", default=[], help="a test file left out (the 'before')")
     parser.add_argument("--named", action="store_true", help="the six mutations of issue 32, by hand")
+    parser.add_argument("--replay", type=Path, help="run only the survivors of this earlier --json")
     parser.add_argument("--json", type=Path, help="write the results here")
     args = parser.parse_args()
     os.nice(10)  # a shared machine: the tests this starts inherit it

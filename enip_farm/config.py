@@ -28,6 +28,8 @@ from pydantic import (
 from pydantic_core import InitErrorDetails, PydanticCustomError
 
 from enip_farm.bounds import BoundsConfig
+from enip_farm.config_errors import describe, did_you_mean, duplicates, line_map, line_of, not_a_cell, yaml_problem
+from enip_farm.config_errors import device_location as device_location  # where it has always been imported from
 from enip_farm.topology import GroupConfig, Topology, resolve, subnet_problem
 
 _MAC = re.compile(r"^([0-9A-Fa-f]{2}[:-]){5}[0-9A-Fa-f]{2}$")
@@ -179,9 +181,22 @@ class DeviceConfig(_Strict):
     @classmethod
     def _profile_path(cls, value: str, info: ValidationInfo) -> str:
         """A profile file (e.g. from `enip-farm learn`) is named relative to the configuration's
-        directory; it is read when devices are built."""
-        if is_profile_path(value) and not Path(value).is_absolute():
-            return str(Path((info.context or {}).get("base_dir", ".")) / value)
+        directory; it is read when devices are built. A catalogue model is checked here when the
+        catalogue's names are given (`parse_config(known=...)`), else when devices are built."""
+        if is_profile_path(value):
+            return value if Path(value).is_absolute() else str(Path((info.context or {}).get("base_dir", ".")) / value)
+        bases = ((info.context or {}).get("known") or ((), ()))[0]
+        if bases and value not in bases:
+            raise ValueError(f"unknown base model {value!r}{did_you_mean(value, bases)}; known: {', '.join(bases)}")
+        return value
+
+    @field_validator("addons")
+    @classmethod
+    def _known_addons(cls, value: list[str], info: ValidationInfo) -> list[str]:
+        addons = ((info.context or {}).get("known") or ((), ()))[1]
+        for addon in value if addons else ():
+            if addon not in addons:
+                raise ValueError(f"unknown add-on {addon!r}{did_you_mean(addon, addons)}; known: {', '.join(addons)}")
         return value
 
     @field_validator("mac")
@@ -336,52 +351,42 @@ def is_profile_path(model: str) -> bool:
     return model.endswith((".yaml", ".yml", ".eds", ".EDS"))
 
 
-def device_location(index: int, name: str | None = None) -> str:
-    """How messages name a device: by its entry in the configuration's `devices` list."""
-    return f"device {name!r} (devices[{index}])" if name else f"devices[{index}]"
-
-
-def _describe(error: dict[str, Any], data: Any) -> str:
-    location = list(error["loc"])
-    where = ""
-    if len(location) >= 2 and location[0] in ("devices", "groups") and isinstance(location[1], int):
-        index, part = location[1], location[0]
-        name = None
-        if isinstance(data, dict) and isinstance(data.get(part), list) and index < len(data[part]):
-            entry = data[part][index]
-            name = entry.get("name") if isinstance(entry, dict) else None
-        where = device_location(index, name) if part == "devices" else (
-            f"group {name!r} (groups[{index}])" if name else f"groups[{index}]")
-        location = location[2:]
-    field = ".".join(str(part) for part in location)
-    message = error["msg"].removeprefix("Value error, ")
-    if isinstance(error.get("input"), bool) and error["type"] == "literal_error":  # YAML 1.1 booleans
-        words = "on, yes" if error["input"] else "off, no"
-        message += f" (YAML reads an unquoted {words} as {str(error['input']).lower()}: quote the value, e.g. \"off\")"
-    return ", ".join(part for part in (where, field) if part) + f": {message}" if (where or field) else message
-
-
-def parse_config(data: Any, source: str = "<config>", base_dir: str | Path = ".") -> FarmConfig:
+def parse_config(data: Any, source: str = "<config>", base_dir: str | Path = ".", text: str | None = None,
+                 known: tuple[list[str], list[str]] | None = None) -> FarmConfig:
     """`source` names the configuration in messages; `base_dir`: where profile files named by a
-    device's model are looked up."""
+    device's model are looked up; `text`: the YAML it was read from, whose lines the messages
+    give; `known`: the catalogue's base models and add-ons, checked with everything else. Every
+    problem is one line of the ConfigError, in the file's order (config_errors.py)."""
+    problem = not_a_cell(source, data)
+    if problem:
+        raise ConfigError(problem)
+    context: dict[str, Any] = {"base_dir": str(base_dir), "known": known}
     try:
-        config = FarmConfig.model_validate(data, context={"base_dir": str(base_dir)})
+        config = FarmConfig.model_validate(data, context=context)
     except ValidationError as error:
-        lines = [f"{source}: {_describe(e, data)}" for e in error.errors()]
-        raise ConfigError("\n".join(lines)) from None
+        errors: list[dict[str, Any]] = list(error.errors())
+        if not any(e["type"] == "duplicate" for e in errors):  # told once every device is valid: tell them now
+            errors += [{"loc": loc, "msg": message, "type": "duplicate"} for loc, message in duplicates(data)]
+        lines = line_map(text) if text is not None else {}
+        told = [(line_of(lines, tuple(e["loc"])), describe(e, data, FarmConfig)) for e in errors]
+        told.sort(key=lambda item: item[0] or 0)
+        raise ConfigError("\n".join(f"{source}:{line}: {message}" if line else f"{source}: {message}"
+                                    for line, message in dict.fromkeys(told))) from None
     config._source = source
     return config
 
 
-def load_config(path: str | Path) -> FarmConfig:
+def load_config(path: str | Path, known: tuple[list[str], list[str]] | None = None) -> FarmConfig:
+    """A configuration file (see `parse_config`); a YAML error is one line at its line and column."""
     path = Path(path)
     try:
-        data = yaml.safe_load(path.read_text())
+        text = path.read_text()
+        data = yaml.safe_load(text)
     except OSError as error:
         raise ConfigError(f"{path}: cannot read: {error.strerror}") from None
     except yaml.YAMLError as error:
-        raise ConfigError(f"{path}: not valid YAML: {error}") from None
-    return parse_config(data, str(path), path.parent)
+        raise ConfigError(yaml_problem(str(path), error)) from None
+    return parse_config(data, str(path), path.parent, text, known)
 
 
 def default_config_path() -> Path:

@@ -595,7 +595,7 @@ def test_cli_import_validate_export_import(tmp_path: Path) -> None:
      "address)\n"),
     (["eio", "export", "--config", "cell.yaml"],
      {"cell.yaml": "devices:\n  - {name: io1, address: 127.0.30.1, model: DSQC9999}\n"},
-     "cell.yaml: device 'io1' (devices[0]), model: unknown base model 'DSQC9999'; known: DSQC1030, DSQC1042, "
+     "cell.yaml:2: device 'io1' (devices[0]), model: unknown base model 'DSQC9999'; known: DSQC1030, DSQC1042, "
      f"{GENERIC_MODEL}\n"),
 ])
 def test_cli_errors_are_one_line_each_and_exit_2(tmp_path: Path, args: list[str], files: dict[str, str],

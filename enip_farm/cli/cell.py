@@ -8,8 +8,10 @@ from pathlib import Path
 from typing import Any
 
 import click
+import yaml
 
 from enip_farm.config import ConfigError, FarmConfig, default_config_path, load_config
+from enip_farm.config_errors import locate
 from enip_farm.device.build import build_profiles
 from enip_farm.eds.reader import eds_catalogue
 from enip_farm.farm.farm import Farm
@@ -19,10 +21,15 @@ from enip_farm.fleet.slices import shard
 def load_cell(path: Path | None, build: bool = True) -> FarmConfig:
     """The configuration, checked by building its devices (models, add-ons, profile files, wiring)
     unless the caller builds a Farm of it at once (`build=False`, then see `make_farm`)."""
+    catalogue = eds_catalogue()
     try:
-        config = load_config(path or default_config_path())
+        config = load_config(path or default_config_path(), known=(catalogue.bases(), catalogue.addons()))
         if build:
-            build_profiles(config, eds_catalogue())
+            try:
+                build_profiles(config, catalogue)
+            except ConfigError as error:  # what only building tells (profile files, signals, wiring): at its line
+                text = Path(config.source).read_text()
+                raise ConfigError(locate(str(error), config.source, text, yaml.safe_load(text))) from None
     except ConfigError as error:
         click.echo(str(error), err=True)
         sys.exit(2)

@@ -17,6 +17,7 @@ import yaml
 from pydantic import ValidationError
 
 from enip_farm.config import ConfigError, DeviceConfig, FarmConfig, device_location, is_profile_path
+from enip_farm.config_errors import did_you_mean
 from enip_farm.device.catalogue import Catalogue
 from enip_farm.device.named_signals import NamedSignal, named_signal
 from enip_farm.device.profile import DeviceProfile, resolve
@@ -85,12 +86,14 @@ def _device_problems(device: DeviceConfig, model_name: str, catalogue: Catalogue
     problems = []
     model = catalogue.models.get(model_name)
     if model is None or model.kind != "base":
-        problems.append(("model", f"unknown base model {model_name!r}; known: {', '.join(catalogue.bases())}"))
+        problems.append(("model", f"unknown base model {model_name!r}{did_you_mean(model_name, catalogue.bases())}; "
+                                  f"known: {', '.join(catalogue.bases())}"))
     elif model.identity is None:
         problems.append(("model", f"base model {model_name!r} has no identity"))
     for addon in device.addons:
         if addon not in catalogue.addons():
-            problems.append(("addons", f"unknown add-on {addon!r}; known: {', '.join(catalogue.addons())}"))
+            problems.append(("addons", f"unknown add-on {addon!r}{did_you_mean(addon, catalogue.addons())}; "
+                                       f"known: {', '.join(catalogue.addons())}"))
     for signal in device.signals:
         try:
             named_signal(signal)

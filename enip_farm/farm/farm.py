@@ -13,7 +13,7 @@ import asyncio
 import logging
 import time
 from collections import deque
-from collections.abc import Coroutine, Iterator, Mapping
+from collections.abc import Callable, Coroutine, Iterator, Mapping
 from contextlib import contextmanager
 from pathlib import Path
 from typing import Any, TypeVar
@@ -22,7 +22,7 @@ from enip_farm.capture.recorder import Recorder
 from enip_farm.cip.budget import CyclicBudget
 from enip_farm.cip.report import ReactionFigures
 from enip_farm.cip.verdicts import judge_reaction
-from enip_farm.config import ConfigError, FarmConfig, as_config
+from enip_farm.config import ConfigError, FarmConfig, as_config, load_config
 from enip_farm.control.handle import DeviceHandle
 from enip_farm.control.http import HttpApi, bind_problem
 from enip_farm.control.reaction import SignalValue, measure_reaction
@@ -41,6 +41,10 @@ from enip_farm.farm.resets import FarmResets
 from enip_farm.farm.supervision import SUPERVISE_S, Supervision
 from enip_farm.protocol.connection import IO_PORT
 from enip_farm.protocol.encapsulation import ENIP_PORT
+from enip_farm.scenario.model import Scenario
+from enip_farm.scenario.parse import load_scenario, signal_check
+from enip_farm.scenario.run import run_scenario
+from enip_farm.scenario.verdict import ScenarioResult
 from enip_farm.server.calibrate import DEFAULT_DATAGRAMS_PER_S, measure_budget
 from enip_farm.server.implicit import ImplicitIo
 from enip_farm.server.limits import TcpLimits
@@ -69,8 +73,10 @@ class Farm:
         non-volatile state (a safety target's TUNID, configuration and owner), restored now if it
         exists and written at `stop` (device/nonvolatile.py). Raises ConfigError if the configuration
         is invalid or its devices cannot be built, or the state file is not one."""
-        self.config = config = as_config(config)
-        profiles = build_profiles(config, eds_catalogue(catalogue))
+        models = eds_catalogue(catalogue)
+        known = (models.bases(), models.addons())  # a file's unknown models are told with its other problems
+        self.config = config = load_config(config, known) if isinstance(config, (str, Path)) else as_config(config)
+        profiles = build_profiles(config, models)
         self.recorder = Recorder(record) if record else None
         self._http_address = http
         self._http_token = token
@@ -275,6 +281,19 @@ class Farm:
     def clear(self, target: str, kind: str | None = None) -> list[str]:
         """End one fault kind (or all) on a device or a group, from another thread."""
         return self.run(self.clear_faults(target, kind))
+
+    # -- scenarios (enip_farm/scenario/) --------------------------------------------------------------
+
+    def load_scenario(self, path: str | Path) -> Scenario:
+        """A scenario file parsed and checked against this farm's cell (ScenarioError: every defect)."""
+        return load_scenario(str(path), self.config, signal_check({n: h.signals for n, h in self.handles.items()}))
+
+    def run_scenario(self, scenario: str | Path | Scenario, progress: Callable[[str], None] | None = None,
+                     timeout: float = 3600.0) -> ScenarioResult:
+        """Run a scenario (a file or a parsed one) on the running farm, from another thread, and return
+        its result (`passed`, `verdicts`, `table()`); whatever it set is undone when it ends."""
+        parsed = scenario if isinstance(scenario, Scenario) else self.load_scenario(scenario)
+        return self.run(run_scenario(self, parsed, progress), timeout)
 
     def _spawn(self, coroutine: Coroutine[Any, Any, Any]) -> None:
         """A task of the farm, kept until it ends; its exception reaches the loop's handler."""
