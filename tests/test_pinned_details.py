@@ -229,3 +229,36 @@ def test_the_reconnections_remember_the_64_latest_originators() -> None:
     reconnections.device_back("reset", T0 + 200, connected=set())
     waiting = [r.originator for r in reconnections.figures("d")]
     assert waiting == [*originators[3:], originators[1], "127.0.2.1"]
+
+
+@pytest.mark.parametrize(("kind", "params", "field"), [
+    ("flapping-link", {"count": 0}, "count"), ("address-conflict", {"phase": "later"}, "phase")])
+def test_a_parameter_pydantic_refuses_is_a_fault_error_naming_its_field(kind: str, params: dict, field: str) -> None:
+    """Fields without a `before` validator of their own: pydantic's error, its field taken from
+    its location (a mutant read the location's second part)."""
+    with pytest.raises(FaultError) as refused:
+        Fault(kind, **params)
+    assert (type(refused.value), refused.value.field) == (FaultError, field)
+    assert str(refused.value).startswith(f"{field}: ")
+
+
+def test_a_kind_named_by_an_equal_string_not_the_same_object() -> None:
+    """Kinds from JSON are new strings, equal to the class's name but not the same object (a mutant
+    compared with `is not`)."""
+    faults = DeviceFaults()
+    faults.set(Fault("offline"), T0)
+    offline = "".join(["off", "line"])
+    assert offline == "offline" and offline is not Fault("offline").name
+    assert faults.listens_without(offline) is True
+    assert faults.clear(offline) == ["offline"] and faults.listens
+
+
+def test_a_suspended_fault_is_kept_without_its_effects_and_only_an_active_one_is_suspended() -> None:
+    faults = DeviceFaults()
+    faults.suspend("offline", True)  # not active: nothing to suspend
+    faults.set(Fault("offline"), T0)
+    assert (faults.listens, faults.suspended) == (False, set())
+    faults.suspend("offline", True)
+    assert (faults.listens, list(faults.active)) == (True, ["offline"])
+    faults.suspend("offline", False)
+    assert faults.listens is False
