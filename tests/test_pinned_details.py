@@ -28,6 +28,14 @@ from enip_farm.protocol.commands import (
     encode_service_item,
     encode_unconnected_payload,
 )
+from enip_farm.protocol.connection import (
+    ConnectionTriad,
+    ConnectionType,
+    ForwardOpenRequest,
+    NetworkParameters,
+    encode_forward_open,
+    encode_io_packet,
+)
 from enip_farm.protocol.encapsulation import Command
 from enip_farm.protocol.epath import ElectronicKey, LogicalSegment, LogicalType, decode_epath, encode_request_path
 from enip_farm.protocol.session import MessageContext
@@ -262,3 +270,80 @@ def test_a_suspended_fault_is_kept_without_its_effects_and_only_an_active_one_is
     assert (faults.listens, list(faults.active)) == (True, ["offline"])
     faults.suspend("offline", False)
     assert faults.listens is False
+
+
+# -- device/: what the cyclic path and the explicit path publish, and what a stop-io fault withholds -------
+
+PEER = "127.0.0.9"
+
+
+def _dsqc1030() -> Device:
+    config = parse_config({"devices": [{"name": "d", "address": "127.0.0.1", "model": "DSQC1030"}]})
+    (profile,) = build_profiles(config, shipped_catalogue())
+    return Device(profile)
+
+
+def _explicit(device: Device, service: int, class_id: int, instance: int, attribute: int | None = None,
+              data: bytes = b"") -> MessageRouterReply:
+    message = encode_request(service, encode_request_path(class_id, instance, attribute), data)
+    reply = device.handle_unconnected(message, MessageContext(PEER, None, (), T0))
+    return decode_reply(reply[0] if isinstance(reply, tuple) else reply)
+
+
+def _forward_open(device: Device) -> ForwardOpenRequest:
+    p2p = ConnectionType.POINT_TO_POINT
+    sizes = len(device.outputs) + 6, len(device.inputs) + 2
+    return ForwardOpenRequest(
+        0x0A, 0x0E, 0, 0x7E570001, ConnectionTriad(77, 0x1234, 0xABCD), 0, 10_000,
+        NetworkParameters(False, p2p, 2, False, sizes[0]), 10_000, NetworkParameters(False, p2p, 2, False, sizes[1]),
+        0x01, bytes.fromhex("20 04 24 01 2C 64 2C 65"))
+
+
+def test_an_observer_is_told_of_a_request_that_changed_nothing() -> None:
+    """A mutant told observers only when something changed (or when none listened)."""
+    device, seen = _dsqc1030(), []
+    device.observe(seen.append)
+    assert _explicit(device, Service.GET_ATTRIBUTE_SINGLE, ClassCode.IDENTITY, 1, 1).general_status == 0
+    assert [e.kind for e in seen] == ["request"] and seen[0].text.startswith("service 0x0E path 20 01 24 01 30 01")
+
+
+def test_with_nobody_listening_a_reset_and_a_connection_opened_are_still_done_and_logged() -> None:
+    """The hot path (nothing changed, nobody listening) must not swallow a reset or an opened
+    connection (a mutant did, each)."""
+    device, moved = _dsqc1030(), []
+    device.timer_moved = lambda: moved.append(True)
+    opened = _explicit(device, Service.FORWARD_OPEN, ClassCode.CONNECTION_MANAGER, 1,
+                       data=encode_forward_open(_forward_open(device)))
+    assert opened.general_status == 0 and len(device.connections) == 1
+    assert [e.kind for e in device.events if e.kind != "request"] == ["connection opened"] and moved == [True]
+    assert _explicit(device, Service.RESET, ClassCode.IDENTITY, 1).general_status == 0
+    assert [e.kind for e in device.events if e.kind.startswith("reset")] == ["reset"] and device.resetting
+
+
+def test_an_input_change_is_published_as_an_image_change() -> None:
+    device, seen = _dsqc1030(), []
+    device.observe(seen.append)
+    old = device.inputs
+    new = bytes([old[0] ^ 0x01]) + old[1:]
+    device.set_inputs(new, T0)
+    assert [(e.kind, e.detail.role, e.detail.old, e.detail.new) for e in seen] == [
+        ("image changed", "input", old, new)]
+
+
+def test_stop_io_withholds_the_t_o_due_and_drops_o_t() -> None:
+    """A mutant sent the T->O due while the fault stopped the I/O."""
+    device, sent = _dsqc1030(), []
+    _explicit(device, Service.FORWARD_OPEN, ClassCode.CONNECTION_MANAGER, 1,
+              data=encode_forward_open(_forward_open(device)))
+    device.service_io(T0, lambda data, address: sent.append(address))
+    assert sent == [(PEER, 2222)]
+    device.faults.set(Fault("stop-io"), T0)
+    device.service_io(T0 + 10 * 1_000_000, lambda data, address: sent.append(address))
+    assert sent == [(PEER, 2222)]
+    (connection,) = device.connections.values()
+    datagram = encode_io_packet(connection.o_t_id, 1, 1, bytes(4 + len(device.outputs)))
+    assert device.receive_io(datagram, (PEER, 2222), T0, lambda *a: None) is False
+    assert device.counters["o_t_dropped_io_stopped"] == 1
+    device.faults.clear()
+    device.service_io(T0 + 20 * 1_000_000, lambda data, address: sent.append(address))
+    assert sent == [(PEER, 2222)] * 2
