@@ -70,7 +70,8 @@ PACKAGES: dict[str, Package] = {
         {"enip_farm/farm/farm.py": ("inject_fault", "_arm_fault_end", "clear_faults", "_cancel_timer")}),
     "device-cyclic": Package(  # one device's class-1 path: cyclic I/O, its lock, its target
         ("enip_farm/device/cyclic.py", "enip_farm/device/guard.py", "enip_farm/device/target.py"),
-        ("tests/test_device.py", "tests/test_reset_effect.py", VARY, PINNED, "tests/test_implicit.py")),
+        ("tests/test_device.py", "tests/test_reset_effect.py", VARY, PINNED, "tests/test_report_unit.py",
+         "tests/test_implicit.py", "tests/test_report.py")),
     "server-class1": Package(  # the I/O thread and its sockets
         ("enip_farm/server/implicit.py", "enip_farm/server/batch.py", "enip_farm/server/waits.py"),
         ("tests/test_implicit.py", "tests/test_batch.py", PINNED)),

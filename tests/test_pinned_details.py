@@ -15,6 +15,7 @@ from enip_farm.cip.connection_path import KeyIdentity, key_mismatch
 from enip_farm.cip.connection_policy import Refusal
 from enip_farm.cip.connection_table import Opened
 from enip_farm.cip.data_types import ELEMENTARY
+from enip_farm.cip.parameter import ParameterInstance, ParameterSpec
 from enip_farm.cip.reconnection import ORIGINATORS, Reconnections
 from enip_farm.config import parse_config
 from enip_farm.device.build import build_profiles
@@ -347,3 +348,25 @@ def test_stop_io_withholds_the_t_o_due_and_drops_o_t() -> None:
     device.faults.clear()
     device.service_io(T0 + 20 * 1_000_000, lambda data, address: sent.append(address))
     assert sent == [(PEER, 2222)] * 2
+
+
+def test_a_connection_past_its_deadline_times_out_at_the_next_turn_however_late() -> None:
+    """The I/O thread may come late: a deadline passed (not only one reached to the nanosecond)
+    is supervision due (a mutant took only `deadline == now`)."""
+    device = _dsqc1030()
+    _explicit(device, Service.FORWARD_OPEN, ClassCode.CONNECTION_MANAGER, 1,
+              data=encode_forward_open(_forward_open(device)))
+    (connection,) = device.connections.values()
+    device.service_io(connection.deadline - 1, lambda *a: None)
+    assert len(device.connections) == 1
+    device.service_io(connection.deadline + 7_000_000, lambda *a: None)  # 7 ms late
+    assert device.connections == {} and [e.kind for e in device.events if e.kind.startswith("connection t")] == [
+        "connection timed out"]
+
+
+@pytest.mark.parametrize(("value", "status"), [(9, 0x09), (10, 0), (11, 0), (1000, 0), (1001, 0x09)])
+def test_a_parameter_is_set_within_its_minimum_and_maximum_both_included(value: int, status: int) -> None:
+    """Vol. 1, 7-3.6.8 (an EDS's min and max): a mutant refused the minimum and took less."""
+    parameter = ParameterInstance(ParameterSpec(1, "p", 0, 0xC7, 2, minimum=10, maximum=1000, default=500))
+    assert parameter.set(value) == status
+    assert parameter.value == (value if status == 0 else 500)
