@@ -189,7 +189,7 @@ def sample_mutants(scratch: Path, package: Package, sample: int, seed: str,
     chosen = sorted(sites)[:sample]
     if replay is not None:  # the survivors of an earlier run, wherever their lines are now (a module split)
         candidates = [spec for site in sorted(sites) for spec in sites[site] if spec_key(spec, texts) in replay]
-        again = [spec for spec in candidates if replay[spec_key(spec, texts)] == _mutated_line(scratch, spec)]
+        again = [spec for spec in candidates if replay[spec_key(spec, texts)] in (None, _mutated_line(scratch, spec))]
         return again, total, len(sites)
     return [min(sites[site], key=lambda s: _rank(site, s.operator_name)) for site in chosen], total, len(sites)
 
@@ -220,7 +220,7 @@ def run_package(name: str, package: Package, args: argparse.Namespace, known: di
             return {"package": name, "error": f"the tests fail without a mutant:\n{output}"}
         again = None
         if args.replay is not None:  # only the survivors of an earlier run
-            again = {r["key"].split("::", 1)[1]: r["mutated"] for s in json.loads(args.replay.read_text())
+            again = {r["key"].split("::", 1)[1]: r.get("mutated") for s in json.loads(args.replay.read_text())
                      for r in s.get("results", []) if r["verdict"] == "survived" and s["package"] == name}
         specs, total, sites = sample_mutants(scratch, package, args.sample, f"{args.seed}:{name}", again)
         results: list[dict] = []
