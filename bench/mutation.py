@@ -74,7 +74,7 @@ PACKAGES: dict[str, Package] = {
          "tests/test_implicit.py", "tests/test_report.py")),
     "server-class1": Package(  # the I/O thread and its sockets
         ("enip_farm/server/implicit.py", "enip_farm/server/batch.py", "enip_farm/server/waits.py"),
-        ("tests/test_implicit.py", "tests/test_batch.py", PINNED)),
+        ("tests/test_implicit.py", "tests/test_batch.py", PINNED, "tests/test_supervision.py")),
 }
 
 #: The six mutations issue 32 found surviving: (name, module, the code, the mutated code, tests).

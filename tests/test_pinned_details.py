@@ -5,6 +5,10 @@ which mutant it kills; bench/mutation-equivalents.md lists those no test can tel
 
 from __future__ import annotations
 
+import math
+import socket
+import struct
+
 import pytest
 from pycomm3 import ClassCode as PeerClassCode
 from pycomm3 import Services as PeerServices
@@ -41,6 +45,9 @@ from enip_farm.protocol.encapsulation import Command
 from enip_farm.protocol.epath import ElectronicKey, LogicalSegment, LogicalType, decode_epath, encode_request_path
 from enip_farm.protocol.session import MessageContext
 from enip_farm.protocol.status import ExtendedStatus as X
+from enip_farm.server.batch import SO_TIMESTAMPNS, wall_stamp
+from enip_farm.server.implicit import Lag
+from enip_farm.server.waits import os_wait_s
 from tests.test_safety import ORIGINATOR as SAFETY_ORIGINATOR
 from tests.test_safety import make_table as safety_make_table
 from tests.test_safety import safety_open
@@ -370,3 +377,33 @@ def test_a_parameter_is_set_within_its_minimum_and_maximum_both_included(value: 
     parameter = ParameterInstance(ParameterSpec(1, "p", 0, 0xC7, 2, minimum=10, maximum=1000, default=500))
     assert parameter.set(value) == status
     assert parameter.value == (value if status == 0 else 500)
+
+
+# -- server/: the I/O thread's lag, the kernel's receive time, the bounded waits ----------------------------
+
+S = 1_000_000_000  # ns
+
+
+def test_the_lag_is_the_worst_of_the_last_whole_second_and_overloads_are_beyond_5_ms() -> None:
+    lag = Lag()
+    assert [lag.observe(ns, 7 * S + n) for n, ns in enumerate((2_000_000, 9_000_000, 5_000_000, 5_000_001))] == [
+        False, True, False, True]
+    assert (lag.worst_ns, lag.overloads) == (0, 2)  # the second is not over
+    assert lag.observe(1_000, 8 * S) is False
+    assert (lag.worst_ns, lag.overloads) == (9_000_000, 2)  # second 7's worst
+    assert lag.observe(3_000, 8 * S + 5) is False and lag.observe(0, 10 * S) is False
+    assert lag.worst_ns == 3_000  # second 8's (second 9 had no wake-up)
+
+
+def test_the_kernels_receive_time_or_0() -> None:
+    stamp = struct.pack("@qq", 1_700_000_000, 123_456_789)  # struct timespec
+    assert wall_stamp([(socket.SOL_SOCKET, SO_TIMESTAMPNS, stamp)]) == 1_700_000_000_123_456_789
+    assert wall_stamp([(socket.SOL_SOCKET, SO_TIMESTAMPNS + 1, stamp)]) == 0
+    assert wall_stamp([(socket.SOL_SOCKET, SO_TIMESTAMPNS, stamp[:8])]) == 0
+    assert wall_stamp([]) == 0
+
+
+@pytest.mark.parametrize(("seconds", "wait"), [(1.5, 1.5), (1e-9, 1e-9), (0, 0.0), (-1, 0.0), (math.nan, 0.0),
+                                               (3600, 3600), (3600.5, 3600), (math.inf, 3600)])
+def test_a_wait_handed_to_the_os_is_bounded(seconds: float, wait: float) -> None:
+    assert os_wait_s(seconds) == wait
