@@ -10,7 +10,10 @@
  *
  * (sizes as in the Forward Open: O->T = 2-byte sequence count + 4-byte run/idle header + data,
  * T->O = 2 + data; PORT defaults to 2222) and uses the UDP socket inherited as --fd N (or binds
- * --bind ADDR:PORT). A sender thread sends O->T on absolute deadlines (clock_nanosleep
+ * --bind ADDR:PORT). With --fd N,M,... (one socket per pair of threads) the connections are spread
+ * over that many sender/receiver pairs, connection k on socket k % count (the driver named that
+ * socket's port in connection k's Forward Open), so that one pair of threads is not the limit.
+ * A sender thread sends O->T on absolute deadlines (clock_nanosleep
  * TIMER_ABSTIME, connection k offset by k/N of its RPI) in batches with sendmmsg, waking on a grid of
  * --batch-us (default 100 us: a send is at most that late by design, so that 1000 connections do not
  * cost 100 000 wake-ups a second); a receiver thread drains the socket with recvmmsg every millisecond
@@ -77,6 +80,7 @@
 #define ALL_BUCKET_NS 1000     /* all connections: 1 us buckets */
 #define ALL_BUCKETS 1000001    /* up to 1 s */
 #define LATE_SEND_NS 1000000   /* a send more than 1 ms after its deadline is a late send */
+#define MAX_THREADS 16         /* sender/receiver pairs, one socket each */
 
 struct connection {
     char host[64];
@@ -110,14 +114,18 @@ struct deadline {
 static struct connection *connections;
 static int connection_count;
 static int sock = -1;
+static int sockets[MAX_THREADS], socket_count; /* --fd N[,M...] */
+/* what one pair of threads counts; summed at the end */
+struct pair {
+    int index, sock;
+    uint64_t sends_late, send_errors, unknown_t_o, malformed_t_o, receive_errors;
+    int64_t send_lag_max_ns;
+};
+static struct pair pairs[MAX_THREADS];
 static int64_t t_start, t0, t1, t_hard_end; /* CLOCK_MONOTONIC ns */
 static int64_t realtime_offset;               /* CLOCK_REALTIME - CLOCK_MONOTONIC at start */
 static atomic_int stopping;
 static uint64_t *all_histogram;
-static uint64_t unknown_t_o, malformed_t_o, receive_errors;
-/* sender's own figures */
-static uint64_t sends_late, send_errors;
-static int64_t send_lag_max_ns;
 static int realtime;                      /* --realtime: SCHED_FIFO for both threads (root) */
 static int64_t batch_ns = 100000;         /* --batch-us */
 static int64_t receive_pause_ns = 1000000; /* the receiver reads the socket this often when it is drained */
@@ -219,15 +227,15 @@ static int compose(const struct connection *c, uint8_t *out, uint32_t sequence, 
     return c->packet_length;
 }
 
-static void *sender(void *unused) {
-    (void)unused;
+static void *sender(void *argument) {
+    struct pair *p = argument;
     prctl(PR_SET_TIMERSLACK, 1UL);
     struct deadline *heap = calloc(connection_count, sizeof *heap);
     struct mmsghdr *messages = calloc(BATCH, sizeof *messages);
     struct iovec *vectors = calloc(BATCH, sizeof *vectors);
     uint8_t (*out)[600] = calloc(BATCH, sizeof *out); /* a burst sends one connection's packets in one batch */
     int size = 0;
-    for (int k = 0; k < connection_count; k++) {
+    for (int k = p->index; k < connection_count; k += socket_count) {
         int64_t nominal = t_start + connections[k].rpi_ns * k / connection_count;
         heap_push(heap, &size, (struct deadline){nominal + shift(&connections[k], 1), nominal, k});
     }
@@ -263,8 +271,8 @@ static void *sender(void *unused) {
             } else {
                 if (in_window) {
                     c->sent_window++;
-                    if (lag > send_lag_max_ns) send_lag_max_ns = lag;
-                    if (lag > LATE_SEND_NS) sends_late++;
+                    if (lag > p->send_lag_max_ns) p->send_lag_max_ns = lag;
+                    if (lag > LATE_SEND_NS) p->sends_late++;
                 }
                 c->sent_total++;
                 int copies = 1;
@@ -294,10 +302,10 @@ static void *sender(void *unused) {
             heap_push(heap, &size, d);
         }
         for (int offset = 0, tries = 0; offset < n && tries < 8; tries++) {
-            int sent = sendmmsg(sock, messages + offset, n - offset, 0);
+            int sent = sendmmsg(p->sock, messages + offset, n - offset, 0);
             if (sent < 0) {
                 if (errno == EINTR) continue;
-                send_errors++; /* skip the one that failed, go on with the rest */
+                p->send_errors++; /* skip the one that failed, go on with the rest */
                 offset++;
                 continue;
             }
@@ -311,15 +319,15 @@ static void *sender(void *unused) {
     return NULL;
 }
 
-static void take(const uint8_t *data, int length, int64_t stamp_mono) {
+static void take(struct pair *p, const uint8_t *data, int length, int64_t stamp_mono) {
     if (length < 20 || le16(data) != 2 || le16(data + 2) != 0x8002 || le16(data + 4) != 8 ||
         le16(data + 14) != 0x00B1 || le16(data + 16) != (unsigned)length - 18) {
-        malformed_t_o++;
+        p->malformed_t_o++;
         return;
     }
     struct connection *c = lookup(le32(data + 6));
     if (!c) {
-        unknown_t_o++;
+        p->unknown_t_o++;
         return;
     }
     uint32_t sequence = le32(data + 10);
@@ -349,7 +357,7 @@ static void take(const uint8_t *data, int length, int64_t stamp_mono) {
             if (bucket >= CONN_FINE) bucket = CONN_FINE + (error - (int64_t)CONN_FINE * CONN_BUCKET_NS) / CONN_COARSE_NS;
             c->histogram[bucket < CONN_BUCKETS - 1 ? bucket : CONN_BUCKETS - 1]++;
             bucket = error / ALL_BUCKET_NS;
-            all_histogram[bucket < ALL_BUCKETS - 1 ? bucket : ALL_BUCKETS - 1]++;
+            __atomic_fetch_add(&all_histogram[bucket < ALL_BUCKETS - 1 ? bucket : ALL_BUCKETS - 1], 1, __ATOMIC_RELAXED);
         }
     } else if (in_window) {
         c->received_window++;
@@ -359,12 +367,12 @@ static void take(const uint8_t *data, int length, int64_t stamp_mono) {
     c->last_stamp = stamp_mono;
 }
 
-static void *receiver(void *unused) {
-    (void)unused;
-    static uint8_t buffers[BATCH][2048];
-    static uint8_t controls[BATCH][CMSG_SPACE(sizeof(struct timespec)) + 64];
-    struct mmsghdr messages[BATCH];
-    struct iovec vectors[BATCH];
+static void *receiver(void *argument) {
+    struct pair *p = argument;
+    uint8_t (*buffers)[2048] = calloc(BATCH, sizeof *buffers);
+    uint8_t (*controls)[CMSG_SPACE(sizeof(struct timespec)) + 64] = calloc(BATCH, sizeof *controls);
+    struct mmsghdr *messages = calloc(BATCH, sizeof *messages);
+    struct iovec *vectors = calloc(BATCH, sizeof *vectors);
     while (!atomic_load(&stopping) && now_ns(CLOCK_MONOTONIC) < t_hard_end) {
         for (int i = 0; i < BATCH; i++) {
             vectors[i] = (struct iovec){buffers[i], sizeof buffers[i]};
@@ -373,9 +381,9 @@ static void *receiver(void *unused) {
                                                   .msg_control = controls[i],
                                                   .msg_controllen = sizeof controls[i]};
         }
-        int n = recvmmsg(sock, messages, BATCH, MSG_DONTWAIT, NULL);
+        int n = recvmmsg(p->sock, messages, BATCH, MSG_DONTWAIT, NULL);
         if (n < 0) {
-            if (errno != EAGAIN && errno != EWOULDBLOCK && errno != EINTR) receive_errors++;
+            if (errno != EAGAIN && errno != EWOULDBLOCK && errno != EINTR) p->receive_errors++;
             n = 0;
         }
         if (n < BATCH) { /* drained: the kernel keeps each datagram's time, so reading later costs no accuracy */
@@ -393,9 +401,13 @@ static void *receiver(void *unused) {
                     stamp = (int64_t)ts.tv_sec * 1000000000LL + ts.tv_nsec - realtime_offset;
                 }
             }
-            take(buffers[i], (int)messages[i].msg_len, stamp);
+            take(p, buffers[i], (int)messages[i].msg_len, stamp);
         }
     }
+    free(buffers);
+    free(controls);
+    free(messages);
+    free(vectors);
     return NULL;
 }
 
@@ -455,7 +467,7 @@ static int read_connections(const char *path) {
 }
 
 static void usage(void) {
-    fprintf(stderr, "usage: cyclic_originator --connections FILE (--fd N | --bind ADDR:PORT) --seconds S "
+    fprintf(stderr, "usage: cyclic_originator --connections FILE (--fd N[,M...] | --bind ADDR:PORT) --seconds S "
                     "[--warmup S] [--hold S] [--batch-us US] [--realtime PRIORITY] --json FILE\n"
                     "  misbehaviour: [--jitter-us J] [--gap-every N [--gap-size K]] [--burst-every N --burst-size K] "
                     "[--repeat-every N] [--stale-every N [--stale-by M]] [--idle-every N] [--stop-after N]\n");
@@ -474,7 +486,14 @@ int main(int argc, char **argv) {
     double seconds = 0, warmup = 1.0, hold = 60.0;
     for (int i = 1; i + 1 < argc; i += 2) {
         if (!strcmp(argv[i], "--connections")) connections_path = argv[i + 1];
-        else if (!strcmp(argv[i], "--fd")) sock = atoi(argv[i + 1]);
+        else if (!strcmp(argv[i], "--fd")) {
+            char *next = argv[i + 1];
+            while (*next && socket_count < MAX_THREADS) {
+                sockets[socket_count++] = (int)strtol(next, &next, 10);
+                if (*next == ',') next++;
+            }
+            sock = sockets[0];
+        }
         else if (!strcmp(argv[i], "--bind")) bind_to = argv[i + 1];
         else if (!strcmp(argv[i], "--seconds")) seconds = atof(argv[i + 1]);
         else if (!strcmp(argv[i], "--warmup")) warmup = atof(argv[i + 1]);
@@ -525,8 +544,9 @@ int main(int argc, char **argv) {
             return 2;
         }
     }
+    if (!socket_count) sockets[socket_count++] = sock;
     int on = 1;
-    setsockopt(sock, SOL_SOCKET, SO_TIMESTAMPNS, &on, sizeof on);
+    for (int j = 0; j < socket_count; j++) setsockopt(sockets[j], SOL_SOCKET, SO_TIMESTAMPNS, &on, sizeof on);
     table_mask = 1;
     while (table_mask < 4u * (uint32_t)connection_count) table_mask <<= 1;
     table = calloc(table_mask, sizeof *table);
@@ -543,16 +563,20 @@ int main(int argc, char **argv) {
     t0 = t_start + (int64_t)(warmup * 1e9);
     t1 = t0 + (int64_t)(seconds * 1e9);
     t_hard_end = t1 + (int64_t)(hold * 1e9);
-    pthread_t send_thread, receive_thread;
-    pthread_create(&receive_thread, NULL, receiver, NULL);
-    pthread_create(&send_thread, NULL, sender, NULL);
+    pthread_t send_threads[MAX_THREADS], receive_threads[MAX_THREADS];
+    for (int j = 0; j < socket_count; j++) {
+        pairs[j] = (struct pair){.index = j, .sock = sockets[j]};
+        pthread_create(&receive_threads[j], NULL, receiver, &pairs[j]);
+        pthread_create(&send_threads[j], NULL, sender, &pairs[j]);
+    }
     if (realtime > 0) { /* so that the machine's other load does not make this originator late */
         struct sched_param priority = {.sched_priority = realtime};
-        if (pthread_setschedparam(send_thread, SCHED_FIFO, &priority) ||
-            pthread_setschedparam(receive_thread, SCHED_FIFO, &priority)) {
-            fprintf(stderr, "cyclic_originator: SCHED_FIFO refused, running without it\n");
-            realtime = 0;
-        }
+        for (int j = 0; j < socket_count && realtime; j++)
+            if (pthread_setschedparam(send_threads[j], SCHED_FIFO, &priority) ||
+                pthread_setschedparam(receive_threads[j], SCHED_FIFO, &priority)) {
+                fprintf(stderr, "cyclic_originator: SCHED_FIFO refused, running without it\n");
+                realtime = 0;
+            }
     }
 
     struct timespec until = to_timespec(t0);
@@ -576,8 +600,18 @@ int main(int argc, char **argv) {
         if (got <= 0) break;
     }
     atomic_store(&stopping, 1);
-    pthread_join(send_thread, NULL);
-    pthread_join(receive_thread, NULL);
+    uint64_t sends_late = 0, send_errors = 0, unknown_t_o = 0, malformed_t_o = 0, receive_errors = 0;
+    int64_t send_lag_max_ns = 0;
+    for (int j = 0; j < socket_count; j++) {
+        pthread_join(send_threads[j], NULL);
+        pthread_join(receive_threads[j], NULL);
+        sends_late += pairs[j].sends_late;
+        send_errors += pairs[j].send_errors;
+        unknown_t_o += pairs[j].unknown_t_o;
+        malformed_t_o += pairs[j].malformed_t_o;
+        receive_errors += pairs[j].receive_errors;
+        if (pairs[j].send_lag_max_ns > send_lag_max_ns) send_lag_max_ns = pairs[j].send_lag_max_ns;
+    }
 
     FILE *out = fopen(json_path, "w");
     if (!out) {
@@ -607,8 +641,8 @@ int main(int argc, char **argv) {
         int64_t p99 = quantile_us(c->histogram, count, 0.99);
         if (p99 > worst_p99) worst_p99 = p99;
     }
-    fprintf(out, "{\n \"connections\": %d, \"window_s\": %.6f, \"realtime\": %d,\n", connection_count,
-            (t1 - t0) / 1e9, realtime);
+    fprintf(out, "{\n \"connections\": %d, \"threads\": %d, \"window_s\": %.6f, \"realtime\": %d,\n",
+            connection_count, socket_count, (t1 - t0) / 1e9, realtime);
     fprintf(out, " \"misbehaviour\": {\"jitter_us\": %ld, \"gap_every\": %lu, \"gap_size\": %lu, \"burst_every\": %lu, \"burst_size\": %lu, "
                  "\"repeat_every\": %lu, \"stale_every\": %lu, \"stale_by\": %lu, \"idle_every\": %lu, \"stop_after\": %lu},\n",
             jitter_ns / 1000, gap_every, gap_size, burst_every, burst_size, repeat_every, stale_every, stale_by, idle_every,

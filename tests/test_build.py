@@ -178,3 +178,15 @@ def test_a_chain_of_thousands_of_devices_does_not_exhaust_the_stack(closed: bool
         build_profiles(config, shipped_catalogue())
     cycle = [f"d{n}.{end}" for n in range(3000) for end in ("inputs", "outputs")] + ["d0.inputs"]
     assert str(error.value) == "<config>: wiring cycle: " + " -> ".join(cycle)
+
+
+def test_every_worker_gets_the_cyclic_io_settings() -> None:
+    """`serve --workers N`: each worker's I/O thread has the budget and the measurement configured
+    (they were dropped, and every worker measured its own budget whatever the config said)."""
+    config = parse_config({"cyclic_io": {"budget_datagrams_per_s": 150000, "measure": False},
+                           "devices": [{"name": f"d{i}", "address": f"127.0.0.{5 + i}", "model": "DSQC1030"}
+                                       for i in range(3)]})
+    slices = [parse_config(part.model_dump(mode="json", by_alias=True), f"worker {i}")
+              for i, part in enumerate(split(config, 2))]
+    assert [(s.cyclic_io.budget_datagrams_per_s, s.cyclic_io.measure) for s in slices] == [(150000, False)] * 2
+    assert [s.bounds for s in slices] == [config.bounds] * 2

@@ -5,10 +5,12 @@ which mutant it kills; bench/mutation-equivalents.md lists those no test can tel
 
 from __future__ import annotations
 
+import pytest
 from pycomm3 import ClassCode as PeerClassCode
 from pycomm3 import Services as PeerServices
 from pycomm3.cip import ConnectionManagerServices, EncapsulationCommands
 
+from enip_farm.device.faults import DeviceFaults, Disconnect, Fault, FaultError
 from enip_farm.protocol.cip import ClassCode, Service
 from enip_farm.protocol.commands import (
     ServiceItem,
@@ -18,6 +20,8 @@ from enip_farm.protocol.commands import (
 )
 from enip_farm.protocol.encapsulation import Command
 from enip_farm.protocol.epath import LogicalSegment, LogicalType, decode_epath
+
+T0 = 5_000_000_000  # ns: the faults never read a clock
 
 # -- protocol/: codes as a peer has them --------------------------------------------------------------
 
@@ -84,3 +88,67 @@ def test_an_unconnected_payload_has_interface_handle_0() -> None:
     unconnected data item (a mutant wrote handle 1)."""
     assert encode_unconnected_payload(b"\x0e\x02\x20\x01\x24\x01", timeout=5) == bytes.fromhex(
         "00000000 0500 0200 0000 0000 b200 0600 0e0220012401")
+
+
+# -- device/: fault parameters to their bounds, and what several faults make together ---------------------
+
+
+@pytest.mark.parametrize(("kind", "params", "message"), [
+    ("status", {"service": 256, "status": 8}, "service: must be a CIP service code 0..255 (0x00..0xFF), got 256"),
+    ("status", {"service": -1, "status": 8}, "service: must be a CIP service code 0..255 (0x00..0xFF), got -1"),
+    ("status", {"service": 14, "status": 256}, "status: must be a CIP general status 0..255 (0x00..0xFF), got 256"),
+    ("status", {"service": 14}, "status: a status fault needs a service and a status"),
+    ("status", {"status": 8}, "service: a status fault needs a service and a status"),
+    ("delay", {"delay_ms": 60_000.5}, "delay_ms: must be 0..60000 ms, got 60000.5"),
+    ("delay", {"delay_ms": -0.5}, "delay_ms: must be 0..60000 ms, got -0.5"),
+    ("delay", {"delay_ms": 50, "max_delay_ms": 40}, "max_delay_ms: must not be below delay_ms (50), got 40"),
+    ("delay", {"delay_ms": 0}, "delay_ms: a delay fault needs delay_ms > 0 (and optionally max_delay_ms)"),
+    ("delay", {"delay_ms": True}, "delay_ms: must be a number, got True"),
+    ("drop", {"duration_s": 0}, "duration_s: must be > 0, got 0"),
+    ("drop", {"duration_s": -1}, "duration_s: must be > 0, got -1"),
+])
+def test_fault_parameters_refused_at_their_bounds_with_the_field_named(kind: str, params: dict, message: str) -> None:
+    """Each a FaultError naming its field (not pydantic's ValidationError, also a ValueError)."""
+    with pytest.raises(FaultError) as refused:
+        Fault(kind, **params)
+    assert (type(refused.value), str(refused.value), refused.value.field) == (FaultError, message,
+                                                                              message.split(":")[0])
+
+
+@pytest.mark.parametrize(("kind", "params"), [
+    ("status", {"service": 0, "status": 0}), ("status", {"service": 255, "status": 255}),
+    ("delay", {"delay_ms": 0, "max_delay_ms": 0.001}), ("delay", {"delay_ms": 60_000}),
+    ("delay", {"delay_ms": 0.001}), ("drop", {"duration_s": 0.001}), ("drop", {"duration_s": 0.5}),
+])
+def test_fault_parameters_taken_at_their_bounds(kind: str, params: dict) -> None:
+    assert Fault(kind, **params).parameters() == {"kind": kind, **{k: float(v) if kind == "delay" else v
+                                                                    for k, v in params.items()}}
+
+
+def test_the_identity_fault_adds_1_to_the_product_code_modulo_2_16() -> None:
+    faults = DeviceFaults()
+    assert faults.product_code(1030) == 1030
+    faults.set(Fault("identity"), T0)
+    assert [faults.product_code(code) for code in (0, 1030, 0x7FFF, 0xFFFE, 0xFFFF)] == [1, 1031, 0x8000, 0xFFFF, 0]
+
+
+@pytest.mark.parametrize(("kinds", "ends"), [((), None), (("delay",), None), (("close",), Disconnect.CLOSE),
+                                             (("reset",), Disconnect.RESET), (("close", "reset"), Disconnect.RESET),
+                                             (("reset", "close", "drop"), Disconnect.RESET)])
+def test_how_new_tcp_connections_end_reset_wins_over_close(kinds: tuple[str, ...], ends: Disconnect | None) -> None:
+    faults = DeviceFaults()
+    for kind in kinds:
+        faults.set(Fault(kind, **({"delay_ms": 5} if kind == "delay" else {})), T0)
+    assert faults.on_tcp_connection() is ends
+    assert faults.clear() == list(kinds) and faults.on_tcp_connection() is None
+
+
+def test_clearing_one_kind_leaves_the_others() -> None:
+    faults = DeviceFaults()
+    faults.set(Fault("status", service=14, status=8), T0)
+    faults.set(Fault("offline"), T0)
+    assert (faults.forced_status, faults.listens, faults.listens_without("offline"), faults.listens_without(None)) == (
+        {14: 8}, False, True, True)
+    assert faults.listens_without("status") is False
+    assert faults.clear("offline") == ["offline"] and faults.listens and list(faults.active) == ["status"]
+    assert faults.clear("offline") == [] and faults.forced_status == {14: 8}

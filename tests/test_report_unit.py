@@ -317,3 +317,28 @@ def test_reconnection_and_reaction_verdicts() -> None:
     assert report.verdict == FAIL and report.failures == [
         "reaction r: reaction p99 99 ms > bound 98.999 (test)"]
     assert json.loads(json.dumps(report.as_dict()))["reactions"][0]["p99_ns"] == 99 * MS
+
+
+def test_a_reaction_probe_counts_from_the_stimulus_leaving_to_the_output_arriving() -> None:
+    from enip_farm.device.catalogue import shipped_catalogue
+    from enip_farm.device.profile import resolve as resolve_profile
+    from enip_farm.device.reaction import ReactionProbe
+    from enip_farm.device.signals import SignalMap
+
+    config = parse_config({"devices": [{"name": "io1", "model": "DSQC1030", "address": "127.0.0.1"}]})
+    signals = SignalMap(resolve_profile(config.devices[0], shipped_catalogue()))
+    probe = ReactionProbe((signals, signals.lookup("DI3"), 1), (signals, signals.lookup("DO5"), 1))
+    probe.consumed(b"\x10\x00", T0)  # the output before any stimulus left: not a reaction
+    probe.produced(b"\x00\x00", T0 + MS)  # a T->O without the stimulus
+    probe.flushed(T0 + MS + 10)
+    assert probe.stimulus_at is None
+    probe.produced(b"\x04\x00", T0 + 2 * MS)  # the first T->O carrying DI3 = 1, produced at the turn's time
+    assert probe.stimulus_at == T0 + 2 * MS
+    probe.flushed(T0 + 2 * MS + 40)  # ... handed to the kernel 40 ns later
+    probe.flushed(T0 + 3 * MS)  # a later turn's flush changes nothing
+    probe.produced(b"\x04\x00", T0 + 4 * MS)  # nor a later T->O carrying it
+    assert probe.stimulus_at == T0 + 2 * MS + 40 and not probe.done.is_set()
+    probe.consumed(b"\x00\x00", T0 + 5 * MS)  # outputs changed, not to the expected value
+    probe.consumed(b"\x10\x00", T0 + 7 * MS)
+    probe.consumed(b"\x10\x00", T0 + 9 * MS)
+    assert probe.done.is_set() and probe.latency_ns == 5 * MS - 40 and probe.via == "o->t"

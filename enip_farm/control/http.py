@@ -42,6 +42,7 @@ from enip_farm.control.handle import FarmControl
 from enip_farm.control.measured import mount_measured
 from enip_farm.control.metrics import FarmCollector
 from enip_farm.control.overview import RECENT, Overview
+from enip_farm.control.scenario_routes import scenario_routes
 from enip_farm.control.stream import EventHub, EventStream
 from enip_farm.control.timeline import Timelines
 from enip_farm.device.device import Device
@@ -256,6 +257,7 @@ def create_app(farm: FarmControl, hub: EventHub | None = None, overview: Overvie
         return JSONResponse(answer, status_code=200 if answer["ok"] else 503)
 
     app.include_router(group_routes(farm))
+    app.include_router(scenario_routes(farm))
 
     @app.get("/metrics", response_class=PlainTextResponse)
     def metrics() -> PlainTextResponse:

@@ -13,7 +13,7 @@ import asyncio
 import logging
 import time
 from collections import deque
-from collections.abc import Coroutine, Iterator, Mapping
+from collections.abc import Callable, Coroutine, Iterator, Mapping
 from contextlib import contextmanager
 from pathlib import Path
 from typing import Any, TypeVar
@@ -41,6 +41,10 @@ from enip_farm.farm.resets import FarmResets
 from enip_farm.farm.supervision import SUPERVISE_S, Supervision
 from enip_farm.protocol.connection import IO_PORT
 from enip_farm.protocol.encapsulation import ENIP_PORT
+from enip_farm.scenario.model import Scenario
+from enip_farm.scenario.parse import load_scenario, signal_check
+from enip_farm.scenario.run import run_scenario
+from enip_farm.scenario.verdict import ScenarioResult
 from enip_farm.server.calibrate import DEFAULT_DATAGRAMS_PER_S, measure_budget
 from enip_farm.server.implicit import ImplicitIo
 from enip_farm.server.limits import TcpLimits
@@ -245,7 +249,9 @@ class Farm:
         """The controller's reaction time (action latency), `repeat` times, judged against the bounds
         (the stimulus device's, then `bounds`): farm.reaction(set=("io1", "DI3", 1), expect=("io2",
         "DO5", 1), timeout=1, repeat=20). Blocks (not on the farm's loop); control/reaction.py."""
-        figures = measure_reaction(self.handles, set, expect, timeout, repeat, reset, name)
+        implicit = self._implicit
+        figures = measure_reaction(self.handles, set, expect, timeout, repeat, reset, name,
+                                   implicit.thread.watch_flush if implicit is not None else None)
         self.reactions.append((figures, bounds))
         return judge_reaction(figures, device_bounds(self.config, set[0], bounds))
 
@@ -275,6 +281,19 @@ class Farm:
     def clear(self, target: str, kind: str | None = None) -> list[str]:
         """End one fault kind (or all) on a device or a group, from another thread."""
         return self.run(self.clear_faults(target, kind))
+
+    # -- scenarios (enip_farm/scenario/) --------------------------------------------------------------
+
+    def load_scenario(self, path: str | Path) -> Scenario:
+        """A scenario file parsed and checked against this farm's cell (ScenarioError: every defect)."""
+        return load_scenario(str(path), self.config, signal_check({n: h.signals for n, h in self.handles.items()}))
+
+    def run_scenario(self, scenario: str | Path | Scenario, progress: Callable[[str], None] | None = None,
+                     timeout: float = 3600.0) -> ScenarioResult:
+        """Run a scenario (a file or a parsed one) on the running farm, from another thread, and return
+        its result (`passed`, `verdicts`, `table()`); whatever it set is undone when it ends."""
+        parsed = scenario if isinstance(scenario, Scenario) else self.load_scenario(scenario)
+        return self.run(run_scenario(self, parsed, progress), timeout)
 
     def _spawn(self, coroutine: Coroutine[Any, Any, Any]) -> None:
         """A task of the farm, kept until it ends; its exception reaches the loop's handler."""

@@ -43,6 +43,7 @@ import socket
 import sys
 import threading
 import time
+from collections.abc import Callable
 
 from enip_farm.device.device import Device
 from enip_farm.protocol.connection import IO_PORT
@@ -123,7 +124,18 @@ class CyclicIoThread(threading.Thread):
         self.overload_log = RateLimitedLog(log)
         self.loop_errors = 0  # unexpected exceptions of the loop itself (it goes on)
         self.lag = Lag()
+        #: Called with the time each turn's T->O are handed to the kernel (copy on write; `watch_flush`).
+        self.flush_watchers: tuple[Callable[[int], None], ...] = ()
         self.turned_at = time.monotonic_ns()  # when the loop last went round
+
+    def watch_flush(self, watcher: Callable[[int], None]) -> Callable[[], None]:
+        """From any thread: `watcher(at)` with the time each turn's T->O packets go to the kernel,
+        just before the send call; returns the unsubscribe."""
+        self.flush_watchers = (*self.flush_watchers, watcher)
+
+        def unsubscribe() -> None:
+            self.flush_watchers = tuple(w for w in self.flush_watchers if w is not watcher)
+        return unsubscribe
 
     def register(self, endpoint: DeviceIo) -> None:
         self._readers[endpoint.sock.fileno()] = endpoint
@@ -233,6 +245,11 @@ class CyclicIoThread(threading.Thread):
         an error of its device (each was counted as sent when queued, as ifOutUcastPkts counts what
         was requested to be sent)."""
         outbox, senders = self.outbox, self.outbox_from
+        watchers = self.flush_watchers
+        if watchers:  # a reaction being measured: when this turn's T->O leave (device/reaction.py)
+            at = time.monotonic_ns()
+            for watcher in watchers:
+                watcher(at)
         try:
             for index, _ in self.datagrams.send(outbox):
                 senders[index].send_failed()
