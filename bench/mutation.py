@@ -62,7 +62,7 @@ PACKAGES: dict[str, Package] = {
         ("tests/test_connection_table.py", "tests/test_cip_services_unit.py", "tests/test_cip_errors.py",
          "tests/test_connection_events.py", "tests/test_declared_connections.py", "tests/test_attributes.py",
          "tests/test_safety_supervisor.py", "tests/test_limits_unit.py", "tests/test_safety.py",
-         "tests/test_safety_multicast.py", VARY, PINNED)),
+         "tests/test_safety_multicast.py", "tests/test_report_unit.py", VARY, PINNED)),
     "device-faults": Package(  # the faults and the farm's fault timers
         ("enip_farm/device/faults.py", "enip_farm/device/fault_kinds.py", "enip_farm/device/fault_type.py",
          "enip_farm/farm/farm.py"),

@@ -9,9 +9,19 @@ import pytest
 from pycomm3 import ClassCode as PeerClassCode
 from pycomm3 import Services as PeerServices
 from pycomm3.cip import ConnectionManagerServices, EncapsulationCommands
+from pycomm3.cip.data_types import DataTypes
 
+from enip_farm.cip.connection_path import KeyIdentity, key_mismatch
+from enip_farm.cip.connection_policy import Refusal
+from enip_farm.cip.connection_table import Opened
+from enip_farm.cip.data_types import ELEMENTARY
+from enip_farm.cip.reconnection import ORIGINATORS, Reconnections
+from enip_farm.config import parse_config
+from enip_farm.device.build import build_profiles
+from enip_farm.device.catalogue import shipped_catalogue
+from enip_farm.device.device import Device
 from enip_farm.device.faults import DeviceFaults, Disconnect, Fault, FaultError
-from enip_farm.protocol.cip import ClassCode, Service
+from enip_farm.protocol.cip import ClassCode, MessageRouterReply, Service, decode_reply, encode_request
 from enip_farm.protocol.commands import (
     ServiceItem,
     decode_service_item,
@@ -19,7 +29,12 @@ from enip_farm.protocol.commands import (
     encode_unconnected_payload,
 )
 from enip_farm.protocol.encapsulation import Command
-from enip_farm.protocol.epath import LogicalSegment, LogicalType, decode_epath
+from enip_farm.protocol.epath import ElectronicKey, LogicalSegment, LogicalType, decode_epath, encode_request_path
+from enip_farm.protocol.session import MessageContext
+from enip_farm.protocol.status import ExtendedStatus as X
+from tests.test_safety import ORIGINATOR as SAFETY_ORIGINATOR
+from tests.test_safety import make_table as safety_make_table
+from tests.test_safety import safety_open
 
 T0 = 5_000_000_000  # ns: the faults never read a clock
 
@@ -152,3 +167,65 @@ def test_clearing_one_kind_leaves_the_others() -> None:
     assert faults.listens_without("status") is False
     assert faults.clear("offline") == ["offline"] and faults.listens and list(faults.active) == ["status"]
     assert faults.clear("offline") == [] and faults.forced_status == {14: 8}
+
+
+# -- cip/: the elementary types, the Message Router's class attributes, electronic keys --------------------
+
+
+def test_elementary_type_codes_are_pycomm3s() -> None:
+    """Vol. 1, C-6.1: e.g. LREAL 0xCB (a mutant made it 0xCC)."""
+    assert {code: kind.name for code, kind in ELEMENTARY.items()} == {
+        getattr(DataTypes, kind.name.lower()).code: kind.name for kind in ELEMENTARY.values()}
+
+
+def test_the_message_router_class_get_attributes_all_is_1_4_5_6_7() -> None:
+    """Vol. 1, 5-5.3 and 4-4.1: revision, optional attributes and services, highest class and
+    instance attribute ids, in that order, each as Get Attribute Single answers it (a mutant
+    answered 1, 4, 5, 7)."""
+    config = parse_config({"devices": [{"name": "d", "address": "127.0.0.1", "model": "DSQC1030"}]})
+    (profile,) = build_profiles(config, shipped_catalogue())
+    router = Device(profile).router
+
+    def ask(service: int, attribute: int | None = None) -> MessageRouterReply:
+        request = encode_request(service, encode_request_path(ClassCode.MESSAGE_ROUTER, 0, attribute))
+        return decode_reply(router.handle(request, MessageContext("127.0.0.9", None, (), T0)))
+
+    every = ask(Service.GET_ATTRIBUTES_ALL)
+    assert every.general_status == 0
+    assert every.data == b"".join(ask(Service.GET_ATTRIBUTE_SINGLE, a).data for a in (1, 4, 5, 6, 7))
+
+
+IDENTITY = KeyIdentity(75, 7, 1030, (2, 5))
+
+
+@pytest.mark.parametrize(("major", "minor", "compatible", "mismatch"), [
+    (2, 5, False, None), (2, 5, True, None), (2, 0, False, None), (2, 0, True, None),
+    (2, 4, True, None), (2, 1, True, None),  # an older minor revision: emulated when the key allows it
+    (2, 4, False, X.REVISION_MISMATCH), (2, 6, True, X.REVISION_MISMATCH), (2, 6, False, X.REVISION_MISMATCH),
+    (1, 5, True, X.REVISION_MISMATCH), (3, 5, False, X.REVISION_MISMATCH), (0, 9, False, None),
+])
+def test_an_electronic_keys_revision_and_its_compatibility_bit(major: int, minor: int, compatible: bool,
+                                                               mismatch: int | None) -> None:
+    """Vol. 1, C-1.4.2: without the compatibility bit the revision must be the device's exactly;
+    with it, the major must be and the minor at most the device's (a mutant swapped the two)."""
+    assert key_mismatch(ElectronicKey(75, 7, 1030, major, minor, compatible), IDENTITY) == mismatch
+
+
+@pytest.mark.parametrize(("nte", "taken"), [(0, False), (1, True), (2, True), (45_313, True), (45_314, False)])
+def test_a_safety_opens_network_time_expectation_multiplier_at_both_bounds(nte: int, taken: bool) -> None:
+    """Vol. 5, 3-5.4: 1..45313 (x 128 us, up to 5.8 s); a mutant refused 1."""
+    result = safety_make_table().forward_open(safety_open(nte=nte), SAFETY_ORIGINATOR, T0)
+    assert (type(result) is Opened) if taken else result == Refusal(X.INVALID_NETWORK_TIME_EXPECTATION_MULTIPLIER)
+
+
+def test_the_reconnections_remember_the_64_latest_originators() -> None:
+    """The oldest is forgotten when a 65th opens (a mutant forgot the newest)."""
+    reconnections = Reconnections()
+    originators = [f"127.0.1.{n}" for n in range(ORIGINATORS + 1)]
+    for n, originator in enumerate(originators):
+        reconnections.opened(originator, T0 + n, None)
+    reconnections.opened(originators[1], T0 + 100, None)  # seen again: now the latest
+    reconnections.opened("127.0.2.1", T0 + 101, None)  # the 66th: originators[2] goes, not [1]
+    reconnections.device_back("reset", T0 + 200, connected=set())
+    waiting = [r.originator for r in reconnections.figures("d")]
+    assert waiting == [*originators[3:], originators[1], "127.0.2.1"]

@@ -2,14 +2,15 @@
 a stimulus (an input of one device), the controller answers with an output (of the same or another
 device). Each repetition first puts the stimulus back (`reset`) and waits until the expected output
 is gone, then arms a probe (device/reaction.py) and sets the stimulus: the sample runs from the T->O
-packet that first carried it to the O->T packet (kernel receive time) or explicit write that first
-carried the expected output. A repetition whose output does not come (or does not go away before
-it) within `timeout` counts as a timeout. The stimulus stays set at the end, as the test set it."""
+packet that first carried it (when the I/O thread handed it to the kernel) to the O->T packet
+(kernel receive time) or explicit write that first carried the expected output. A repetition whose
+output does not come (or does not go away before it) within `timeout` counts as a timeout. The
+stimulus stays set at the end, as the test set it."""
 
 from __future__ import annotations
 
 import time
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 
 from enip_farm.cip.report import ReactionFigures
 from enip_farm.control.handle import DeviceHandle
@@ -18,15 +19,18 @@ from enip_farm.device.reaction import ReactionProbe
 
 #: (device, signal, value), as farm["io1"].set(DI3=1) writes it: ("io1", "DI3", 1).
 SignalValue = tuple[str, str, int | float]
+#: Subscribes a callback to the time each I/O turn's T->O go to the kernel; returns the unsubscribe.
+WatchFlush = Callable[[Callable[[int], None]], Callable[[], None]]
 #: The most repetitions one reaction measures (its samples are all kept).
 MAX_REPEAT = 10_000
 
 
 def measure_reaction(handles: Mapping[str, DeviceHandle], stimulus: SignalValue, expect: SignalValue,
                      timeout: float = 1.0, repeat: int = 1, reset: int | float | None = None,
-                     name: str | None = None) -> ReactionFigures:
+                     name: str | None = None, watch_flush: WatchFlush | None = None) -> ReactionFigures:
     """Measure the reaction `repeat` times; KeyError for an unknown device, SignalError for a bad signal.
-    `reset`: the stimulus's value between repetitions (default: 0, or 1 where the stimulus is 0)."""
+    `reset`: the stimulus's value between repetitions (default: 0, or 1 where the stimulus is 0);
+    `watch_flush`: the cyclic I/O thread's (when each turn's T->O go to the kernel)."""
     if not 1 <= repeat <= MAX_REPEAT:
         raise ValueError(f"repeat is 1 to {MAX_REPEAT}, got {repeat}")
     if not 0 < timeout <= 3600:
@@ -50,7 +54,7 @@ def measure_reaction(handles: Mapping[str, DeviceHandle], stimulus: SignalValue,
             timeouts += 1
             continue
         probe = ReactionProbe((source.signals, s_signal, s_value), (target.signals, e_signal, e_value))
-        latency = _once(source, target, probe, s_name, s_value, timeout)
+        latency = _once(source, target, probe, s_name, s_value, timeout, watch_flush)
         if latency is None:
             timeouts += 1
         else:
@@ -63,7 +67,7 @@ def measure_reaction(handles: Mapping[str, DeviceHandle], stimulus: SignalValue,
 
 
 def _once(source: DeviceHandle, target: DeviceHandle, probe: ReactionProbe, name: str, value: int | float,
-          timeout: float) -> int | None:
+          timeout: float, watch_flush: WatchFlush | None) -> int | None:
     """One repetition with the probe armed: its latency, or None if the output did not come in time."""
     def explicit(event: Event) -> None:
         if event.kind == "image changed" and event.detail.role == "output":
@@ -73,6 +77,7 @@ def _once(source: DeviceHandle, target: DeviceHandle, probe: ReactionProbe, name
     s_cyclic.stimuli = (*s_cyclic.stimuli, probe)
     t_cyclic.expectations = (*t_cyclic.expectations, probe)
     unsubscribe = target.device.observe(explicit)
+    unwatch = watch_flush(probe.flushed) if watch_flush is not None else None
     try:
         written_at = time.monotonic_ns()
         source.set({name: value})
@@ -84,5 +89,7 @@ def _once(source: DeviceHandle, target: DeviceHandle, probe: ReactionProbe, name
         return probe.latency_ns
     finally:
         unsubscribe()
+        if unwatch is not None:
+            unwatch()
         s_cyclic.stimuli = tuple(p for p in s_cyclic.stimuli if p is not probe)
         t_cyclic.expectations = tuple(p for p in t_cyclic.expectations if p is not probe)

@@ -4,7 +4,9 @@ that first carries the expected output (the kernel's receive time of that datagr
 explicit write that first carries it (the time the farm took the request).
 
 The probe is told by the devices' cyclic I/O (device/cyclic.py, in the I/O thread, under each
-device's lock): `produced` with the input image each T->O of the stimulus device carried, and
+device's lock): `produced` with the input image each T->O of the stimulus device carried (then
+`flushed` with the time the I/O thread hands that turn's T->O to the kernel, where the farm tells
+it: server/implicit.py's `watch_flush`; else the turn's time stands), and
 `consumed` with the output image after an O->T changed it; explicit writes reach it as "image
 changed" events (`changed`). Where the stimulus device produces no T->O (an explicit reader), the
 stimulus counts from when the input was set (`set_at`), the earliest any reader could see it.
@@ -27,6 +29,7 @@ class ReactionProbe:
         self.reacted_at: int | None = None
         self.via: str | None = None  # "o->t" or "explicit"
         self.done = threading.Event()
+        self._unsent = False  # the stimulus's T->O is produced, not yet handed to the kernel
 
     def _is(self, side: tuple[SignalMap, Signal, object], image: bytes | bytearray) -> bool:
         signals, signal, value = side
@@ -41,6 +44,14 @@ class ReactionProbe:
         """The stimulus device's T->O packets of this turn (`now`) carry `inputs`."""
         if self.stimulus_at is None and self._is(self._stimulus, inputs):
             self.stimulus_at = now
+            self._unsent = True
+
+    def flushed(self, at: int) -> None:
+        """The I/O thread hands this turn's T->O to the kernel at `at`: the stimulus's leaves now."""
+        if self._unsent:
+            self._unsent = False
+            if self.reacted_at is None and at > self.stimulus_at:  # type: ignore[operator]
+                self.stimulus_at = at
 
     def consumed(self, outputs: bytes | bytearray, at: int, via: str = "o->t") -> None:
         """The expect device's outputs became `outputs` at `at` (an O->T's kernel receive time)."""

@@ -173,7 +173,7 @@ class Farm:
                 self.budget.set(measured.datagrams_per_s, measured.source)
             else:
                 self.budget.set(budget, "configured")
-            self._implicit = ImplicitIo()
+            self._implicit = ImplicitIo(self.budget if budget == "auto" else None)
             for device in self.devices.values():
                 try:
                     self._implicit.add(device)
@@ -249,7 +249,9 @@ class Farm:
         """The controller's reaction time (action latency), `repeat` times, judged against the bounds
         (the stimulus device's, then `bounds`): farm.reaction(set=("io1", "DI3", 1), expect=("io2",
         "DO5", 1), timeout=1, repeat=20). Blocks (not on the farm's loop); control/reaction.py."""
-        figures = measure_reaction(self.handles, set, expect, timeout, repeat, reset, name)
+        implicit = self._implicit
+        figures = measure_reaction(self.handles, set, expect, timeout, repeat, reset, name,
+                                   implicit.thread.watch_flush if implicit is not None else None)
         self.reactions.append((figures, bounds))
         return judge_reaction(figures, device_bounds(self.config, set[0], bounds))
 

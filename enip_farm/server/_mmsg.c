@@ -1,6 +1,7 @@
 /* Batched UDP for the cyclic I/O thread (server/batch.py): recvmmsg(2) over the device sockets that
  * epoll reported ready, each datagram with the kernel's receive time (SO_TIMESTAMPNS, CLOCK_REALTIME,
- * turned into CLOCK_MONOTONIC ns by the offset between the two clocks read once per call), and
+ * turned into CLOCK_MONOTONIC ns by the offset between the two clocks read once per call: the wall clock
+ * between two monotonic reads, against their midpoint), and
  * sendmmsg(2) of every T->O packet due in one tick from one socket, each with its device's source
  * address (IP_PKTINFO, ipi_spec_dst). One system call per socket read and one per tick sent, instead
  * of one per datagram. Linux only; server/batch.py falls back to recvmsg/sendto when this module is
@@ -175,12 +176,13 @@ static PyObject *recv_batch(PyObject *self, PyObject *args) {
         }
         int received = recvmmsg(fd, headers, (unsigned int)limit, MSG_DONTWAIT, NULL); /* never waits: GIL held */
         long long offset = 0, now = 0;
-        if (received > 0) {
-            struct timespec real, mono;
+        if (received > 0) { /* the wall clock between two monotonic reads, against their midpoint */
+            struct timespec before, real, after;
+            clock_gettime(CLOCK_MONOTONIC, &before);
             clock_gettime(CLOCK_REALTIME, &real);
-            clock_gettime(CLOCK_MONOTONIC, &mono);
-            now = ns_of(&mono);
-            offset = ns_of(&real) - now;
+            clock_gettime(CLOCK_MONOTONIC, &after);
+            now = ns_of(&after);
+            offset = ns_of(&real) - (ns_of(&before) + now) / 2;
         }
         for (int i = 0; i < received; i++) {
             char host[INET_ADDRSTRLEN];

@@ -10,7 +10,8 @@ level-triggered: the rest are reported again) and sends each packet from its dev
 
 The receive time: the kernel stamps a datagram on CLOCK_REALTIME as it queues it (SO_TIMESTAMPNS);
 the farm's times are CLOCK_MONOTONIC (time.monotonic_ns). Both paths turn a stamp into monotonic ns
-with the offset between the two clocks read once per call, right after the datagrams are read, so a
+with the offset between the two clocks read once per call, right after the datagrams are read (the
+wall clock between two monotonic reads, against their midpoint: `clock_offset`), so a
 step or slew of the wall clock moves at most the stamps of the datagrams read in that one call (and
 a stamp is never later than the read). SO_TIMESTAMPING has no monotonic source for software receive
 stamps, so it would need the same conversion.
@@ -68,7 +69,7 @@ class Datagrams:
         kernel's receive time in monotonic ns or 0 where the socket gave none)."""
         if self.native:
             return _mmsg.recv_batch(fds, RECEIVE_LIMIT)  # type: ignore[union-attr]
-        out = []
+        read = []
         sockets: Mapping[int, socket.socket] = self.sockets
         for fd in fds:
             try:
@@ -77,8 +78,12 @@ class Datagrams:
                 continue
             except OSError:  # an ICMP error reported on the socket: nothing to read
                 continue
-            out.append((fd, data, host, port, received_at(ancillary)))
-        return out
+            read.append((fd, data, host, port, wall_stamp(ancillary)))
+        if not read:
+            return []
+        offset, now = clock_offset()
+        return [(fd, data, host, port, min(stamp - offset, now) if stamp else 0)
+                for fd, data, host, port, stamp in read]
 
     def send(self, messages: list[Message]) -> list[tuple[int, int]]:
         """Send every message; the (index, errno) of those that failed."""
@@ -97,12 +102,19 @@ class Datagrams:
         return failures
 
 
-def received_at(ancillary: list[tuple[int, int, bytes]]) -> int:
-    """The kernel's receive time (SCM_TIMESTAMPNS) of a datagram in monotonic ns; 0 if it has none."""
+def wall_stamp(ancillary: list[tuple[int, int, bytes]]) -> int:
+    """The kernel's receive time (SCM_TIMESTAMPNS) of a datagram, CLOCK_REALTIME ns; 0 if it has none."""
     for level, kind, data in ancillary:
         if level == socket.SOL_SOCKET and kind == SO_TIMESTAMPNS and len(data) >= _TIMESPEC.size:
-            now = time.monotonic_ns()
             seconds, nanoseconds = _TIMESPEC.unpack_from(data)
-            at = seconds * 1_000_000_000 + nanoseconds - (time.time_ns() - now)
-            return at if at < now else now
+            return seconds * 1_000_000_000 + nanoseconds
     return 0
+
+
+def clock_offset() -> tuple[int, int]:
+    """(CLOCK_REALTIME - CLOCK_MONOTONIC, monotonic now) in ns: the wall clock read between two reads
+    of the monotonic one, against their midpoint (off by at most half the time between them)."""
+    before = time.monotonic_ns()
+    wall = time.time_ns()
+    after = time.monotonic_ns()
+    return wall - (before + after) // 2, after
