@@ -440,8 +440,13 @@ def run_farm(count: int, rpi_us: int, args: argparse.Namespace, originator: Path
                 u.close()
     finally:
         stop(farm)
+    # what the running check of an auto budget did (cip/budget.py): each change, said by the worker
+    changes = [line.split(" WARNING ", 1)[-1] for line in (work / "farm.log").read_text(errors="replace").splitlines()
+               if "cyclic I/O budget now" in line]
+    if changes:
+        print(f"  {len(changes)} budget changes while running, the last: {changes[-1]}", file=sys.stderr, flush=True)
     figures.update(offered=count, admitted=figures["connections"], refused=refused,
-                   refusals=dict(refusals), budgets=budgets, forward_open_s=opening)
+                   refusals=dict(refusals), budgets=budgets, budget_changes=changes, forward_open_s=opening)
     return figures
 
 

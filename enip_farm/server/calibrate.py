@@ -78,6 +78,7 @@ def _pair_cost_ns(profile: DeviceProfile) -> float | None:
         image = b"\x01\x00\x00\x00" + bytes(output.size if output is not None else 0)
         thread = CyclicIoThread(Datagrams())  # not started: its outbox and its batched send
         endpoint = DeviceIo(device, device_socket, thread)
+        endpoint.source = socket.inet_aton(_HOST)  # T->O leave from the scratch socket's own address
         thread.register(endpoint)
         poll, receive, fd = thread._epoll.poll, thread.datagrams.receive, device_socket.fileno()
         target = device_socket.getsockname()
@@ -106,7 +107,7 @@ def _pair_cost_ns(profile: DeviceProfile) -> float | None:
                 best = min(best, spent / (_PACKETS // _TURN * _TURN))
         finally:
             endpoint.close()
-            thread._epoll.close()
+            thread.stop()  # never started: its epoll and wake-up pipe closed
         return best
 
 
