@@ -241,3 +241,16 @@ def test_a_configured_budget_is_not_checked() -> None:
     running.datagrams += 50_000
     running.tick(T0 + 2_000_000_000)  # nothing to hand the figures to; no error
     assert running.datagrams == 0
+
+
+@pytest.mark.integration  # loopback sockets
+def test_the_budget_is_measured_over_the_workers_devices_and_leaves_nothing_open() -> None:
+    """One scratch device per device of the worker (here 3), each with its loopback socket: the
+    cost is a real one, and every socket, the epoll and the wake-up pipe are closed after."""
+    import os
+
+    opened = set(os.listdir("/proc/self/fd"))
+    budget = measure_budget([dsqc1030_profile()] * 3)
+    assert set(os.listdir("/proc/self/fd")) <= opened
+    pair_us = float(budget.source.split(": ")[1].split(" us")[0])
+    assert 0.5 < pair_us < 500
