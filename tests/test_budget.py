@@ -218,9 +218,39 @@ def test_the_thread_side_counts_a_second_and_reads_its_cpu_once_a_second() -> No
     assert (running.datagrams, running.turns, running.late_turns) == (0, 0, 0)
 
 
+def test_a_window_held_up_past_a_second_is_counted_per_second() -> None:
+    """A loop held up for 3 s (a busy machine): its datagrams are 1/3 as many per second, too few to
+    say anything; the CPU per datagram is the same."""
+    budget = CyclicBudget(100_000, "measured")
+    cpu = iter([0, 900_000_000, 900_000_000, 1_800_000_000])
+    running = RunningBudget(budget, lambda: next(cpu))
+    running.tick(T0)
+    running.datagrams += MIN_DATAGRAMS * 2
+    running.turn(LAG_LIMIT_NS + 1)
+    running.tick(T0 + 3_000_000_000)  # 2/3 of MIN_DATAGRAMS a second: nothing said
+    assert (budget.datagrams_per_s, budget.lowered) == (100_000, 0)
+    running.tick(T0 + 4_000_000_000)  # a quiet second: nothing
+    running.datagrams += 3 * MIN_DATAGRAMS  # then 3 s of 60 000 datagrams on 0.9 s of CPU: 15 us each
+    running.tick(T0 + 7_000_000_000)
+    assert budget.datagrams_per_s == round(UTILISATION * 1e9 / 15_000, -2)
+
+
 def test_a_configured_budget_is_not_checked() -> None:
     running = RunningBudget(None, lambda: 0)
     running.tick(T0)
     running.datagrams += 50_000
     running.tick(T0 + 2_000_000_000)  # nothing to hand the figures to; no error
     assert running.datagrams == 0
+
+
+@pytest.mark.integration  # loopback sockets
+def test_the_budget_is_measured_over_the_workers_devices_and_leaves_nothing_open() -> None:
+    """One scratch device per device of the worker (here 3), each with its loopback socket: the
+    cost is a real one, and every socket, the epoll and the wake-up pipe are closed after."""
+    import os
+
+    opened = set(os.listdir("/proc/self/fd"))
+    budget = measure_budget([dsqc1030_profile()] * 3)
+    assert set(os.listdir("/proc/self/fd")) <= opened
+    pair_us = float(budget.source.split(": ")[1].split(" us")[0])
+    assert 0.5 < pair_us < 500

@@ -8,6 +8,8 @@ from __future__ import annotations
 import json
 
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 from pydantic import ValidationError
 
 from enip_farm.bounds import BoundsConfig, resolve
@@ -366,3 +368,20 @@ def test_an_originator_that_closed_is_not_expected_back_one_that_was_reset_is() 
     table.device_back("reset done", T0 + 5 * MS)
     (pending,) = table.reconnections.figures("io1")
     assert (pending.originator, pending.after, pending.since_ns) == (ORIGINATOR.host, "reset done", T0 + 5 * MS)
+
+
+@settings(max_examples=150, deadline=None)
+@given(st.lists(st.tuples(st.integers(-10**12, 10**15), st.integers(0, 0xFFFFFFFF), st.integers(0, 0xFFFF)),
+                max_size=60), st.integers(1, 10**10))
+def test_whatever_an_originator_sends_is_measured_and_adds_up(packets, api) -> None:
+    m = OriginatorMeasure(api, T0)
+    for at, sequence, count in packets:
+        m.o_t(at, sequence, count)
+    assert m.packets + m.repeats + m.stale == len(packets)
+    assert sum(m.counts) == m.intervals == max(m.packets - 1, 0) and len(m.counts) == len(BUCKETS_PERMILLE) + 1
+    assert m.cip_new + m.cip_same + m.cip_skipped == m.intervals and min(m.lost, m.gaps, m.cip_new) >= 0
+    figures = judge_connection(m.figures(T0 + 10**15, "io1", "h", 1, 2, "k"), resolve())
+    i = figures.intervals
+    if i.count:
+        assert 0 <= i.min_ns <= i.p50_ns <= i.p99_ns <= i.max_ns <= i.longest_silence_ns
+    assert json.dumps(figures.as_dict())
