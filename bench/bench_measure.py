@@ -1,8 +1,8 @@
 """What the report's per-packet measurement costs (cip/o_t_measure.py), in process: a connection
 table takes O->T datagrams with `measuring` on and off, in alternating rounds (so that the machine's
-other load falls on both alike); each side's figure is the fastest round's ns per datagram (the
-least disturbed), and the difference set against the farm's CPU per pair that bench_cyclic.py
-measures (its pairs/CPU-s, given with --pairs-per-cpu-s) says what share of a pair's CPU it is.
+other load falls on both alike); each side's figure is the fastest round's CPU ns per datagram (the
+thread's CPU time, the least disturbed round), and the difference set against the farm's CPU per
+pair that bench_cyclic.py measures (its pairs/CPU-s, --pairs-per-cpu-s) says what share of it it is.
 
     python bench/bench_measure.py                      # 40 rounds of 20 000 datagrams each side
     python bench/bench_measure.py --pairs-per-cpu-s 47000
@@ -60,10 +60,10 @@ def round_ns(measuring: bool, count: int, jitter: random.Random) -> float:
     packets = [encode_io_packet(oid, n, n, b"\x01\x00\x00\x00" + bytes([n & 0xFF, 0])) for n in range(1, count + 1)]
     times = [n * 10 * MS + jitter.randrange(-MS // 2, MS // 2) for n in range(1, count + 1)]
     receive = t.receive_datagram
-    start = time.perf_counter_ns()
+    start = time.thread_time_ns()  # this thread's CPU time: time the machine's other load takes is left out
     for packet, at in zip(packets, times, strict=True):
         receive(packet, HOST, at, 2222, at)
-    return (time.perf_counter_ns() - start) / count
+    return (time.thread_time_ns() - start) / count
 
 
 def main() -> None:

@@ -264,13 +264,17 @@ class RuleConfig(_Strict):
     delay_ms: float = Field(0.0, ge=0)
 
 
+#: The share of a core a worker's cyclic I/O budget is for (cip/budget.py). Unverified: a choice.
+BUDGET_UTILISATION = 0.5
+
+
 class CyclicIoConfig(_Strict):
     """What the farm's cyclic I/O thread (one per worker) may carry."""
 
     budget_datagrams_per_s: int | Literal["auto"] = Field(
-        "auto", description="class-1 datagrams per second (O->T taken plus T->O sent) one worker admits "
-        "connections for; past it a Forward Open gets 0x01/0x0113. auto: measured at start (the CPU cost of "
-        "a consumed and produced packet on this machine, for 70 % of a core)")
+        "auto", description="class-1 datagrams/s (O->T taken plus T->O sent) one worker admits connections for; "
+        f"past it a Forward Open gets 0x01/0x0113. auto: measured at start (a pair's CPU, for {BUDGET_UTILISATION:.0%}"
+        " of a core), lowered to what the I/O thread really spends, held while it runs late")
     measure: bool = Field(True, description="measure every O->T stream for the report (cip/o_t_measure.py)")
     @field_validator("budget_datagrams_per_s")
     @classmethod

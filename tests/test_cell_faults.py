@@ -228,3 +228,32 @@ def test_a_group_fault_over_http_sets_every_member_and_clears_them(enip_farm) ->
     assert httpx.post(f"{base}/groups/rack9/faults", json={"kind": "link-down"}).status_code == 404
     assert httpx.delete(f"{base}/groups/rack2/faults").json() == {"cleared": ["link-down"]}
     assert farm["r1"].faults == [] and farm["r2"].faults == []
+
+
+def test_a_degraded_link_delays_what_the_scanner_sees_and_loss_times_the_connection_out(enip_farm) -> None:
+    farm = rack(enip_farm)
+    r1 = farm["r1"]
+    enip = ethernetip.EtherNetIP(r1.address)
+    conn = enip.explicit_conn(r1.address)
+    assert conn.registerSession() == 0
+    inputs = enip.registerAssembly(ethernetip.EtherNetIP.ENIP_IO_TYPE_INPUT, 2, 101, conn)
+    enip.registerAssembly(ethernetip.EtherNetIP.ENIP_IO_TYPE_OUTPUT, 2, 100, conn)
+    enip.startIO(udp_port=0)
+    try:
+        assert conn.sendFwdOpenReq(101, 100, 1, torpi=RPI_MS, otrpi=RPI_MS, multiplier=2,
+                                   originator_udp_port=enip.originator_udp_port) == 0
+        conn.produce()
+        farm.inject("r1", "degraded-link", delay_ms=80, direction="from-device")
+        set_at = time.monotonic()
+        r1.set(DI1=1)
+        assert wait_for(lambda: inputs[0], timeout=5)
+        assert time.monotonic() - set_at >= 0.08  # the T->O that carried it was held 80 ms
+        assert r1.device.connections  # O->T untouched: the connection lives
+        path = r1.device.faults.impairment
+        assert path.to_device is None and path.from_device.delayed > 0 and path.from_device.lost == 0
+        farm.inject("r1", "degraded-link", loss=1, direction="to-device")  # every O->T lost
+        assert wait_for(lambda: r1.counters["connection_timeouts"] == 1, timeout=5)
+        assert r1.device.faults.impairment.to_device.lost > 0
+    finally:
+        enip.stopIO()
+        farm.clear("r1")

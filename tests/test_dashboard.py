@@ -29,7 +29,7 @@ from enip_farm.device.catalogue import shipped_catalogue
 from enip_farm.device.events import Event, ImageChange
 from enip_farm.device.faults import FaultKind
 from enip_farm.device.signals import SignalMap
-from tests.helpers import CLI, ROOT, read_lines, wait_for
+from tests.helpers import CLI, ROOT, RawClient, read_lines, wait_for
 
 MS = 1_000_000  # ns
 S = 1_000_000_000  # ns
@@ -221,6 +221,27 @@ def test_a_1khz_change_rate_is_coalesced_to_one_event_per_tick(enip_farm) -> Non
     assert [state["DI1"], state["DI2"], state["DI16"]] == [*io.get("DI1-2"), 1]
 
 
+def test_state_tells_what_is_open_apart_from_the_totals(enip_farm) -> None:
+    """Issue 30: "TCP 7 · sessions 7" were totals since start, shown beside "0 connections"; the
+    state says what is open now too (`open`), and the totals stay totals."""
+    farm = enip_farm(name="io", model="DSQC1030", http=True)
+    base, address = f"http://127.0.0.1:{farm.http.port}", farm["io"].address
+
+    def state() -> dict:
+        (one,) = httpx.get(f"{base}/state", params={"device": "io"}).json()
+        return {"open": one["open"], "tcp": one["counters"]["tcp_connections"], "sessions": one["counters"]["sessions"]}
+
+    clients = [RawClient(address) for _ in range(3)]
+    try:
+        for client in clients[:2]:
+            client.register()
+        assert wait_for(lambda: state() == {"open": {"tcp": 3, "sessions": 2}, "tcp": 3, "sessions": 2})
+    finally:
+        for client in clients:
+            client.close()
+    assert wait_for(lambda: state() == {"open": {"tcp": 0, "sessions": 0}, "tcp": 3, "sessions": 2}), state()
+
+
 def test_state_shows_signals_connections_counters_and_faults(enip_farm) -> None:
     farm = enip_farm(name="io", model="DSQC1030", signals=NAMED, implicit={"first_watchdog_s": 0}, http=True)
     base, io = f"http://127.0.0.1:{farm.http.port}", farm["io"]
@@ -235,6 +256,7 @@ def test_state_shows_signals_connections_counters_and_faults(enip_farm) -> None:
     assert (state["status"], state["owners"], state["connections"], state["faults"]) == (0x0030, [], [], [])
     assert state["counters"] == {"o_t_packets": 0, "t_o_packets": 0, "connection_timeouts": 0,
                                  "tcp_connections": 0, "sessions": 0}
+    assert state["open"] == {"tcp": 0, "sessions": 0}
     enip = ethernetip.EtherNetIP(io.address)  # a real scanner's class-1 connection
     conn = enip.explicit_conn(io.address)
     assert conn.registerSession() == 0

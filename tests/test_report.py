@@ -95,8 +95,9 @@ def test_intervals_are_the_kernels_receive_times_not_the_farms(farm) -> None:
         assert client.request(forward_close(triad)).general_status == 0
     intervals = _connection(farm)["intervals"]
     assert intervals["count"] == 2
-    assert before3 - after2 <= intervals["max_ns"] <= after3 - before2  # the 30 ms between the sends
-    assert intervals["max_ns"] < 45 * MS  # not the 80 ms the thread was held
+    # the time between the two sends, not between the thread's takes (packet 3 is taken after the
+    # lock is released, 50 ms after its send: later than after3 - before2 allows)
+    assert before3 - after2 <= intervals["max_ns"] <= after3 - before2
 
 
 def test_sequence_figures_from_a_raw_originator_with_exact_counts(farm) -> None:

@@ -8,6 +8,8 @@ from __future__ import annotations
 import json
 
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 from pydantic import ValidationError
 
 from enip_farm.bounds import BoundsConfig, resolve
@@ -187,7 +189,10 @@ def test_forward_open_asked_names_the_key_form_and_the_configuration(key, form) 
 
 def test_reconnection_after_the_device_came_back_and_after_a_timeout() -> None:
     r = Reconnections()
-    r.device_back("reset done", T0, set())  # nobody known: whoever opens first
+    r.opened("127.0.0.9", T0 - 1000 * MS, None)
+    r.opened("127.0.0.7", T0 - 1000 * MS, None)
+    r.left("127.0.0.7")  # it Forward Closed: not expected back
+    r.device_back("reset done", T0, set())
     m = measure()
     r.opened("127.0.0.9", T0 + 300 * MS, m)
     m.o_t(T0 + 310 * MS, 1, 1)
@@ -206,6 +211,9 @@ def test_reconnection_after_the_device_came_back_and_after_a_timeout() -> None:
         r.timed_out(f"127.0.1.{n}", T0)
         r.opened(f"127.0.1.{n}", T0 + n, None)
     assert len(r.figures("io1")) == KEPT
+    nobody = Reconnections()
+    nobody.device_back("fault cleared", T0, set())  # no originator lost a connection: nobody is expected
+    assert nobody.figures("io1") == []
 
 
 def test_a_table_timeout_waits_for_the_originators_next_forward_open() -> None:
@@ -296,17 +304,22 @@ def test_bounds_levels_defaults_cell_device_test_with_their_sources() -> None:
 
 def test_reconnection_and_reaction_verdicts() -> None:
     r = Reconnections()
+    r.opened("127.0.0.9", T0 - MS, None)
     r.device_back("fault cleared", T0, set())
     r.opened("127.0.0.9", T0 + 10 * 10**9, None)
     r.device_back("reset done", T0 + 20 * 10**9, set())
     done, waiting = r.figures("io1")
     bounds = resolve(("test", {"reconnect_first_o_t_s": 1}))
-    assert [(v.verdict, v.value) for v in judge_reconnection(done, bounds)] == [(PASS, 10.0), (TOO_SHORT, None)]
-    assert [v.verdict for v in judge_reconnection(waiting, bounds)] == [TOO_SHORT, TOO_SHORT]
-    late = Reconnections()
-    late.device_back("fault cleared", T0, set())
-    late.opened("127.0.0.9", T0 + 10 * 10**9 + 1, None)
-    assert judge_reconnection(late.figures("io1")[0], resolve())[0].verdict == FAIL
+    now = T0 + 20 * 10**9
+    assert [(v.verdict, v.value) for v in judge_reconnection(done, bounds, now)] == [(PASS, 10.0), (FAIL, 20.0)]
+    assert [v.verdict for v in judge_reconnection(waiting, bounds, now + 10**9)] == [TOO_SHORT, TOO_SHORT]
+    late = [(v.verdict, v.value) for v in judge_reconnection(waiting, bounds, now + 10**9 + 1)]
+    assert late == [(TOO_SHORT, None), (FAIL, 1.000000001)]  # waited past the 1 s bound: fails, not yet come
+    slow = Reconnections()
+    slow.opened("127.0.0.9", T0 - MS, None)
+    slow.device_back("fault cleared", T0, set())
+    slow.opened("127.0.0.9", T0 + 10 * 10**9 + 1, None)
+    assert judge_reconnection(slow.figures("io1")[0], resolve(), T0)[0].verdict == FAIL
     reaction = ReactionFigures("r", "io1.DI3=1", "io1.DO5=1", "o->t", tuple(n * MS for n in range(1, 101)), 0)
     judged = judge_reaction(reaction, resolve(("test", {"reaction_p99_ms": 99, "reaction_max_ms": 100})))
     assert [(v.figure, v.verdict, v.value) for v in judged.verdicts] == [
@@ -342,3 +355,33 @@ def test_a_reaction_probe_counts_from_the_stimulus_leaving_to_the_output_arrivin
     probe.consumed(b"\x10\x00", T0 + 7 * MS)
     probe.consumed(b"\x10\x00", T0 + 9 * MS)
     assert probe.done.is_set() and probe.latency_ns == 5 * MS - 40 and probe.via == "o->t"
+
+
+def test_an_originator_that_closed_is_not_expected_back_one_that_was_reset_is() -> None:
+    table = make_table()
+    closed = open_owner(table).connection
+    table.forward_close(closed.triad, T0 + MS)
+    table.device_back("fault cleared", T0 + 2 * MS)
+    assert table.reconnections.figures("io1") == []
+    reset = open_owner(table, now=T0 + 3 * MS).connection
+    table.close(reset, "identity reset (type 0)", T0 + 4 * MS)
+    table.device_back("reset done", T0 + 5 * MS)
+    (pending,) = table.reconnections.figures("io1")
+    assert (pending.originator, pending.after, pending.since_ns) == (ORIGINATOR.host, "reset done", T0 + 5 * MS)
+
+
+@settings(max_examples=150, deadline=None)
+@given(st.lists(st.tuples(st.integers(-10**12, 10**15), st.integers(0, 0xFFFFFFFF), st.integers(0, 0xFFFF)),
+                max_size=60), st.integers(1, 10**10))
+def test_whatever_an_originator_sends_is_measured_and_adds_up(packets, api) -> None:
+    m = OriginatorMeasure(api, T0)
+    for at, sequence, count in packets:
+        m.o_t(at, sequence, count)
+    assert m.packets + m.repeats + m.stale == len(packets)
+    assert sum(m.counts) == m.intervals == max(m.packets - 1, 0) and len(m.counts) == len(BUCKETS_PERMILLE) + 1
+    assert m.cip_new + m.cip_same + m.cip_skipped == m.intervals and min(m.lost, m.gaps, m.cip_new) >= 0
+    figures = judge_connection(m.figures(T0 + 10**15, "io1", "h", 1, 2, "k"), resolve())
+    i = figures.intervals
+    if i.count:
+        assert 0 <= i.min_ns <= i.p50_ns <= i.p99_ns <= i.max_ns <= i.longest_silence_ns
+    assert json.dumps(figures.as_dict())

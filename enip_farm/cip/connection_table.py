@@ -277,6 +277,9 @@ class ConnectionTable:
         if connection.measure is not None:
             connection.measure.end(now, end_word(ended.kind, reason), reason)
             self.ended.append(connection)
+            host = connection.originator_host
+            if reason == "forward close" and not any(c.originator_host == host for c in self.connections.values()):
+                self.reconnections.left(host)
         if connection.kind is ConnectionKind.SAFETY_OUTPUT:  # whatever ends it: the safe state
             output = self.assemblies["output"]
             output.owned = False

@@ -36,34 +36,33 @@ BOUNDS_API = tuple(b / 1000 for b in BUCKETS_PERMILLE)
 #: Run/idle transitions kept with their times (the count of all is kept too).
 RECENT_RUN_IDLE = 16
 _HALF = 0x80000000
+_NO_MIN = 1 << 63  # no interval yet
 
 
 class OriginatorMeasure:
     """The measurement of one connection's O->T stream. `o_t` is the per-packet hook."""
 
-    __slots__ = ("api_ns", "opened_at", "asked", "counts", "intervals", "total_ns", "min_ns", "max_ns", "late",
-                 "last_at", "first_at", "last_sequence", "last_count", "packets", "lost", "gaps", "repeats", "stale",
-                 "cip_new", "cip_same", "cip_skipped", "run", "transitions", "recent", "ended_at", "ended",
-                 "end_reason", "_late_ns")
+    __slots__ = ("api_ns", "opened_at", "asked", "counts", "total_ns", "_min_ns", "max_ns", "late", "last_at",
+                 "first_at", "last_sequence", "last_count", "packets", "lost", "gaps", "repeats", "stale", "cip_same",
+                 "cip_skipped", "run", "transitions", "recent", "ended_at", "ended", "end_reason", "_late_ns")
 
     def __init__(self, api_ns: int, opened_at: int, asked: ForwardOpenAsked | None = None) -> None:
         self.api_ns = max(api_ns, 1)
         self.opened_at = opened_at
         self.asked = asked
         self.counts = [0] * (len(BUCKETS_PERMILLE) + 1)
-        self.intervals = 0
         self.total_ns = 0
-        self.min_ns: int | None = None
+        self._min_ns = _NO_MIN
         self.max_ns = 0
         self.late = 0
         self._late_ns = 2 * self.api_ns
-        self.last_at: int | None = None
+        self.last_at = 0
         self.first_at: int | None = None
         self.last_sequence: int | None = None
-        self.last_count: int | None = None
+        self.last_count = 0
         self.packets = 0
         self.lost = self.gaps = self.repeats = self.stale = 0
-        self.cip_new = self.cip_same = self.cip_skipped = 0
+        self.cip_same = self.cip_skipped = 0
         self.run = False
         self.transitions = 0
         self.recent: deque[tuple[int, bool]] = deque(maxlen=RECENT_RUN_IDLE)
@@ -74,38 +73,37 @@ class OriginatorMeasure:
     def o_t(self, at: int, sequence: int, count: int) -> bool:
         """An O->T packet of this connection received at `at` with its 32-bit `sequence` and 16-bit
         sequence `count`: True if it advanced the sequence (a new packet), False for a repeat or a
-        stale one (those are counted, not timed)."""
+        stale one (those are counted, not timed). The hot path: what is rare is counted, what is
+        common derived (intervals = packets - 1, new counts = intervals - same - skipped)."""
         last = self.last_sequence
         if last is not None:
             delta = (sequence - last) & 0xFFFFFFFF
-            if delta == 0:
-                self.repeats += 1
-                return False
-            if delta >= _HALF:
-                self.stale += 1
-                return False
-            if delta > 1:
+            if delta != 1:
+                if delta == 0:
+                    self.repeats += 1
+                    return False
+                if delta >= _HALF:
+                    self.stale += 1
+                    return False
                 self.lost += delta - 1
                 self.gaps += 1
-            interval = at - self.last_at  # type: ignore[operator]
+            interval = at - self.last_at
             if interval < 0:
                 interval = 0
             self.counts[bisect_left(BUCKETS_PERMILLE, interval * 1000 // self.api_ns)] += 1
-            self.intervals += 1
             self.total_ns += interval
             if interval > self.max_ns:
                 self.max_ns = interval
-            if self.min_ns is None or interval < self.min_ns:
-                self.min_ns = interval
+            if interval < self._min_ns:
+                self._min_ns = interval
             if interval >= self._late_ns:
                 self.late += 1
-            step = (count - self.last_count) & 0xFFFF  # type: ignore[operator]
-            if step == 1:
-                self.cip_new += 1
-            elif step == 0:
-                self.cip_same += 1
-            else:
-                self.cip_skipped += 1
+            step = (count - self.last_count) & 0xFFFF
+            if step != 1:
+                if step == 0:
+                    self.cip_same += 1
+                else:
+                    self.cip_skipped += 1
         else:
             self.first_at = at
         self.last_sequence = sequence
@@ -113,6 +111,19 @@ class OriginatorMeasure:
         self.last_at = at
         self.packets += 1
         return True
+
+    @property
+    def intervals(self) -> int:
+        """Intervals measured: one per new packet after the first."""
+        return self.packets - 1 if self.packets else 0
+
+    @property
+    def min_ns(self) -> int | None:
+        return None if self._min_ns == _NO_MIN else self._min_ns
+
+    @property
+    def cip_new(self) -> int:
+        return self.intervals - self.cip_same - self.cip_skipped
 
     def run_idle(self, run: bool, at: int) -> None:
         """The O->T data's mode changed (the run/idle header, or data/no data of a modeless format)."""
@@ -146,7 +157,7 @@ class OriginatorMeasure:
         """The longest time without a new packet: the longest interval, or the time from the last
         packet (the Forward Open before the first) to the end, or to `now` while it is open."""
         until = self.ended_at if self.ended_at is not None else now
-        since = self.last_at if self.last_at is not None else self.opened_at
+        since = self.last_at if self.first_at is not None else self.opened_at
         return max(self.max_ns, until - since)
 
     def interval_figures(self, now: int) -> IntervalFigures:

@@ -13,7 +13,6 @@ from enip_farm.cip.report import ReconnectAfter, Reconnection
 
 KEPT = 16
 ORIGINATORS = 64
-ANY = "*"  # a pending reconnection of whichever originator opens first (none known yet)
 
 
 class _Pending:
@@ -31,9 +30,9 @@ class Reconnections:
     `Reconnection` figures."""
 
     def __init__(self) -> None:
-        self._pending: dict[str, _Pending] = {}  # by originator (or ANY): waiting for a Forward Open
+        self._pending: dict[str, _Pending] = {}  # by originator: waiting for a Forward Open
         self._done: deque[tuple[str, _Pending]] = deque(maxlen=KEPT)
-        self._seen: OrderedDict[str, None] = OrderedDict()  # originators that had a connection
+        self._seen: OrderedDict[str, None] = OrderedDict()  # originators that had a connection, not closed
 
     def opened(self, originator: str, now: int, measure: OriginatorMeasure | None) -> None:
         """An I/O connection of `originator` was admitted at `now`."""
@@ -41,7 +40,7 @@ class Reconnections:
         self._seen.move_to_end(originator)
         if len(self._seen) > ORIGINATORS:
             self._seen.popitem(last=False)
-        pending = self._pending.pop(originator, None) or self._pending.pop(ANY, None)
+        pending = self._pending.pop(originator, None)
         if pending is not None:
             pending.forward_open = now
             pending.measure = measure
@@ -52,13 +51,14 @@ class Reconnections:
         if originator in self._pending or len(self._pending) < ORIGINATORS:
             self._pending.setdefault(originator, _Pending("timeout", now))
 
+    def left(self, originator: str) -> None:
+        """`originator` Forward Closed its last connection: it is not expected back."""
+        self._seen.pop(originator, None)
+
     def device_back(self, after: ReconnectAfter, now: int, connected: set[str]) -> None:
-        """The device answers again at `now`: every originator it knew that has no open connection
-        (`connected`) is expected back (if none is known, whichever comes first)."""
-        waiting = [o for o in self._seen if o not in connected]
-        if not self._seen:
-            waiting = [ANY]
-        for originator in waiting:
+        """The device answers again at `now`: every originator whose connections it lost (it had
+        one and did not close it) and that has none open (`connected`) is expected back."""
+        for originator in [o for o in self._seen if o not in connected]:
             self._pending[originator] = _Pending(after, now)
 
     def figures(self, device: str) -> list[Reconnection]:

@@ -33,12 +33,12 @@ stimulus to the controller's reaction. Times are integer ns of the farm's monoto
              "sequence": {"packets", "lost", "gaps", "repeats", "stale", "last": int | null},
              "cip_sequence": {"new", "same", "skipped"},  # the 16-bit sequence count
              "run_idle": {"run": bool, "transitions": int, "recent": [{"at_ns", "run"}]},
-             "verdicts": [Verdict]}],
+             "verdict": ..., "verdicts": [Verdict]}],
          "reconnections": [{"device", "originator", "after", "since_ns", "forward_open_ns": int | null,
              "first_o_t_ns": int | null, "forward_open_after_ns", "first_o_t_after_ns"}],
          "verdicts": [Verdict]}],            # the device's own (reconnection)
-     "reactions": [{"name", "stimulus", "expect", "via": "o->t" | "explicit", "count", "timeouts",
-         "min_ns", "p50_ns", "p99_ns", "max_ns", "samples_ns": [int], "verdicts": [Verdict]}]}
+     "reactions": [{"name", "stimulus", "expect", "via": "o->t" | "explicit" | "any", "count", "timeouts",
+         "min_ns", "p50_ns", "p99_ns", "max_ns", "samples_ns": [int], "verdict": ..., "verdicts": [Verdict]}]}
 
     Verdict: {"figure", "verdict": "pass" | "fail" | "too short to judge", "value": number | null,
               "bound": number, "unit", "needs": int, "have": int, "source": str}

@@ -61,17 +61,23 @@ def judge_connection(figures: ConnectionFigures, bounds: ResolvedBounds) -> Conn
     return dataclasses.replace(figures, verdicts=tuple(out))
 
 
-def judge_reconnection(reconnection: Reconnection, bounds: ResolvedBounds) -> list[Verdict]:
-    """A reconnection's two times against their bounds; one that has not come yet is too short to judge."""
+def judge_reconnection(reconnection: Reconnection, bounds: ResolvedBounds, now: int) -> list[Verdict]:
+    """A reconnection's two times against their bounds. One that has not come yet is too short to
+    judge until `now` is past its bound, then it fails with the time waited so far."""
     out = []
-    for name, figure, after in (("reconnect_forward_open_s", "reconnection: next Forward Open",
-                                 reconnection.forward_open_after_ns),
-                                ("reconnect_first_o_t_s", "reconnection: first O->T", reconnection.first_o_t_after_ns)):
+    r = reconnection
+    for name, figure, at in (("reconnect_forward_open_s", "reconnection: next Forward Open", r.forward_open_ns),
+                             ("reconnect_first_o_t_s", "reconnection: first O->T", r.first_o_t_ns)):
         bound = bounds[name]
-        if bound is not None:
-            value = None if after is None else after / 1e9
-            out.append(verdict(f"{figure} after {reconnection.after} ({reconnection.originator})", value, bound, "s",
-                               1, 0 if after is None else 1, bounds.source(name)))
+        if bound is None:
+            continue
+        where = f"{figure} after {reconnection.after} ({reconnection.originator})"
+        if at is not None:
+            out.append(verdict(where, (at - reconnection.since_ns) / 1e9, bound, "s", 1, 1, bounds.source(name)))
+        elif (waited := (now - reconnection.since_ns) / 1e9) > bound:
+            out.append(verdict(f"{where}, not yet", waited, bound, "s", 0, 0, bounds.source(name)))
+        else:
+            out.append(verdict(where, None, bound, "s", 1, 0, bounds.source(name)))
     return out
 
 

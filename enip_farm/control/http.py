@@ -122,7 +122,8 @@ def _state(farm: FarmControl, name: str) -> dict[str, Any]:
         "name": name, "monotonic": monotonic, "signals": handle.signal_table(), "status": device.status,
         "owners": sorted({c["originator"] for c in connections if c["kind"] == "exclusive owner"}),
         "connections": connections,
-        "counters": {key: device.counters.get(key, 0) for key in STATE_COUNTERS},
+        "open": {"tcp": device.tcp_open, "sessions": len(device.session_handles.open)},  # now, beside the totals
+        "counters": {key: device.counters.get(key, 0) for key in STATE_COUNTERS},  # since start
         "faults": handle.faults,
     }
 

@@ -10,6 +10,12 @@ device/fault_kinds.py lists every kind). A group fault sets one of these on ever
 - address-conflict: probe: the address given up (as link-down); ongoing: defended (served); the TCP/IP
   object's attributes 1 and 11 say so if SelectAcd (attribute 10) is 1.
 - wrong-module: another product code or revision (ListIdentity, Identity, electronic keys).
+- safety-crc, safety-stale, safety-time-coordination (a CIP Safety target, the DSQC1042): its
+  safe-input messages with a wrong CRC, or standing still (the same time stamp), or no time
+  coordination answers to the originator's pings (device/safety_faults.py).
+- degraded-link: class 1 (O->T and T->O, device/impairment.py) delayed, jittered, lost, duplicated and
+  reordered, seeded, one or both directions; explicit (TCP) replies delayed and jittered, a lost
+  segment showing as the retransmission time (TCP hides loss, duplication and reordering).
 
 On loopback a closed port answers a SYN with RST, so a powered-off module's TCP port is refused where a
 real one's connect times out; a link down keeps the listener (the kernel completes the handshake) but
@@ -24,9 +30,14 @@ from collections.abc import Iterator
 from itertools import count as forever
 from typing import Any, Literal
 
-from pydantic import Field, field_validator, model_validator
+from pydantic import Field, PrivateAttr, field_validator, model_validator
 
 from enip_farm.device.fault_type import DROP, FaultedDevice, FaultError, FaultType, number
+from enip_farm.device.impairment import DegradedPath, LinkQuality
+from enip_farm.device.safety_faults import SafetyTamper
+
+#: A lost TCP segment is sent again after the retransmission timeout: Linux's least (RFC 6298 allows 1 s).
+TCP_RTO_MS = 200.0
 
 #: ACD activity of attribute 11 (Vol. 2, 5-4.3.2.11): 1 probing the address, 2 ongoing detection.
 _ACTIVITY = {"probe": 1, "ongoing": 2}
@@ -177,3 +188,69 @@ class WrongModule(FaultType):
     def on_revision(self, revision: tuple[int, int]) -> tuple[int, int]:
         return (self.major_revision or revision[0],
                 revision[1] if self.minor_revision is None else self.minor_revision)
+
+
+class DegradedLink(FaultType):
+    name = "degraded-link"
+    summary = ("a bad cable or a busy switch: class-1 datagrams delayed, jittered, lost, duplicated, reordered "
+               "(seeded), one or both directions; TCP replies delayed (a lost segment: its retransmission)")
+
+    delay_ms: float = Field(0.0, ge=0, le=10_000, description="each datagram held this long, ms")
+    jitter_ms: float = Field(0.0, ge=0, le=10_000, description="and up to this much more or less, ms")
+    loss: float = Field(0.0, ge=0, le=1, description="the share of datagrams lost, 0..1")
+    duplicate: float = Field(0.0, ge=0, le=1, description="the share of datagrams sent twice, 0..1")
+    reorder: float = Field(0.0, ge=0, le=1, description="the share held reorder_ms more, so later ones overtake")
+    reorder_ms: float = Field(20.0, ge=0, le=10_000, description="the extra hold of a reordered datagram, ms")
+    direction: Literal["both", "to-device", "from-device"] = Field(
+        "both", description="to-device: O->T and requests; from-device: T->O and replies")
+    seed: int = Field(0, description="the random generator's seed, so that a run can be repeated")
+    _rng: random.Random = PrivateAttr()
+
+    @field_validator("delay_ms", "jitter_ms", "loss", "duplicate", "reorder", "reorder_ms", mode="before")
+    @classmethod
+    def _numbers(cls, value: Any, info: Any) -> Any:
+        return number(info.field_name, value)
+
+    def model_post_init(self, context: Any) -> None:
+        self._rng = random.Random(self.seed)
+
+    def quality(self) -> LinkQuality:
+        return LinkQuality(round(self.delay_ms * 1e6), round(self.jitter_ms * 1e6), self.loss, self.duplicate,
+                           self.reorder, round(self.reorder_ms * 1e6))
+
+    def impairment(self) -> DegradedPath | None:
+        quality = self.quality()
+        return DegradedPath(quality if self.direction != "from-device" else None,
+                            quality if self.direction != "to-device" else None, self.seed)
+
+    def on_reply(self) -> int:
+        """A turn of TCP replies: its delay; a lost segment adds the retransmission timeout."""
+        rng = self._rng
+        hold = self.delay_ms + (rng.uniform(-self.jitter_ms, self.jitter_ms) if self.jitter_ms else 0.0)
+        if self.loss and rng.random() < self.loss:
+            hold += TCP_RTO_MS
+        return round(max(hold, 0.0) * 1e6)
+
+
+class SafetyCrc(FaultType):
+    name = "safety-crc"
+    summary = "CIP Safety target: its safe-input messages carry a wrong CRC (the originator's consumer drops them)"
+
+    def safety_tamper(self) -> SafetyTamper | None:
+        return SafetyTamper("crc")
+
+
+class SafetyStale(FaultType):
+    name = "safety-stale"
+    summary = "CIP Safety target: its safe-input messages stand still (the same time stamp and data, valid CRCs)"
+
+    def safety_tamper(self) -> SafetyTamper | None:
+        return SafetyTamper("stale")
+
+
+class SafetyTimeCoordination(FaultType):
+    name = "safety-time-coordination"
+    summary = "CIP Safety target: no time coordination answers to the originator's pings (its producer times out)"
+
+    def safety_tamper(self) -> SafetyTamper | None:
+        return SafetyTamper("time-coordination")

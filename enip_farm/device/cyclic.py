@@ -2,7 +2,8 @@
 and 3-3; Vol. 1, 3-4.4): O->T datagrams to the connection table, supervision (watchdogs) and T->O
 production. The table is read and written under the device lock; what it hands out to send (T->O
 packets, CIP Safety time coordination replies) is computed under the lock and sent after it, so a
-socket write never holds the lock. A `stop-io` fault or the reset window drops O->T and withholds T->O.
+socket write never holds the lock. A `stop-io` fault or the reset window drops O->T and withholds T->O;
+a `degraded-link` fault's path (device/impairment.py) loses, holds and doubles datagrams both ways.
 """
 
 from __future__ import annotations
@@ -43,6 +44,21 @@ class CyclicIo:
         if self.window.active:
             self.counters["o_t_dropped_resetting"] += 1
             return False
+        send = self._tampered(send)
+        path = self.faults.impairment
+        if path is not None:  # a degraded link: the datagram may be lost, held, doubled
+            if path.from_device is not None:
+                send = path.from_device.through(send, now)
+            if path.to_device is not None:
+                passing = path.to_device.admit(data, source, now)
+                if path.to_device.held and self.guard.timer_moved is not None:
+                    self.guard.timer_moved()  # what is held is due before the device's own timer, maybe
+                taken = [self._take(d, s, now, send, received_at) for d, s in passing]
+                return any(taken) or bool(path.to_device.held)
+        return self._take(data, source, now, send, received_at)
+
+    def _take(self, data: bytes, source: tuple[str, int], now: int, send: SendDatagram,
+              received_at: int | None) -> bool:
         guard, table, output = self.guard, self.table, self.guard.output
         with guard.lock:  # O->T changes the outputs only: the inputs need no snapshot
             old = bytes(output.data) if output is not None else b""
@@ -65,6 +81,16 @@ class CyclicIo:
         """Supervise the connections at `now` and hand `send` the T->O packets due by `now` (or by
         `horizon`, the end of the I/O thread's turn), after the lock; the next time something is due."""
         guard, table = self.guard, self.table
+        send = self._tampered(send)
+        path = self.faults.impairment
+        if path is not None:  # a degraded link: what it held is due now, and what is sent goes through it
+            if path.from_device is not None:
+                for packet, address in path.from_device.due(now):
+                    send(packet, address)
+                send = path.from_device.through(send, now)
+            if path.to_device is not None and not self.faults.io_stopped and not self.window.active:
+                for data, source in path.to_device.due(now):
+                    self._take(data, source, now, send, None)
         with guard.lock:
             expiring = table.supervision_due(now)
             if expiring:  # a timeout may change the outputs: look before and after
@@ -89,8 +115,23 @@ class CyclicIo:
                     probe.produced(carried, now)
         if expiring and connections:
             guard.publish(before, after, now, (), connections)
-        return timer
+        return _earliest(timer, path.next_due()) if path is not None else timer
+
+    def _tampered(self, send: SendDatagram) -> SendDatagram:
+        """`send` behind a safety fault's tampering (device/safety_faults.py), if one is set."""
+        tamper = self.faults.safety_tamper
+        if tamper is None:
+            return send
+        with self.guard.lock:
+            data, coordination = tamper.streams(self.table.connections.values())
+        return tamper.through(send, data, coordination)
 
     def get_timer(self) -> int | None:
         with self.guard.lock:
-            return self.table.get_timer()
+            timer = self.table.get_timer()
+        path = self.faults.impairment
+        return _earliest(timer, path.next_due()) if path is not None else timer
+
+
+def _earliest(a: int | None, b: int | None) -> int | None:
+    return b if a is None else a if b is None else min(a, b)

@@ -54,6 +54,7 @@ class Device:
         self.faults = DeviceFaults()
         self.recorder: TrafficTap | None = None  # serve --record
         self.counters: Counter[str] = Counter(dict.fromkeys(COUNTERS, 0))
+        self.tcp_open = 0  # TCP connections open now (server/tcp.py counts them in and out; counters: since start)
         self.latency = LatencyHistogram()
         objects = build_objects(profile, self.counters, budget, product_code=lambda: self.product_code,
                                 revision=lambda: self.revision,

@@ -15,7 +15,17 @@ from typing import Any
 
 from pydantic import ConfigDict, Field, field_validator, model_validator
 
-from enip_farm.device.cell_fault_kinds import AddressConflict, FlappingLink, LinkDown, PowerLoss, WrongModule
+from enip_farm.device.cell_fault_kinds import (
+    AddressConflict,
+    DegradedLink,
+    FlappingLink,
+    LinkDown,
+    PowerLoss,
+    SafetyCrc,
+    SafetyStale,
+    SafetyTimeCoordination,
+    WrongModule,
+)
 from enip_farm.device.fault_type import DROP, MAX_DELAY_MS, Disconnect, FaultError, FaultType, byte, delay_ms
 
 
@@ -129,4 +139,5 @@ class Identity(FaultType):
 
 #: Every fault kind, in the order the API, the CLI and the dashboard list them.
 KINDS: tuple[type[FaultType], ...] = (Delay, Drop, Close, Reset, Offline, Status, StopIo, Identity, PowerLoss,
-                                      LinkDown, FlappingLink, AddressConflict, WrongModule)
+                                      LinkDown, FlappingLink, DegradedLink, AddressConflict, WrongModule,
+                                      SafetyCrc, SafetyStale, SafetyTimeCoordination)

@@ -71,6 +71,12 @@ class DeviceFaults:
         self.listens = True
         self.hears = True
         self.suspended: set[str] = set()  # kinds whose effects are off for now (a flapping link's up phases)
+        #: The class-1 datagrams' degraded path (a degraded-link fault), read by the cyclic I/O thread.
+        self.impairment: Any = None
+        self._impaired_by: FaultType | None = None
+        #: A safety fault's SafetyTamper of the class-0 datagrams, read by the cyclic I/O thread.
+        self.safety_tamper: Any = None
+        self._tampered_by: FaultType | None = None
         self._replies: tuple[FaultType, ...] = ()  # the faults that change how TCP replies go out
         self._disconnect: Disconnect | None = None
 
@@ -110,6 +116,14 @@ class DeviceFaults:
         self.answers_udp = all(fault.on_udp_datagram() for fault in faults)
         self.listens = all(fault.listens() for fault in faults)
         self.hears = all(fault.hears() for fault in faults)
+        impairing = next((f for f in faults if type(f).impairment is not FaultType.impairment), None)
+        if impairing is not self._impaired_by:  # a new one starts afresh; the same one keeps what it holds
+            self._impaired_by = impairing
+            self.impairment = impairing.impairment() if impairing is not None else None
+        tampering = next((f for f in faults if type(f).safety_tamper is not FaultType.safety_tamper), None)
+        if tampering is not self._tampered_by:
+            self._tampered_by = tampering
+            self.safety_tamper = tampering.safety_tamper() if tampering is not None else None
         self._replies = tuple(f for f in faults if type(f).on_reply is not FaultType.on_reply)
         ends = {fault.on_tcp_connection() for fault in faults} - {None}
         self._disconnect = Disconnect.RESET if Disconnect.RESET in ends else ends.pop() if ends else None

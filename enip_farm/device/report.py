@@ -47,7 +47,7 @@ def device_report(device: Device, now: int, bounds: ResolvedBounds) -> DeviceRep
             f = dataclasses.replace(f, forward_open=dataclasses.replace(
                 f.forward_open, expected_o_t_rpi_us=expected[0], expected_t_o_rpi_us=expected[1]))
         judged.append(judge_connection(f, bounds))
-    verdicts = tuple(v for r in reconnections for v in judge_reconnection(r, bounds))
+    verdicts = tuple(v for r in reconnections for v in judge_reconnection(r, bounds, now))
     return DeviceReport(device.name, tuple(judged), tuple(reconnections), verdicts)
 
 

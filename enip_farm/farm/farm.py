@@ -173,7 +173,7 @@ class Farm:
                 self.budget.set(measured.datagrams_per_s, measured.source)
             else:
                 self.budget.set(budget, "configured")
-            self._implicit = ImplicitIo()
+            self._implicit = ImplicitIo(self.budget if budget == "auto" else None)
             for device in self.devices.values():
                 try:
                     self._implicit.add(device)

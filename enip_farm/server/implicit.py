@@ -20,7 +20,9 @@ per device:
   attribute 4), by this thread alone (`Device.io_traffic`);
 - how late it runs is watched (`lag`): a wake-up later than `OVERLOAD_LAG_NS` is an overload of
   the farm (the CPU, or more connections than its budget), counted, shown in /metrics and as a
-  console warning with the lag, never blamed on an originator;
+  console warning with the lag, never blamed on an originator; once a second, what the thread
+  really spent (its CPU, system calls included), the datagrams it moved and its late turns go to
+  a measured budget's running check (server/running_budget.py, cip/budget.py);
 - one device's bug does not stop the others: an exception while it takes a datagram or services
   its connections is counted (`io_errors`) and logged with its traceback (rate-limited per device,
   `RateLimitedLog`), and its timer is tried again `_RETRY_NS` later;
@@ -45,10 +47,12 @@ import threading
 import time
 from collections.abc import Callable
 
+from enip_farm.cip.budget import CyclicBudget
 from enip_farm.device.device import Device
 from enip_farm.protocol.connection import IO_PORT
 from enip_farm.server.batch import SO_TIMESTAMPNS, Datagrams, Message, sockaddr
 from enip_farm.server.limits import RateLimitedLog
+from enip_farm.server.running_budget import RunningBudget
 from enip_farm.server.udp import udp_socket
 from enip_farm.server.waits import os_wait_ns
 
@@ -105,8 +109,9 @@ class CyclicIoThread(threading.Thread):
     #: wake-ups is what makes the cost per packet rather than per wake-up.
     TURN_NS = 1_000_000
 
-    def __init__(self, datagrams: Datagrams | None = None) -> None:
+    def __init__(self, datagrams: Datagrams | None = None, budget: CyclicBudget | None = None) -> None:
         super().__init__(name="enip-farm-cyclic-io", daemon=True)
+        self.running_budget = RunningBudget(budget)  # budget: a measured one, checked while it runs
         self.datagrams = datagrams if datagrams is not None else Datagrams()
         self._heap: list[tuple[int, int, DeviceIo]] = []
         self._order = itertools.count()
@@ -191,6 +196,7 @@ class CyclicIoThread(threading.Thread):
         monotonic_ns, sleep, poll = time.monotonic_ns, time.sleep, self._epoll.poll
         receive, wake_read, outbox, lag = self.datagrams.receive, self._wake_read, self.outbox, self.lag
         turn_ns, margin_ns = self.TURN_NS, self._EPOLL_MARGIN_NS
+        running = self.running_budget
         last = 0
         while not self._stopping:
             while requests:
@@ -221,12 +227,15 @@ class CyclicIoThread(threading.Thread):
                     else:
                         fds.append(fd)
                 if fds:
-                    for fd, data, host, port, received_at in receive(fds):
+                    received = receive(fds)
+                    running.datagrams += len(received)
+                    for fd, data, host, port, received_at in received:
                         endpoint = readers.get(fd)
                         if endpoint is not None:
                             endpoint.take(data, host, port, now, received_at or now)
             horizon = now + turn_ns  # what falls due before the next turn is served in this one
             if heap and heap[0][0] <= horizon:
+                running.turn(now - heap[0][0])
                 if heap[0][0] < now and lag.observe(now - heap[0][0], now):
                     self._overloaded(now - heap[0][0], now)
                 due = []
@@ -238,7 +247,9 @@ class CyclicIoThread(threading.Thread):
                 for endpoint in due:  # a timer they ask for within this turn (a deadline after now) is the next turn's
                     self._schedule(endpoint, endpoint.service(now, horizon))
             if outbox:
+                running.datagrams += len(outbox)
                 self._flush()
+            running.tick(now)
 
     def _flush(self) -> None:
         """Send every T->O of this turn in one call; a packet that could not be sent is counted as
@@ -347,8 +358,8 @@ class DeviceIo:
 class ImplicitIo:
     """UDP 2222 of every device of a farm, and the cyclic I/O thread."""
 
-    def __init__(self) -> None:
-        self.thread = CyclicIoThread()
+    def __init__(self, budget: CyclicBudget | None = None) -> None:
+        self.thread = CyclicIoThread(budget=budget)  # a measured budget: checked while the thread runs
         self.endpoints: list[DeviceIo] = []
         self._sockets: list[socket.socket] = []
         if sys.getswitchinterval() > 0.0005:

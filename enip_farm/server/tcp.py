@@ -84,6 +84,7 @@ class EncapsulationProtocol(asyncio.Protocol):
             recorder.tcp_opened(self, peer[:2], transport.get_extra_info("sockname")[:2])
         self.connections.add(self)
         device.counters["tcp_connections"] += 1
+        device.tcp_open += 1
         device.record("tcp connected", f"{peer[0]}:{peer[1]}" if peer else "")
         self._arm_inactivity(device.encapsulation_inactivity_timeout_s or _RECHECK_S)
         end = device.faults.on_tcp_connection()
@@ -254,6 +255,7 @@ class EncapsulationProtocol(asyncio.Protocol):
             self.transport = None
             return
         self.limits.release(self.device.name)
+        self.device.tcp_open -= 1
         if self._inactivity is not None:
             self._inactivity.cancel()
             self._inactivity = None
