@@ -102,7 +102,7 @@ def test_every_defect_is_one_line_naming_the_file_and_line() -> None:
     assert caught.value.problems == [
         "s.yaml:2: step 1: fault power-cut: kind: 'power-cut' is not one of delay, drop, close, reset, offline, "
         "status, stop-io, identity, power-loss, link-down, flapping-link, degraded-link, address-conflict, "
-        "wrong-module",
+        "wrong-module, safety-crc, safety-stale, safety-time-coordination",
         "s.yaml:5: step 2: target: 'rack9' is neither a device nor a group of the cell (groups: rack2)",
         "s.yaml:7: step 3: after: no step '9' (steps 1..8, or 6)",
         "s.yaml:7: step 3: set io1.DI99: device 'io1': DI99: this device has 16 DI signals",

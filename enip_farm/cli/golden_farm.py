@@ -16,7 +16,8 @@ from enip_farm.farm.loopback import LoopbackPool
 
 def own_farm(stack: ExitStack, config: FarmConfig) -> Farm:
     """The cell served from a thread for golden, on its own addresses; where a farm already serves
-    one of them (the README's running cell), on fresh loopback addresses of a block of this
+    one of them (the README's running cell) or one is not this host's (a controller's, imported
+    from its EIO.cfg), on fresh loopback addresses of a block of this
     process's instead, with what a device derives from its address (serial number, MAC, safety
     node address) kept: golden maps the captured device's address to wherever the device answers,
     so the replies compared are the same."""
@@ -27,8 +28,8 @@ def own_farm(stack: ExitStack, config: FarmConfig) -> Farm:
             stack.enter_context(farm.running_in_thread())
             return farm
         except BindError as error:
-            if "already in use" not in str(error) or attempt == 5:
-                raise
+            if not ("already in use" in str(error) or "not assigned" in str(error)) or attempt == 5:
+                raise  # only golden's farm serves there: a controller's addresses need not be this host's
         addresses = LoopbackPool(214 + (os.getpid() + attempt) % 40)  # another process may hold one: the next
         farm = make_farm(config.model_copy(update={"devices": [
             _moved(device, first.devices[device.name].profile, addresses()) for device in config.devices]}))
