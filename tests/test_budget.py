@@ -202,6 +202,18 @@ def test_more_than_one_percent_of_turns_late_holds_the_budget_at_what_is_taken()
     assert budget.datagrams_per_s == 100_000 and budget.reserve(200) is not None
 
 
+def test_a_thread_starved_of_the_cpu_is_judged_by_what_it_has_taken() -> None:
+    """It moves fewer datagrams than MIN_DATAGRAMS a second because it is late, not idle: with that
+    much taken, its late turns hold the budget."""
+    budget = CyclicBudget(100_000, "measured")
+    assert budget.reserve(MIN_DATAGRAMS) is not None
+    budget.observe(50_000_000, MIN_DATAGRAMS // 4, 40, 30)
+    assert (budget.datagrams_per_s, budget.lowered) == (MIN_DATAGRAMS, 1)
+    for _ in range(CALM_SECONDS):  # then on time, still few moved (no cost seen): back to the start figure
+        budget.observe(50_000_000, MIN_DATAGRAMS // 4, 1000, 0)
+    assert (budget.datagrams_per_s, budget.source) == (100_000, "measured")
+
+
 def test_the_thread_side_counts_a_second_and_reads_its_cpu_once_a_second() -> None:
     budget = CyclicBudget(100_000, "measured")
     cpu = iter([1_000_000_000, 1_500_000_000, 9_000_000_000])

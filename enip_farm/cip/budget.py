@@ -79,14 +79,16 @@ class CyclicBudget:
     def observe(self, cpu_ns: int, datagrams: int, turns: int, late_turns: int) -> None:
         """One second of the I/O thread: the CPU it spent (its system calls included), the datagrams
         it took and sent, its turns with something due and how many of them ran more than
-        LAG_LIMIT_NS late. Only a second of at least MIN_DATAGRAMS says anything (a few
-        connections' cost is the turns', not the packets'). More than 1 % of the turns late: the
-        budget is held at what is taken (nothing more admitted); else it is what BUDGET_UTILISATION
-        of a core carries at the CPU per datagram seen, when that is lower than the figure; after
-        CALM_SECONDS such seconds on time it may rise again, up to the figure measured at start."""
-        if datagrams < MIN_DATAGRAMS or cpu_ns <= 0:
-            return
+        LAG_LIMIT_NS late. Only a thread that moves or has taken MIN_DATAGRAMS a second is judged
+        (a few connections' cost is the turns', not the packets'; and a thread starved of the CPU
+        moves fewer than it has taken). More than 1 % of the turns late: the budget is held at what
+        is taken (nothing more admitted); else, with MIN_DATAGRAMS moved, it is what
+        BUDGET_UTILISATION of a core carries at the CPU per datagram seen, when that is lower than
+        the figure; after CALM_SECONDS seconds on time it may rise again, up to the figure measured
+        at start."""
         with self._lock:
+            if cpu_ns <= 0 or max(datagrams, self.reserved) < MIN_DATAGRAMS:
+                return
             if late_turns * 100 > turns:
                 self._calm = 0
                 if self.reserved < self.datagrams_per_s:
@@ -94,11 +96,14 @@ class CyclicBudget:
                                 f"thread in a second ran more than {LAG_LIMIT_NS / 1e6:g} ms late")
                 return
             self._calm += 1
-            carried = round(BUDGET_UTILISATION * 1e9 * datagrams / cpu_ns, -2)
-            cost = f"{cpu_ns / datagrams / 1000:.2f} us of CPU per datagram in the I/O thread"
-            if carried < self.datagrams_per_s:
-                self._lower(carried, f"lowered running: {cost}, for {BUDGET_UTILISATION:.0%} of a core")
-            elif self._calm >= CALM_SECONDS and self.datagrams_per_s < self._measured:
+            carried, cost = self._measured, ""
+            if datagrams >= MIN_DATAGRAMS:
+                carried = round(BUDGET_UTILISATION * 1e9 * datagrams / cpu_ns, -2)
+                cost = f"{cpu_ns / datagrams / 1000:.2f} us of CPU per datagram in the I/O thread"
+                if carried < self.datagrams_per_s:
+                    self._lower(carried, f"lowered running: {cost}, for {BUDGET_UTILISATION:.0%} of a core")
+                    return
+            if self._calm >= CALM_SECONDS and self.datagrams_per_s < self._measured:
                 self.datagrams_per_s = min(self._measured, carried)
                 self.source = (self._measured_source if self.datagrams_per_s == self._measured else
                                f"raised running: {cost}, {CALM_SECONDS} s on time")
