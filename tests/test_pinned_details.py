@@ -45,7 +45,7 @@ from enip_farm.protocol.encapsulation import Command
 from enip_farm.protocol.epath import ElectronicKey, LogicalSegment, LogicalType, decode_epath, encode_request_path
 from enip_farm.protocol.session import MessageContext
 from enip_farm.protocol.status import ExtendedStatus as X
-from enip_farm.server.batch import SO_TIMESTAMPNS, wall_stamp
+from enip_farm.server.batch import SO_TIMESTAMPNS, Datagrams, wall_stamp
 from enip_farm.server.implicit import Lag
 from enip_farm.server.waits import os_wait_s
 from tests.test_safety import ORIGINATOR as SAFETY_ORIGINATOR
@@ -407,3 +407,37 @@ def test_the_kernels_receive_time_or_0() -> None:
                                                (3600, 3600), (3600.5, 3600), (math.inf, 3600)])
 def test_a_wait_handed_to_the_os_is_bounded(seconds: float, wait: float) -> None:
     assert os_wait_s(seconds) == wait
+
+
+@pytest.mark.integration
+def test_the_fallback_receive_reads_what_waits_and_passes_over_empty_unknown_and_failed_sockets(free_address) -> None:
+    """Without the native extension: a socket with nothing to read, an fd it does not know and a
+    socket with an ICMP error pending (port unreachable) give nothing and end nothing; a datagram
+    without a kernel timestamp has receive time 0 (mutants let the errors out, or made it 1)."""
+    host = free_address()
+    sockets = [socket.socket(socket.AF_INET, socket.SOCK_DGRAM) for _ in range(3)]
+    try:
+        for sock in sockets:
+            sock.bind((host, 0))
+            sock.setblocking(False)
+        waiting, empty, refused = sockets
+        closed = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        closed.bind((host, 0))
+        port = closed.getsockname()[1]
+        closed.close()
+        refused.connect((host, port))
+        refused.send(b"to nobody")  # the ICMP port unreachable comes back as an error on the socket
+        datagrams = Datagrams(native=False)
+        for sock in sockets:
+            datagrams.add(sock)
+        empty.sendto(b"o->t", waiting.getsockname())
+        got: list = []
+        for _ in range(200):  # loopback: there as soon as sendto returns; bounded all the same
+            got += datagrams.receive([empty.fileno(), 9999, refused.fileno(), waiting.fileno()])
+            if got:
+                break
+        assert got == [(waiting.fileno(), b"o->t", host, empty.getsockname()[1], 0)]
+        assert datagrams.receive([empty.fileno(), refused.fileno(), waiting.fileno()]) == []
+    finally:
+        for sock in sockets:
+            sock.close()
