@@ -41,13 +41,17 @@ class CyclicBudget:
     """`datagrams_per_s` for all the connections of one I/O thread; `source` says where the figure
     came from (configured, or measured at start with the cost per packet, or lowered running)."""
 
-    def __init__(self, datagrams_per_s: float, source: str = "configured") -> None:
+    def __init__(self, datagrams_per_s: float, source: str = "configured", ceiling: float | None = None) -> None:
         self.datagrams_per_s = float(datagrams_per_s)
         self.source = source
         self.reserved = 0.0
         self.refused = 0  # Forward Opens refused for want of budget
         self.lowered = 0  # times the running check took the figure down
-        self._measured = self.datagrams_per_s  # the figure measured at start: the ceiling of any rise
+        #: the ceiling of any rise: the figure measured at start, or what the CPU cost alone allows
+        #: where the machine gave the measuring thread less of a core than the budget is for
+        self.ceiling = float(ceiling if ceiling is not None else datagrams_per_s)
+        self._measured = self.ceiling
+        self._start = self.datagrams_per_s  # the figure set at start
         self._measured_source = source
         self._calm = 0  # seconds on time in a row
         self._lock = threading.Lock()
@@ -70,11 +74,14 @@ class CyclicBudget:
         with self._lock:
             self.reserved = max(0.0, self.reserved - reservation.rate)
 
-    def set(self, datagrams_per_s: float, source: str) -> None:
-        """The figure once it is known (measured when the farm starts, or configured)."""
+    def set(self, datagrams_per_s: float, source: str, ceiling: float | None = None) -> None:
+        """The figure once it is known (measured when the farm starts, or configured), and the
+        ceiling of any rise (default: the figure)."""
         with self._lock:
             self.datagrams_per_s, self.source = float(datagrams_per_s), source
-            self._measured, self._measured_source, self._calm = self.datagrams_per_s, source, 0
+            self.ceiling = float(ceiling if ceiling is not None else datagrams_per_s)
+            self._measured, self._measured_source, self._calm = self.ceiling, source, 0
+            self._start = self.datagrams_per_s
 
     def observe(self, cpu_ns: int, datagrams: int, turns: int, late_turns: int) -> None:
         """One second of the I/O thread: the CPU it spent (its system calls included), the datagrams
@@ -105,8 +112,9 @@ class CyclicBudget:
                     return
             if self._calm >= CALM_SECONDS and self.datagrams_per_s < self._measured:
                 self.datagrams_per_s = min(self._measured, carried)
-                self.source = (self._measured_source if self.datagrams_per_s == self._measured else
-                               f"raised running: {cost}, {CALM_SECONDS} s on time")
+                back = self.datagrams_per_s == self._measured == self._start
+                self.source = self._measured_source if back else (
+                    f"raised running: {cost or 'the I/O thread'}, {CALM_SECONDS} s on time")
 
     def _lower(self, datagrams_per_s: float, source: str) -> None:
         self.datagrams_per_s, self.source = float(datagrams_per_s), source
