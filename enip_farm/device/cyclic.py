@@ -1,21 +1,20 @@
 """One device's class-1 cyclic I/O, the cyclic I/O thread's side (CIP Networks Library Vol. 2, 3-2
 and 3-3; Vol. 1, 3-4.4): O->T datagrams to the connection table, supervision (watchdogs) and T->O
-production. The table is read and written under the device lock; what it hands out to send (T->O
-packets, CIP Safety time coordination replies) is computed under the lock and sent after it, so a
-socket write never holds the lock. A `stop-io` fault or the reset window drops O->T and withholds T->O.
+production. Each is one device transaction (device/guard.py): what the table hands out to send
+(T->O packets, CIP Safety time coordination replies) is computed under the lock and sent after it,
+so a socket write never holds the lock. A `stop-io` fault or the reset window drops O->T and
+withholds T->O.
 """
 
 from __future__ import annotations
 
 from collections import Counter
-from collections.abc import Callable
 
 from enip_farm.device.faults import DeviceFaults
-from enip_farm.device.guard import DeviceGuard
+from enip_farm.device.guard import BOTH_IMAGES, NO_IMAGES, OUTPUT_IMAGE, DeviceGuard, SendDatagram
 from enip_farm.device.reset import ResetWindow
 
-#: Sends one datagram (the server's socket): data, destination.
-SendDatagram = Callable[[bytes, tuple[str, int]], None]
+__all__ = ["CyclicIo", "SendDatagram"]
 
 
 class CyclicIo:
@@ -37,41 +36,25 @@ class CyclicIo:
         if self.window.active:
             self.counters["o_t_dropped_resetting"] += 1
             return False
-        guard, table, output = self.guard, self.table, self.guard.output
-        with guard.lock:  # O->T changes the outputs only: the inputs need no snapshot
-            old = bytes(output.data) if output is not None else b""
+        table = self.table
+        with self.guard.transaction(now, OUTPUT_IMAGE) as transaction:  # O->T changes the outputs only
             taken = table.receive_datagram(data, source[0], now, source[1])
-            # the one way out: the answers queued, and whatever T->O is due by now goes with them
-            replies = table.datagrams_to_send(now) if table.answers_queued else ()
-            connections = table.pop_events() if table.has_events else ()
-            changed = output is not None and output.data != old
-            new = bytes(output.data) if changed else old
-        for packet, address in replies:
-            send(packet, address)
-        if connections or changed:
-            guard.publish((old, b""), (new, b""), now, (), connections)
+            if table.answers_queued:  # the one way out: the answers, and whatever T->O is due by now
+                transaction.send_after(table.datagrams_to_send(now), send)
         return taken
 
     def service_io(self, now: int, send: SendDatagram, horizon: int | None = None) -> int | None:
         """Supervise the connections at `now` and hand `send` the T->O packets due by `now` (or by
         `horizon`, the end of the I/O thread's turn), after the lock; the next time something is due."""
-        guard, table = self.guard, self.table
-        with guard.lock:
-            expiring = table.supervision_due(now)
-            if expiring:  # a timeout may change the outputs: look before and after
-                before = guard.snapshot()
+        table = self.table
+        with self.guard.transaction(now, NO_IMAGES) as transaction:
+            if table.supervision_due(now):  # a timeout may change the outputs: look before and after
+                transaction.watch(BOTH_IMAGES)
                 table.handle_timer(now)
             due, timer = table.produce(now, horizon)
-            if expiring:
-                connections = table.pop_events()
-                after = guard.snapshot()
-        if due and not self.faults.io_stopped:
-            for packet, address in due:
-                send(packet, address)
-        if expiring and connections:
-            guard.publish(before, after, now, (), connections)
+            if due and not self.faults.io_stopped:
+                transaction.send_after(due, send)
         return timer
 
     def get_timer(self) -> int | None:
-        with self.guard.lock:
-            return self.table.get_timer()
+        return self.guard.read(self.table.get_timer)

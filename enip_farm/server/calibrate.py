@@ -9,20 +9,22 @@ from __future__ import annotations
 import socket
 import time
 
-from enip_farm.cip.admission import Originator
 from enip_farm.cip.budget import CyclicBudget
 from enip_farm.device.device import Device
 from enip_farm.device.profile import DeviceProfile
-from enip_farm.protocol.cip import ClassCode
+from enip_farm.protocol.cip import ClassCode, Service, decode_reply, encode_request
 from enip_farm.protocol.connection import (
     IO_PORT,
     ConnectionTriad,
     ConnectionType,
     ForwardOpenRequest,
     NetworkParameters,
+    decode_forward_open_reply,
+    encode_forward_open,
     encode_io_packet,
 )
-from enip_farm.protocol.epath import LogicalType, encode_logical
+from enip_farm.protocol.epath import LogicalType, encode_logical, encode_request_path
+from enip_farm.protocol.session import MessageContext
 from enip_farm.server.batch import Datagrams, sockaddr
 
 #: The share of one core the budget is for: the rest is the I/O thread's own turns, the event
@@ -35,7 +37,8 @@ _RPI_NS = 10_000_000
 
 
 def _scratch_connection(profile: DeviceProfile) -> tuple[Device, int] | None:
-    """A device of this profile (no sockets) with one exclusive-owner connection: its O->T id."""
+    """A device of this profile (no sockets) with one exclusive-owner connection, opened by a
+    Forward Open through the device's own explicit messaging: its O->T id."""
     output, inputs = profile.assembly("output"), profile.assembly("input")
     if output is None or inputs is None or profile.safety is not None:
         return None
@@ -50,14 +53,18 @@ def _scratch_connection(profile: DeviceProfile) -> tuple[Device, int] | None:
                                  _RPI_NS // 1000,
                                  NetworkParameters(False, ConnectionType.POINT_TO_POINT, 2, False, 2 + inputs.size),
                                  0x01, path)
-    with device.lock:
-        opened = device.table.forward_open(request, Originator("127.0.0.1"), 0)
-    connection = getattr(opened, "connection", None)
-    return (device, connection.o_t_id) if connection is not None else None
+    message = encode_request(Service.FORWARD_OPEN, encode_request_path(ClassCode.CONNECTION_MANAGER, 1),
+                             encode_forward_open(request))
+    reply, _ = device.handle_unconnected(message, MessageContext("127.0.0.1", None, (), 0))
+    answer = decode_reply(reply)
+    if answer.general_status != 0:
+        return None
+    return device, decode_forward_open_reply(answer.data).o_t_connection_id
 
 
 def _device_cost_ns(device: Device, connection_id: int, size: int) -> float:
-    packets = [encode_io_packet(connection_id, n, n, b"\x01\x00\x00\x00" + bytes(size)) for n in range(1, _PACKETS + 1)]
+    """One O->T taken and one T->O produced, through the device's `receive_io` and `service_io`
+    (the sequence counts go on from round to round, so every packet is new data)."""
     source = ("127.0.0.1", IO_PORT)
     sent: list[bytes] = []
 
@@ -66,14 +73,16 @@ def _device_cost_ns(device: Device, connection_id: int, size: int) -> float:
 
     best = float("inf")
     now = 0
-    for _ in range(_ROUNDS):
+    for round_ in range(_ROUNDS):
+        first = round_ * _PACKETS + 1
+        packets = [encode_io_packet(connection_id, n, n, b"\x01\x00\x00\x00" + bytes(size))
+                   for n in range(first, first + _PACKETS)]
         started = time.thread_time_ns()
         for packet in packets:
             now += _RPI_NS
             device.receive_io(packet, source, now, send)
             device.service_io(now, send)
         best = min(best, (time.thread_time_ns() - started) / _PACKETS)
-        device.table.connections[connection_id].last_sequence = None
         sent.clear()
     return best
 
