@@ -11,10 +11,12 @@ For each row (N connections at RPI R):
 1. the farm: a config of N DSQC1030 on 127.x addresses (250 per /24 from --first-address),
    `enip-farm serve --quiet --workers W` (taskset with --farm-cpus), wait until all listen; one
    Forward Open per device from Python (bench_implicit.py's session: exclusive owner, T->O point to
-   point to the originator's UDP port in a 0x8001 item; refusals with 0x01/0x0113 counted apart,
-   only admitted connections measured); the C originator (cyclic_originator.c: O->T on absolute
-   deadlines with sendmmsg, T->O with recvmmsg and kernel receive timestamps) inherits that UDP
-   socket, warms up, measures a window of --seconds, then keeps sending while every connection is
+   point to the originator's UDP port in a 0x8001 item; refusals counted by their status, e.g.
+   `0x01/0x0113` (the worker's cyclic I/O budget, which the farm's banner prints beside them), only
+   admitted connections measured); the C originator (cyclic_originator.c: O->T on absolute
+   deadlines with sendmmsg, T->O with recvmmsg and kernel receive timestamps) inherits those UDP
+   sockets (one per pair of its threads: one pair per 2500 connections, --originator-threads),
+   warms up, measures a window of --seconds, then keeps sending while every connection is
    Forward Closed (0x01/0x0107 = the farm had timed it out: a spurious timeout when the originator
    sent on time, its `sends late` column says whether it did); then the farm stops.
 2. the ceiling: cyclic_responder.c on the same addresses (one socket per device, epoll, one
@@ -35,6 +37,7 @@ Every loop is bounded in count and time; traffic goes to 127.0.0.0/8 only.
     python bench/bench_cyclic.py                   # the six rows, 60 s each (+ the same against C)
     python bench/bench_cyclic.py --quick           # the same rows, 3 s each
     python bench/bench_cyclic.py --rows 1600@10 --seconds 20    # past the farm's budget
+    python bench/bench_cyclic.py --measure-cost --no-responder --repeat 3   # what the report's measurement costs
 """
 
 from __future__ import annotations
@@ -44,7 +47,7 @@ import contextlib
 import json
 import os
 import resource
-import select
+import selectors
 import shutil
 import signal
 import socket
@@ -53,6 +56,7 @@ import subprocess
 import sys
 import tempfile
 import time
+from collections import Counter
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -113,14 +117,15 @@ def descendants(pid: int) -> list[int]:
     return found
 
 
-def cpu_seconds(pids: list[int]) -> float:
+def cpu_seconds(pids: list[int], fields_of: tuple[int, ...] = (11, 12)) -> float:
+    """utime + stime of these processes (`fields_of=(11,)`: user time only, `(12,)`: system), seconds."""
     total = 0
     for pid in pids:
         try:
             fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
         except (FileNotFoundError, ProcessLookupError):
             continue
-        total += int(fields[11]) + int(fields[12])
+        total += sum(int(fields[i]) for i in fields_of)
     return total / CLK_TCK
 
 
@@ -185,11 +190,15 @@ def originator_socket() -> socket.socket:
     return udp
 
 
-def write_farm_config(path: Path, count: int, first: str, implicit: str = "") -> None:
+def write_farm_config(path: Path, count: int, first: str, implicit: str = "", measure: bool = True,
+                      budget: str = "auto") -> None:
     """N DSQC1030; the watchdog before the first O->T is 60 s (the default 10 s could pass while
-    Python opens 1600 connections on a busy machine, and it is not what this measures)."""
+    Python opens 1600 connections on a busy machine, and it is not what this measures). `measure`:
+    the report's measurement of every O->T stream (`cyclic_io: {measure: false}` turns it off);
+    `budget`: each worker's `cyclic_io.budget_datagrams_per_s` (auto, or a number)."""
     with path.open("w") as config:
-        config.write("discovery: false\ndevices:\n")
+        config.write(f"discovery: false\ncyclic_io: {{measure: {'true' if measure else 'false'}, "
+                     f"budget_datagrams_per_s: {budget}}}\ndevices:\n")
         for i in range(count):
             config.write(f"  - {{name: c{i}, address: {address(i, first)}, model: DSQC1030, "
                          f"implicit: {{first_watchdog_s: 60{', ' + implicit if implicit else ''}}}}}\n")
@@ -264,26 +273,42 @@ def stop(process: subprocess.Popen, timeout: float = 60.0) -> None:
     process.wait(10)
 
 
-def forward_open(hosts: list[str], rpi_us: int, port: int, multiplier: int = 2) -> tuple[list[Connection], int]:
-    """One exclusive-owner connection per host; (the admitted ones, how many were refused 0x0113).
-    The farm times a connection out after RPI x 2^(2 + multiplier) without O->T."""
-    opened, refused = [], 0
+def status_text(general: int, additional: tuple[int, ...]) -> str:
+    """e.g. `0x01/0x0113`: a refusal's general status and its extended status (the first word)."""
+    return f"0x{general:02X}" + (f"/0x{additional[0]:04X}" if additional else "")
+
+
+def forward_open(hosts: list[str], rpi_us: int, port: int | list[int],
+                 multiplier: int = 2) -> tuple[list[Connection], Counter[str]]:
+    """One exclusive-owner connection per host, connection i's T->O to `port` (or to port[i % len]):
+    (the admitted ones, the refused ones counted by status, e.g. `0x01/0x0113`, and by `OSError: ...`
+    when the session failed). The farm times a connection out after RPI x 2^(2 + multiplier) without O->T."""
+    ports = port if isinstance(port, list) else [port]
+    opened: list[Connection] = []
+    refused: Counter[str] = Counter()
     for i, host in enumerate(hosts):
-        session = Session(host)
+        try:
+            session = Session(host)
+        except OSError as error:  # the farm's TCP limits, or this process's open files
+            refused[f"OSError: {error.strerror or error}"] += 1
+            continue
         triad = ConnectionTriad(i + 1, 0x0BE0, 0x12345678)
         request = ForwardOpenRequest(0x0A, 0x0E, 0, 0x70000000 + i, triad, multiplier, rpi_us,
                                      NetworkParameters(False, ConnectionType.POINT_TO_POINT, 2, False, O_T_SIZE),
                                      rpi_us,
                                      NetworkParameters(False, ConnectionType.POINT_TO_POINT, 2, False, T_O_SIZE),
                                      0x01, PATH)
-        reply = session.request(encode_request(0x54, CM, encode_forward_open(request)),
-                                [(ItemType.SOCKADDR_T_O, encode_sockaddr(SocketAddress("0.0.0.0", port)))])
-        if reply.general_status == 0x01 and reply.additional_status[:1] == (0x0113,):
-            refused += 1
+        try:
+            reply = session.request(encode_request(0x54, CM, encode_forward_open(request)), [(
+                ItemType.SOCKADDR_T_O, encode_sockaddr(SocketAddress("0.0.0.0", ports[i % len(ports)])))])
+        except OSError as error:
+            refused[f"OSError: {error.strerror or error}"] += 1
             session.sock.close()
             continue
         if reply.general_status:
-            raise SystemExit(f"{host}: Forward Open refused: {reply}")
+            refused[status_text(reply.general_status, tuple(reply.additional_status[:1]))] += 1
+            session.sock.close()
+            continue
         ids = decode_forward_open_reply(reply.data)
         opened.append(Connection(host, ids.o_t_connection_id, ids.t_o_connection_id, session, triad))
     return opened, refused
@@ -309,38 +334,47 @@ def forward_close(connections: list[Connection]) -> tuple[int, int]:
 
 
 def read_line(stream, timeout: float) -> str:
-    ready, _, _ = select.select([stream], [], [], timeout)
+    """A line of `stream` within `timeout` s, or "" (poll-based: any file descriptor, past 1024 too)."""
+    with selectors.DefaultSelector() as selector:
+        selector.register(stream, selectors.EVENT_READ)
+        ready = selector.select(timeout)
     return stream.readline().strip() if ready else ""
 
 
-def drive(binary: Path, connections: list[Connection], rpi_us: int, udp: socket.socket, seconds: float,
+def drive(binary: Path, connections: list[Connection], rpi_us: int, udp: list[socket.socket], seconds: float,
           warmup: float, cpus: str | None, peer_pids: list[int], work: Path, during_hold=None,
-          realtime: int = 0) -> dict:
-    """Run the originator over `connections`; its figures plus CPU and drops sampled over its window."""
+          realtime: int = 0, profile: Path | None = None) -> dict:
+    """Run the originator over `connections`, connection i's T->O on `udp[i % len(udp)]` (one pair of
+    its threads per socket); its figures plus CPU and drops sampled over its window."""
     listing = work / "originator.txt"
     listing.write_text("".join(f"{c.host} {c.o_t_id} {c.t_o_id} {rpi_us} {O_T_SIZE} {T_O_SIZE}\n"
                                for c in connections))
     out = work / "originator.json"
-    fd = udp.fileno()
-    originator = subprocess.Popen([*taskset(cpus), str(binary), "--connections", str(listing), "--fd", str(fd),
+    fds = [u.fileno() for u in udp]
+    originator = subprocess.Popen([*taskset(cpus), str(binary), "--connections", str(listing),
+                                   "--fd", ",".join(map(str, fds)),
                                    "--seconds", str(seconds), "--warmup", str(warmup), "--hold", "300",
                                    "--realtime", str(realtime),
                                    "--json", str(out)],
-                                  pass_fds=(fd,), stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True)
+                                  pass_fds=fds, stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True)
     try:
         peer_inodes = socket_inodes(peer_pids)
-        own_inode = {os.fstat(fd).st_ino}
+        own_inode = {os.fstat(fd).st_ino for fd in fds}
 
-        def sample() -> tuple[float, float, int, int, int, float]:
+        def sample() -> tuple[float, float, int, int, int, float, float, float]:
             return (cpu_seconds(peer_pids), cpu_seconds([originator.pid]), udp_drops(peer_inodes),
-                    udp_drops(own_inode), snmp_udp_errors(), host_busy_seconds())
+                    udp_drops(own_inode), snmp_udp_errors(), host_busy_seconds(), cpu_seconds(peer_pids, (11,)),
+                    os.getloadavg()[0])
 
         if read_line(originator.stdout, warmup + LINE_TIMEOUT_MARGIN) != "start":
             raise SystemExit("the originator did not start its window")
         before, wall0 = sample(), time.monotonic()
+        spies = py_spy(peer_pids, seconds, profile) if profile else []
         if read_line(originator.stdout, seconds + LINE_TIMEOUT_MARGIN) != "end":
             raise SystemExit("the originator did not end its window")
         after, wall1 = sample(), time.monotonic()
+        for spy in spies:
+            spy.wait(LINE_TIMEOUT_MARGIN)
         extra = during_hold() if during_hold else {}
         originator.stdin.close()
         originator.wait(60)
@@ -353,6 +387,9 @@ def drive(binary: Path, connections: list[Connection], rpi_us: int, udp: socket.
     figures.update(extra)
     figures.update({
         "peer_cpu_s": after[0] - before[0], "peer_cpu_percent": 100 * (after[0] - before[0]) / wall,
+        "peer_user_percent": 100 * (after[6] - before[6]) / wall,
+        "peer_system_percent": 100 * ((after[0] - before[0]) - (after[6] - before[6])) / wall,
+        "load_average": after[7],
         "originator_cpu_percent": 100 * (after[1] - before[1]) / wall,
         "peer_socket_drops": after[2] - before[2], "originator_socket_drops": after[3] - before[3],
         "host_udp_errors": after[4] - before[4],
@@ -366,20 +403,52 @@ def drive(binary: Path, connections: list[Connection], rpi_us: int, udp: socket.
     return figures
 
 
-def run_farm(count: int, rpi_us: int, args: argparse.Namespace, originator: Path, work: Path) -> dict:
+def originator_threads(args: argparse.Namespace, count: int) -> int:
+    """Pairs of originator threads (one socket each): --originator-threads, else one per 2500 connections."""
+    return args.originator_threads or min(8, max(1, -(-count // 2500)))
+
+
+def farm_budgets(log: Path) -> list[str]:
+    """What the farm's banner says of each worker's cyclic I/O budget."""
+    return [line.strip() for line in log.read_text(errors="replace").splitlines() if "cyclic I/O budget:" in line]
+
+
+def py_spy(pids: list[int], seconds: float, directory: Path) -> list[subprocess.Popen]:
+    """`py-spy record` (pip install py-spy; root) of every Python process of the farm over the window,
+    raw stacks into DIRECTORY/farm-PID.txt (`python bench/profile_summary.py` or a flame graph reads them)."""
+    binary = shutil.which("py-spy")
+    if binary is None:
+        raise SystemExit("--py-spy needs py-spy (pip install py-spy)")
+    directory.mkdir(parents=True, exist_ok=True)
+    return [subprocess.Popen([binary, "record", "--pid", str(pid), "--duration", str(max(1, int(seconds))),
+                              "--rate", "200", "--format", "raw", "--nonblocking",
+                              "--output", str(directory / f"farm-{pid}.txt")],
+                             stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+            for pid in pids if "python" in Path(f"/proc/{pid}/comm").read_text(errors="replace").lower()
+            or "enip" in Path(f"/proc/{pid}/cmdline").read_text(errors="replace")]
+
+
+def run_farm(count: int, rpi_us: int, args: argparse.Namespace, originator: Path, work: Path,
+             measure: bool = True) -> dict:
     config = work / "cell.yaml"
-    write_farm_config(config, count, args.first_address, args.implicit)
+    write_farm_config(config, count, args.first_address, args.implicit, measure, args.budget)
     farm = start_farm(config, args.workers, args.farm_cpus, work / "farm.log")
     try:
         pids = descendants(farm.pid)
-        udp = originator_socket()
+        udp = [originator_socket() for _ in range(originator_threads(args, count))]
         try:
             hosts = [address(i, args.first_address) for i in range(count)]
             t = time.monotonic()
-            connections, refused = forward_open(hosts, rpi_us, udp.getsockname()[1], args.timeout_multiplier)
+            connections, refusals = forward_open(hosts, rpi_us, [u.getsockname()[1] for u in udp],
+                                                 args.timeout_multiplier)
             opening = time.monotonic() - t
+            refused = sum(refusals.values())
+            budgets = farm_budgets(work / "farm.log")
+            if refusals:
+                print(f"  refused: {', '.join(f'{n} {why}' for why, n in refusals.most_common())}; "
+                      f"{'; '.join(budgets)}", file=sys.stderr, flush=True)
             if not connections:
-                raise SystemExit(f"every Forward Open was refused ({refused} with 0x01/0x0113)")
+                raise SystemExit(f"every Forward Open was refused ({dict(refusals)})")
             closes: dict[str, int] = {}
 
             def close_all() -> dict:
@@ -388,25 +457,31 @@ def run_farm(count: int, rpi_us: int, args: argparse.Namespace, originator: Path
                 return closes
 
             figures = drive(originator, connections, rpi_us, udp, args.seconds, args.warmup, args.originator_cpus,
-                            pids, work, close_all, args.realtime)
+                            pids, work, close_all, args.realtime, args.py_spy)
         finally:
-            udp.close()
+            for u in udp:
+                u.close()
     finally:
         stop(farm)
+    # what the running check of an auto budget did (cip/budget.py): each change, said by the worker
+    changes = [line.split(" WARNING ", 1)[-1] for line in (work / "farm.log").read_text(errors="replace").splitlines()
+               if "cyclic I/O budget now" in line]
+    if changes:
+        print(f"  {len(changes)} budget changes while running, the last: {changes[-1]}", file=sys.stderr, flush=True)
     figures.update(offered=count, admitted=figures["connections"], refused=refused,
-                   forward_open_s=opening)
+                   refusals=dict(refusals), budgets=budgets, budget_changes=changes, forward_open_s=opening)
     return figures
 
 
 def run_responder(count: int, rpi_us: int, args: argparse.Namespace, originator: Path, responder: Path,
                   work: Path) -> dict:
     connections = [Connection(address(i, args.first_address), 0x10000 + i, 0x20000 + i) for i in range(count)]
-    udp = originator_socket()
+    udp = [originator_socket() for _ in range(originator_threads(args, count))]
     try:
         listing = work / "responder.txt"
-        port = udp.getsockname()[1]
-        listing.write_text("".join(f"{c.host} {c.o_t_id} {c.t_o_id} {rpi_us} {O_T_SIZE} {T_O_SIZE} 127.0.0.1 {port}\n"
-                                   for c in connections))
+        ports = [u.getsockname()[1] for u in udp]
+        listing.write_text("".join(f"{c.host} {c.o_t_id} {c.t_o_id} {rpi_us} {O_T_SIZE} {T_O_SIZE} 127.0.0.1 "
+                                   f"{ports[i % len(ports)]}\n" for i, c in enumerate(connections)))
         process = subprocess.Popen([*taskset(args.responder_cpus), str(responder), "--connections", str(listing),
                                     "--seconds", str(args.warmup + args.seconds + 600)],
                                    stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
@@ -420,7 +495,8 @@ def run_responder(count: int, rpi_us: int, args: argparse.Namespace, originator:
         counts = process.stdout.read().strip()
         figures["responder"] = json.loads(counts) if counts else {}
     finally:
-        udp.close()
+        for u in udp:
+            u.close()
     return figures
 
 
@@ -475,6 +551,10 @@ COLUMNS = [
     ("pairs/CPU-s farm / C", lambda r: f"{r['farm']['pairs_per_cpu_s']:,.0f} / " +
      ("-" if not r.get("c") else f"{r['c']['pairs_per_cpu_s']:,.0f}")),
     ("ratio", lambda r: "-" if not r.get("c") else f"{r['farm']['pairs_per_cpu_s'] / r['c']['pairs_per_cpu_s']:.3f}"),
+    # --measure-cost: the farm again without the report's measurement; CPU per pair with it / without it - 1
+    ("pairs/CPU-s unmeasured, measuring costs", lambda r: "-" if not r.get("unmeasured") else
+     f"{r['unmeasured']['pairs_per_cpu_s']:,.0f}, "
+     f"{(r['unmeasured']['pairs_per_cpu_s'] / r['farm']['pairs_per_cpu_s'] - 1) * 100:+.1f} %"),
 ]
 
 
@@ -503,7 +583,17 @@ def main() -> None:
     parser.add_argument("--realtime", type=int, default=10, metavar="PRIORITY",
                         help="the originator's threads run SCHED_FIFO at this priority (root; 0: not), so that "
                              "the machine's other load does not make it late (10)")
+    parser.add_argument("--budget", default="auto",
+                        help="each worker's cyclic_io.budget_datagrams_per_s: auto (measured at start) or a number")
+    parser.add_argument("--originator-threads", type=int, default=0, metavar="N",
+                        help="pairs of originator threads (a socket each; default: one per 2500 connections, "
+                             "at most 8), so that the originator is not the limit")
+    parser.add_argument("--py-spy", type=Path, default=None, metavar="DIR",
+                        help="record every farm process with py-spy over the window, raw stacks into DIR")
     parser.add_argument("--no-responder", action="store_true", help="leave out the C responder's runs")
+    parser.add_argument("--measure-cost", action="store_true",
+                        help="also run the farm with the report's measurement off (cyclic_io: {measure: false}), "
+                             "interleaved: the CPU it costs per pair")
     parser.add_argument("--first-address", default=FIRST_ADDRESS,
                         help="the first device's address (127.0.0.0/8); 250 per /24 from there")
     parser.add_argument("--json", type=Path, default=None, help="also write every figure here")
@@ -535,11 +625,19 @@ def main() -> None:
                 print(f"  farm: {farm['admitted']} admitted, {farm['refused']} refused, T->O "
                       f"{farm['t_o_received_window']}/{farm['t_o_expected_window']}, p99 {farm['err_p99_ms']:.2f} ms, "
                       f"{farm['timeouts']} timed out, {farm['sends_late']} late sends, "
-                      f"CPU {farm['peer_cpu_percent']:.0f}%", file=sys.stderr, flush=True)
+                      f"CPU {farm['peer_cpu_percent']:.0f}% ({farm['peer_user_percent']:.0f}% user, "
+                      f"{farm['peer_system_percent']:.0f}% system), load average {farm['load_average']:.2f}",
+                      file=sys.stderr, flush=True)
+                if args.measure_cost:
+                    u = run["unmeasured"] = run_farm(count, rpi_us, args, originator, work, measure=False)
+                    print(f"  farm, not measuring: {u['admitted']} admitted, CPU {u['peer_cpu_percent']:.0f}%, "
+                          f"{u['pairs_per_cpu_s']:,.0f} pairs/CPU-s (measuring: {farm['pairs_per_cpu_s']:,.0f})",
+                          file=sys.stderr, flush=True)
                 if not args.no_responder:
                     c = run["c"] = run_responder(farm["admitted"], rpi_us, args, originator, responder, work)
                     print(f"  C responder: T->O {c['t_o_received_window']}/{c['t_o_expected_window']}, p99 "
-                          f"{c['err_p99_ms']:.2f} ms, CPU {c['peer_cpu_percent']:.0f}%", file=sys.stderr, flush=True)
+                          f"{c['err_p99_ms']:.2f} ms, CPU {c['peer_cpu_percent']:.0f}% ({c['peer_user_percent']:.0f}% "
+                          f"user, {c['peer_system_percent']:.0f}% system)", file=sys.stderr, flush=True)
                 runs.append(run)
             result = {"connections": count, "rpi_ms": rpi_ms,
                       **{side: medians([run[side] for run in runs]) for side in runs[0]}}
@@ -554,7 +652,7 @@ def main() -> None:
         args.json.parent.mkdir(parents=True, exist_ok=True)
         for result in results:
             for figures in [result, *result.get("runs", [])]:
-                for side in ("farm", "c"):
+                for side in ("farm", "c", "unmeasured"):
                     if side in figures and not args.per_connection:
                         figures[side].pop("per_connection", None)
         args.json.write_text(json.dumps({"args": {k: str(v) for k, v in vars(args).items()}, "rows": results},

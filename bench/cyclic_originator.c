@@ -10,7 +10,10 @@
  *
  * (sizes as in the Forward Open: O->T = 2-byte sequence count + 4-byte run/idle header + data,
  * T->O = 2 + data; PORT defaults to 2222) and uses the UDP socket inherited as --fd N (or binds
- * --bind ADDR:PORT). A sender thread sends O->T on absolute deadlines (clock_nanosleep
+ * --bind ADDR:PORT). With --fd N,M,... (one socket per pair of threads) the connections are spread
+ * over that many sender/receiver pairs, connection k on socket k % count (the driver named that
+ * socket's port in connection k's Forward Open), so that one pair of threads is not the limit.
+ * A sender thread sends O->T on absolute deadlines (clock_nanosleep
  * TIMER_ABSTIME, connection k offset by k/N of its RPI) in batches with sendmmsg, waking on a grid of
  * --batch-us (default 100 us: a send is at most that late by design, so that 1000 connections do not
  * cost 100 000 wake-ups a second); a receiver thread drains the socket with recvmmsg every millisecond
@@ -27,6 +30,29 @@
  * k RPI, rounded, misses k - 1), duplicates, period error |interval - RPI|
  * p50/p99/max; and how late this program sent (so "the originator sent on time" is checked, not
  * assumed). Every loop is bounded in time.
+ *
+ * Misbehaviour (issue 27: a controller's faults, made on purpose so that the farm's verdicts on them
+ * can be checked exactly). Each applies to every connection and counts per connection what it did,
+ * over the whole run (the JSON's "made" per connection), so a test compares the farm's counts with
+ * these, not with a guess. Deadline k (1-based) of a connection is nominally k RPI after its start:
+ *   --jitter-us J       deadlines of odd k leave J us late (J < RPI): the intervals alternate
+ *                       RPI + J and RPI - J, each J from the RPI (a square wave, not noise: exact);
+ *   --gap-every N [--gap-size K]
+ *                       from each deadline k % N == 0, K deadlines (1) send nothing, their sequence
+ *                       numbers used up: a gap of K in the 32-bit sequence and an interval of K + 1
+ *                       RPI (K >= 2 for an interval that no scheduling noise takes below 2 RPI);
+ *   --burst-every N --burst-size K
+ *                       the K deadlines before each k % N == 0 are held and leave with it, in one
+ *                       sendmmsg: a silence of K + 1 RPI, then K + 1 packets at once (K < N);
+ *   --repeat-every N    after deadline k % N == 0 its packet is sent again (same 32-bit sequence);
+ *   --stale-every N [--stale-by M]
+ *                       after deadline k % N == 0 a copy with the sequence M back (2) is sent too
+ *                       (stale: older than one already sent; k > M);
+ *   --idle-every N      run for N deadlines, then idle (run/idle header bit 0 clear) for N, and so
+ *                       on: a transition every N deadlines;
+ *   --stop-after N      send nothing after deadline N: the connection falls silent and the target
+ *                       times it out (the driver then waits its reconnect delay, Forward Opens again
+ *                       and starts this program anew: the delay before reconnecting lives there).
  */
 #define _GNU_SOURCE
 #include <arpa/inet.h>
@@ -54,6 +80,7 @@
 #define ALL_BUCKET_NS 1000     /* all connections: 1 us buckets */
 #define ALL_BUCKETS 1000001    /* up to 1 s */
 #define LATE_SEND_NS 1000000   /* a send more than 1 ms after its deadline is a late send */
+#define MAX_THREADS 16         /* sender/receiver pairs, one socket each */
 
 struct connection {
     char host[64];
@@ -66,6 +93,8 @@ struct connection {
     uint32_t sequence;
     /* sender thread */
     uint64_t sent_window, sent_total;
+    uint64_t deadlines, datagrams, gaps, gap_runs, repeats, stale, bursts, idle_transitions; /* what it made */
+    int idle;
     /* receiver thread */
     int have_last;
     int64_t last_stamp;
@@ -77,25 +106,33 @@ struct connection {
 };
 
 struct deadline {
-    int64_t when;
+    int64_t when;    /* when it leaves: nominal + this deadline's shift */
+    int64_t nominal; /* k RPI after the connection's start */
     int index;
 };
 
 static struct connection *connections;
 static int connection_count;
 static int sock = -1;
+static int sockets[MAX_THREADS], socket_count; /* --fd N[,M...] */
+/* what one pair of threads counts; summed at the end */
+struct pair {
+    int index, sock;
+    uint64_t sends_late, send_errors, unknown_t_o, malformed_t_o, receive_errors;
+    int64_t send_lag_max_ns;
+};
+static struct pair pairs[MAX_THREADS];
 static int64_t t_start, t0, t1, t_hard_end; /* CLOCK_MONOTONIC ns */
 static int64_t realtime_offset;               /* CLOCK_REALTIME - CLOCK_MONOTONIC at start */
 static atomic_int stopping;
 static uint64_t *all_histogram;
-static uint64_t unknown_t_o, malformed_t_o, receive_errors;
-/* sender's own figures */
-static uint64_t sends_late, send_errors;
-static int64_t send_lag_max_ns;
 static int realtime;                      /* --realtime: SCHED_FIFO for both threads (root) */
 static int64_t batch_ns = 100000;         /* --batch-us */
 static int64_t receive_pause_ns = 1000000; /* the receiver reads the socket this often when it is drained */
 static uint32_t *table; /* T->O id -> index + 1, open addressing */
+/* misbehaviour (see the header): 0 = off */
+static int64_t jitter_ns;
+static uint64_t gap_every, gap_size = 1, burst_every, burst_size, repeat_every, stale_every, stale_by = 2, idle_every, stop_after;
 static uint32_t table_mask;
 
 static int64_t now_ns(clockid_t clock) {
@@ -172,18 +209,44 @@ static struct deadline heap_pop(struct deadline *heap, int *size) {
     return top;
 }
 
-static void *sender(void *unused) {
-    (void)unused;
+/* How late deadline k (1-based) of a connection leaves, past its nominal time. */
+static int64_t shift(const struct connection *c, uint64_t k) {
+    if (burst_every && burst_size) { /* held: it leaves with the release, whatever the jitter */
+        uint64_t to_release = (burst_every - k % burst_every) % burst_every; /* deadlines until k % N == 0 */
+        if (to_release && to_release <= burst_size) return (int64_t)to_release * c->rpi_ns;
+    }
+    return jitter_ns && (k & 1) ? jitter_ns : 0;
+}
+
+/* Deadline k's packet into out (the connection's template, its sequence numbers and run/idle bit). */
+static int compose(const struct connection *c, uint8_t *out, uint32_t sequence, int run) {
+    memcpy(out, c->packet, c->packet_length);
+    put_le32(out + 10, sequence);
+    put_le16(out + 18, sequence & 0xffff);
+    if (c->o_t_size >= 6) put_le32(out + 20, run ? 1 : 0);
+    return c->packet_length;
+}
+
+static void *sender(void *argument) {
+    struct pair *p = argument;
     prctl(PR_SET_TIMERSLACK, 1UL);
     struct deadline *heap = calloc(connection_count, sizeof *heap);
     struct mmsghdr *messages = calloc(BATCH, sizeof *messages);
     struct iovec *vectors = calloc(BATCH, sizeof *vectors);
+    uint8_t (*out)[600] = calloc(BATCH, sizeof *out); /* a burst sends one connection's packets in one batch */
     int size = 0;
-    for (int k = 0; k < connection_count; k++)
-        heap_push(heap, &size, (struct deadline){t_start + connections[k].rpi_ns * k / connection_count, k});
+    for (int k = p->index; k < connection_count; k += socket_count) {
+        int64_t nominal = t_start + connections[k].rpi_ns * k / connection_count;
+        heap_push(heap, &size, (struct deadline){nominal + shift(&connections[k], 1), nominal, k});
+    }
     while (!atomic_load(&stopping)) {
         int64_t now = now_ns(CLOCK_MONOTONIC);
         if (now >= t_hard_end) break;
+        if (!size) { /* every connection has stopped (--stop-after) */
+            struct timespec pause = to_timespec(10000000);
+            nanosleep(&pause, NULL);
+            continue;
+        }
         if (heap[0].when > now) {
             /* wake on a grid of --batch-us: the sends due in one step leave in one sendmmsg */
             int64_t wake = (heap[0].when + batch_ns - 1) / batch_ns * batch_ns;
@@ -192,34 +255,57 @@ static void *sender(void *unused) {
             continue;
         }
         int n = 0;
-        while (n < BATCH && size && heap[0].when <= now) {
+        while (n + 3 <= BATCH && size && heap[0].when <= now) { /* up to 3 datagrams per deadline */
             struct deadline d = heap_pop(heap, &size);
             struct connection *c = &connections[d.index];
+            uint64_t k = ++c->deadlines;
             int64_t lag = now - d.when;
             int in_window = d.when >= t0 && d.when < t1;
-            if (in_window) {
-                c->sent_window++;
-                if (lag > send_lag_max_ns) send_lag_max_ns = lag;
-                if (lag > LATE_SEND_NS) sends_late++;
-            }
-            c->sent_total++;
             c->sequence++;
-            put_le32(c->packet + 10, c->sequence);
-            put_le16(c->packet + 18, c->sequence & 0xffff);
-            vectors[n] = (struct iovec){c->packet, (size_t)c->packet_length};
-            messages[n].msg_hdr = (struct msghdr){.msg_name = &c->destination,
-                                                  .msg_namelen = sizeof c->destination,
-                                                  .msg_iov = &vectors[n],
-                                                  .msg_iovlen = 1};
-            n++;
-            d.when += c->rpi_ns;
+            int idle = idle_every && (k - 1) / idle_every % 2 == 1;
+            if (k > 1 && idle != c->idle) c->idle_transitions++;
+            c->idle = idle;
+            if (gap_every && k >= gap_every && k % gap_every < gap_size) { /* k % N == 0 starts a run of --gap-size */
+                c->gaps++; /* its sequence number is used up, nothing leaves */
+                if (k % gap_every == 0) c->gap_runs++;
+            } else {
+                if (in_window) {
+                    c->sent_window++;
+                    if (lag > p->send_lag_max_ns) p->send_lag_max_ns = lag;
+                    if (lag > LATE_SEND_NS) p->sends_late++;
+                }
+                c->sent_total++;
+                int copies = 1;
+                uint32_t sequences[3] = {c->sequence, c->sequence, c->sequence - (uint32_t)stale_by};
+                if (repeat_every && k % repeat_every == 0) {
+                    copies = 2;
+                    c->repeats++;
+                }
+                if (stale_every && k % stale_every == 0 && k > stale_by) {
+                    sequences[copies++] = c->sequence - (uint32_t)stale_by;
+                    c->stale++;
+                }
+                if (burst_every && burst_size && k % burst_every == 0) c->bursts++;
+                for (int copy = 0; copy < copies; copy++, n++) {
+                    int length = compose(c, out[n], sequences[copy], !idle);
+                    vectors[n] = (struct iovec){out[n], (size_t)length};
+                    messages[n].msg_hdr = (struct msghdr){.msg_name = &c->destination,
+                                                          .msg_namelen = sizeof c->destination,
+                                                          .msg_iov = &vectors[n],
+                                                          .msg_iovlen = 1};
+                    c->datagrams++;
+                }
+            }
+            if (stop_after && k >= stop_after) continue; /* silent from here on */
+            d.nominal += c->rpi_ns;
+            d.when = d.nominal + shift(c, k + 1);
             heap_push(heap, &size, d);
         }
         for (int offset = 0, tries = 0; offset < n && tries < 8; tries++) {
-            int sent = sendmmsg(sock, messages + offset, n - offset, 0);
+            int sent = sendmmsg(p->sock, messages + offset, n - offset, 0);
             if (sent < 0) {
                 if (errno == EINTR) continue;
-                send_errors++; /* skip the one that failed, go on with the rest */
+                p->send_errors++; /* skip the one that failed, go on with the rest */
                 offset++;
                 continue;
             }
@@ -229,18 +315,19 @@ static void *sender(void *unused) {
     free(heap);
     free(messages);
     free(vectors);
+    free(out);
     return NULL;
 }
 
-static void take(const uint8_t *data, int length, int64_t stamp_mono) {
+static void take(struct pair *p, const uint8_t *data, int length, int64_t stamp_mono) {
     if (length < 20 || le16(data) != 2 || le16(data + 2) != 0x8002 || le16(data + 4) != 8 ||
         le16(data + 14) != 0x00B1 || le16(data + 16) != (unsigned)length - 18) {
-        malformed_t_o++;
+        p->malformed_t_o++;
         return;
     }
     struct connection *c = lookup(le32(data + 6));
     if (!c) {
-        unknown_t_o++;
+        p->unknown_t_o++;
         return;
     }
     uint32_t sequence = le32(data + 10);
@@ -270,7 +357,7 @@ static void take(const uint8_t *data, int length, int64_t stamp_mono) {
             if (bucket >= CONN_FINE) bucket = CONN_FINE + (error - (int64_t)CONN_FINE * CONN_BUCKET_NS) / CONN_COARSE_NS;
             c->histogram[bucket < CONN_BUCKETS - 1 ? bucket : CONN_BUCKETS - 1]++;
             bucket = error / ALL_BUCKET_NS;
-            all_histogram[bucket < ALL_BUCKETS - 1 ? bucket : ALL_BUCKETS - 1]++;
+            __atomic_fetch_add(&all_histogram[bucket < ALL_BUCKETS - 1 ? bucket : ALL_BUCKETS - 1], 1, __ATOMIC_RELAXED);
         }
     } else if (in_window) {
         c->received_window++;
@@ -280,12 +367,12 @@ static void take(const uint8_t *data, int length, int64_t stamp_mono) {
     c->last_stamp = stamp_mono;
 }
 
-static void *receiver(void *unused) {
-    (void)unused;
-    static uint8_t buffers[BATCH][2048];
-    static uint8_t controls[BATCH][CMSG_SPACE(sizeof(struct timespec)) + 64];
-    struct mmsghdr messages[BATCH];
-    struct iovec vectors[BATCH];
+static void *receiver(void *argument) {
+    struct pair *p = argument;
+    uint8_t (*buffers)[2048] = calloc(BATCH, sizeof *buffers);
+    uint8_t (*controls)[CMSG_SPACE(sizeof(struct timespec)) + 64] = calloc(BATCH, sizeof *controls);
+    struct mmsghdr *messages = calloc(BATCH, sizeof *messages);
+    struct iovec *vectors = calloc(BATCH, sizeof *vectors);
     while (!atomic_load(&stopping) && now_ns(CLOCK_MONOTONIC) < t_hard_end) {
         for (int i = 0; i < BATCH; i++) {
             vectors[i] = (struct iovec){buffers[i], sizeof buffers[i]};
@@ -294,9 +381,9 @@ static void *receiver(void *unused) {
                                                   .msg_control = controls[i],
                                                   .msg_controllen = sizeof controls[i]};
         }
-        int n = recvmmsg(sock, messages, BATCH, MSG_DONTWAIT, NULL);
+        int n = recvmmsg(p->sock, messages, BATCH, MSG_DONTWAIT, NULL);
         if (n < 0) {
-            if (errno != EAGAIN && errno != EWOULDBLOCK && errno != EINTR) receive_errors++;
+            if (errno != EAGAIN && errno != EWOULDBLOCK && errno != EINTR) p->receive_errors++;
             n = 0;
         }
         if (n < BATCH) { /* drained: the kernel keeps each datagram's time, so reading later costs no accuracy */
@@ -314,9 +401,13 @@ static void *receiver(void *unused) {
                     stamp = (int64_t)ts.tv_sec * 1000000000LL + ts.tv_nsec - realtime_offset;
                 }
             }
-            take(buffers[i], (int)messages[i].msg_len, stamp);
+            take(p, buffers[i], (int)messages[i].msg_len, stamp);
         }
     }
+    free(buffers);
+    free(controls);
+    free(messages);
+    free(vectors);
     return NULL;
 }
 
@@ -376,9 +467,18 @@ static int read_connections(const char *path) {
 }
 
 static void usage(void) {
-    fprintf(stderr, "usage: cyclic_originator --connections FILE (--fd N | --bind ADDR:PORT) --seconds S "
-                    "[--warmup S] [--hold S] [--batch-us US] [--realtime PRIORITY] --json FILE\n");
+    fprintf(stderr, "usage: cyclic_originator --connections FILE (--fd N[,M...] | --bind ADDR:PORT) --seconds S "
+                    "[--warmup S] [--hold S] [--batch-us US] [--realtime PRIORITY] --json FILE\n"
+                    "  misbehaviour: [--jitter-us J] [--gap-every N [--gap-size K]] [--burst-every N --burst-size K] "
+                    "[--repeat-every N] [--stale-every N [--stale-by M]] [--idle-every N] [--stop-after N]\n");
     exit(2);
+}
+
+static uint64_t count_argument(const char *text) {
+    char *end;
+    long long value = strtoll(text, &end, 10);
+    if (*end || value < 1 || value > 1000000000LL) usage();
+    return (uint64_t)value;
 }
 
 int main(int argc, char **argv) {
@@ -386,7 +486,14 @@ int main(int argc, char **argv) {
     double seconds = 0, warmup = 1.0, hold = 60.0;
     for (int i = 1; i + 1 < argc; i += 2) {
         if (!strcmp(argv[i], "--connections")) connections_path = argv[i + 1];
-        else if (!strcmp(argv[i], "--fd")) sock = atoi(argv[i + 1]);
+        else if (!strcmp(argv[i], "--fd")) {
+            char *next = argv[i + 1];
+            while (*next && socket_count < MAX_THREADS) {
+                sockets[socket_count++] = (int)strtol(next, &next, 10);
+                if (*next == ',') next++;
+            }
+            sock = sockets[0];
+        }
         else if (!strcmp(argv[i], "--bind")) bind_to = argv[i + 1];
         else if (!strcmp(argv[i], "--seconds")) seconds = atof(argv[i + 1]);
         else if (!strcmp(argv[i], "--warmup")) warmup = atof(argv[i + 1]);
@@ -394,15 +501,33 @@ int main(int argc, char **argv) {
         else if (!strcmp(argv[i], "--json")) json_path = argv[i + 1];
         else if (!strcmp(argv[i], "--realtime")) realtime = atoi(argv[i + 1]);
         else if (!strcmp(argv[i], "--batch-us")) batch_ns = (int64_t)(atof(argv[i + 1]) * 1000);
+        else if (!strcmp(argv[i], "--jitter-us")) jitter_ns = (int64_t)count_argument(argv[i + 1]) * 1000;
+        else if (!strcmp(argv[i], "--gap-every")) gap_every = count_argument(argv[i + 1]);
+        else if (!strcmp(argv[i], "--gap-size")) gap_size = count_argument(argv[i + 1]);
+        else if (!strcmp(argv[i], "--burst-every")) burst_every = count_argument(argv[i + 1]);
+        else if (!strcmp(argv[i], "--burst-size")) burst_size = count_argument(argv[i + 1]);
+        else if (!strcmp(argv[i], "--repeat-every")) repeat_every = count_argument(argv[i + 1]);
+        else if (!strcmp(argv[i], "--stale-every")) stale_every = count_argument(argv[i + 1]);
+        else if (!strcmp(argv[i], "--stale-by")) stale_by = count_argument(argv[i + 1]);
+        else if (!strcmp(argv[i], "--idle-every")) idle_every = count_argument(argv[i + 1]);
+        else if (!strcmp(argv[i], "--stop-after")) stop_after = count_argument(argv[i + 1]);
         else usage();
     }
     if (!connections_path || !json_path || seconds <= 0 || seconds > 3600 || warmup < 0 || hold < 0 || hold > 600 || batch_ns < 1 || batch_ns > 1000000 ||
         (sock < 0 && !bind_to))
         usage();
+    if ((burst_every > 0) != (burst_size > 0) || (burst_every && burst_size >= burst_every) || stale_by > 1000000 ||
+        (gap_every && gap_size >= gap_every))
+        usage();
     if (read_connections(connections_path) <= 0) {
         fprintf(stderr, "no connections read from %s\n", connections_path);
         return 2;
     }
+    for (int k = 0; k < connection_count; k++)
+        if (jitter_ns >= connections[k].rpi_ns) {
+            fprintf(stderr, "--jitter-us must be less than the RPI\n");
+            return 2;
+        }
     if (sock < 0) {
         char host[64];
         int port;
@@ -419,8 +544,9 @@ int main(int argc, char **argv) {
             return 2;
         }
     }
+    if (!socket_count) sockets[socket_count++] = sock;
     int on = 1;
-    setsockopt(sock, SOL_SOCKET, SO_TIMESTAMPNS, &on, sizeof on);
+    for (int j = 0; j < socket_count; j++) setsockopt(sockets[j], SOL_SOCKET, SO_TIMESTAMPNS, &on, sizeof on);
     table_mask = 1;
     while (table_mask < 4u * (uint32_t)connection_count) table_mask <<= 1;
     table = calloc(table_mask, sizeof *table);
@@ -437,16 +563,20 @@ int main(int argc, char **argv) {
     t0 = t_start + (int64_t)(warmup * 1e9);
     t1 = t0 + (int64_t)(seconds * 1e9);
     t_hard_end = t1 + (int64_t)(hold * 1e9);
-    pthread_t send_thread, receive_thread;
-    pthread_create(&receive_thread, NULL, receiver, NULL);
-    pthread_create(&send_thread, NULL, sender, NULL);
+    pthread_t send_threads[MAX_THREADS], receive_threads[MAX_THREADS];
+    for (int j = 0; j < socket_count; j++) {
+        pairs[j] = (struct pair){.index = j, .sock = sockets[j]};
+        pthread_create(&receive_threads[j], NULL, receiver, &pairs[j]);
+        pthread_create(&send_threads[j], NULL, sender, &pairs[j]);
+    }
     if (realtime > 0) { /* so that the machine's other load does not make this originator late */
         struct sched_param priority = {.sched_priority = realtime};
-        if (pthread_setschedparam(send_thread, SCHED_FIFO, &priority) ||
-            pthread_setschedparam(receive_thread, SCHED_FIFO, &priority)) {
-            fprintf(stderr, "cyclic_originator: SCHED_FIFO refused, running without it\n");
-            realtime = 0;
-        }
+        for (int j = 0; j < socket_count && realtime; j++)
+            if (pthread_setschedparam(send_threads[j], SCHED_FIFO, &priority) ||
+                pthread_setschedparam(receive_threads[j], SCHED_FIFO, &priority)) {
+                fprintf(stderr, "cyclic_originator: SCHED_FIFO refused, running without it\n");
+                realtime = 0;
+            }
     }
 
     struct timespec until = to_timespec(t0);
@@ -470,8 +600,18 @@ int main(int argc, char **argv) {
         if (got <= 0) break;
     }
     atomic_store(&stopping, 1);
-    pthread_join(send_thread, NULL);
-    pthread_join(receive_thread, NULL);
+    uint64_t sends_late = 0, send_errors = 0, unknown_t_o = 0, malformed_t_o = 0, receive_errors = 0;
+    int64_t send_lag_max_ns = 0;
+    for (int j = 0; j < socket_count; j++) {
+        pthread_join(send_threads[j], NULL);
+        pthread_join(receive_threads[j], NULL);
+        sends_late += pairs[j].sends_late;
+        send_errors += pairs[j].send_errors;
+        unknown_t_o += pairs[j].unknown_t_o;
+        malformed_t_o += pairs[j].malformed_t_o;
+        receive_errors += pairs[j].receive_errors;
+        if (pairs[j].send_lag_max_ns > send_lag_max_ns) send_lag_max_ns = pairs[j].send_lag_max_ns;
+    }
 
     FILE *out = fopen(json_path, "w");
     if (!out) {
@@ -501,8 +641,12 @@ int main(int argc, char **argv) {
         int64_t p99 = quantile_us(c->histogram, count, 0.99);
         if (p99 > worst_p99) worst_p99 = p99;
     }
-    fprintf(out, "{\n \"connections\": %d, \"window_s\": %.6f, \"realtime\": %d,\n", connection_count,
-            (t1 - t0) / 1e9, realtime);
+    fprintf(out, "{\n \"connections\": %d, \"threads\": %d, \"window_s\": %.6f, \"realtime\": %d,\n",
+            connection_count, socket_count, (t1 - t0) / 1e9, realtime);
+    fprintf(out, " \"misbehaviour\": {\"jitter_us\": %ld, \"gap_every\": %lu, \"gap_size\": %lu, \"burst_every\": %lu, \"burst_size\": %lu, "
+                 "\"repeat_every\": %lu, \"stale_every\": %lu, \"stale_by\": %lu, \"idle_every\": %lu, \"stop_after\": %lu},\n",
+            jitter_ns / 1000, gap_every, gap_size, burst_every, burst_size, repeat_every, stale_every, stale_by, idle_every,
+            stop_after);
     fprintf(out, " \"o_t_sent_window\": %lu, \"o_t_sent_total\": %lu, \"send_errors\": %lu,\n", sent_window,
             sent_total, send_errors);
     fprintf(out, " \"sends_late\": %lu, \"send_lag_max_ms\": %.3f,\n", sends_late, send_lag_max_ns / 1e6);
@@ -521,11 +665,14 @@ int main(int argc, char **argv) {
         struct connection *c = &connections[k];
         uint64_t count = 0;
         for (int b = 0; b < CONN_BUCKETS; b++) count += c->histogram[b];
-        fprintf(out, "  {\"host\": \"%s\", \"t_o_id\": %u, \"o_t_sent\": %lu, \"received\": %lu, \"lost\": %lu, "
-                     "\"late\": %lu, \"missed\": %lu, \"duplicates\": %lu, \"p50_us\": %ld, \"p99_us\": %ld, \"max_us\": %ld}%s\n",
-                c->host, c->t_o_id, c->sent_window, c->received_window, c->lost, c->late, c->missed, c->duplicates,
-                quantile_us(c->histogram, count, 0.5), quantile_us(c->histogram, count, 0.99),
-                c->max_error_ns / 1000, k + 1 < connection_count ? "," : "");
+        fprintf(out, "  {\"host\": \"%s\", \"o_t_id\": %u, \"t_o_id\": %u, \"o_t_sent\": %lu, \"received\": %lu, \"lost\": %lu, "
+                     "\"late\": %lu, \"missed\": %lu, \"duplicates\": %lu, \"p50_us\": %ld, \"p99_us\": %ld, \"max_us\": %ld,\n"
+                     "   \"made\": {\"deadlines\": %lu, \"sent\": %lu, \"datagrams\": %lu, \"last_sequence\": %u, \"gaps\": %lu, \"gap_runs\": %lu, "
+                     "\"bursts\": %lu, \"repeats\": %lu, \"stale\": %lu, \"idle_transitions\": %lu}}%s\n",
+                c->host, c->o_t_id, c->t_o_id, c->sent_window, c->received_window, c->lost, c->late, c->missed,
+                c->duplicates, quantile_us(c->histogram, count, 0.5), quantile_us(c->histogram, count, 0.99),
+                c->max_error_ns / 1000, c->deadlines, c->sent_total, c->datagrams, c->sequence, c->gaps, c->gap_runs, c->bursts,
+                c->repeats, c->stale, c->idle_transitions, k + 1 < connection_count ? "," : "");
     }
     fprintf(out, " ]\n}\n");
     fclose(out);

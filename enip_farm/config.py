@@ -27,6 +27,11 @@ from pydantic import (
 )
 from pydantic_core import InitErrorDetails, PydanticCustomError
 
+from enip_farm.bounds import BoundsConfig
+from enip_farm.config_errors import describe, did_you_mean, duplicates, line_map, line_of, not_a_cell, yaml_problem
+from enip_farm.config_errors import device_location as device_location  # where it has always been imported from
+from enip_farm.topology import GroupConfig, Topology, resolve, subnet_problem
+
 _MAC = re.compile(r"^([0-9A-Fa-f]{2}[:-]){5}[0-9A-Fa-f]{2}$")
 
 #: An attribute of a RobotWare EIO.cfg entry kept as it was: a string, a number, or true for a flag.
@@ -167,6 +172,7 @@ class DeviceConfig(_Strict):
         "answer (no TCP listener, UDP dropped) after it has replied, as a module restarts")
     signals: list[SignalConfig] = Field([], description="named signals (RobotWare EIO_SIGNAL) beside DI1.., DO1..")
     safety: SafetyConfig = SafetyConfig()
+    bounds: BoundsConfig = Field(BoundsConfig(), description="the report's bounds for this device, over the cell's")
     extra: dict[str, EioValue] = Field({}, description="other attributes of the controller's ETHERNETIP_DEVICE "
                                        "entry (VendorName, Label...), kept as they were for `enip-farm eio export`")
     _entry: int = PrivateAttr(0)
@@ -175,9 +181,22 @@ class DeviceConfig(_Strict):
     @classmethod
     def _profile_path(cls, value: str, info: ValidationInfo) -> str:
         """A profile file (e.g. from `enip-farm learn`) is named relative to the configuration's
-        directory; it is read when devices are built."""
-        if is_profile_path(value) and not Path(value).is_absolute():
-            return str(Path((info.context or {}).get("base_dir", ".")) / value)
+        directory; it is read when devices are built. A catalogue model is checked here when the
+        catalogue's names are given (`parse_config(known=...)`), else when devices are built."""
+        if is_profile_path(value):
+            return value if Path(value).is_absolute() else str(Path((info.context or {}).get("base_dir", ".")) / value)
+        bases = ((info.context or {}).get("known") or ((), ()))[0]
+        if bases and value not in bases:
+            raise ValueError(f"unknown base model {value!r}{did_you_mean(value, bases)}; known: {', '.join(bases)}")
+        return value
+
+    @field_validator("addons")
+    @classmethod
+    def _known_addons(cls, value: list[str], info: ValidationInfo) -> list[str]:
+        addons = ((info.context or {}).get("known") or ((), ()))[1]
+        for addon in value if addons else ():
+            if addon not in addons:
+                raise ValueError(f"unknown add-on {addon!r}{did_you_mean(addon, addons)}; known: {', '.join(addons)}")
         return value
 
     @field_validator("mac")
@@ -204,7 +223,7 @@ class DeviceConfig(_Strict):
             raise ValueError("the only placeholder in a name is {n}")
         if int(self.address) + self.count - 1 > 0xFFFFFFFF:
             raise ValueError("the addresses run past 255.255.255.255")
-        problem = _subnet_problem(self.address, self.count, self.netmask)
+        problem = subnet_problem(self.address, self.count, self.netmask)
         if problem:
             raise ValueError(problem)
         seen: dict[str, str] = {}
@@ -245,14 +264,18 @@ class RuleConfig(_Strict):
     delay_ms: float = Field(0.0, ge=0)
 
 
+#: The share of a core a worker's cyclic I/O budget is for (cip/budget.py). Unverified: a choice.
+BUDGET_UTILISATION = 0.5
+
+
 class CyclicIoConfig(_Strict):
     """What the farm's cyclic I/O thread (one per worker) may carry."""
 
     budget_datagrams_per_s: int | Literal["auto"] = Field(
-        "auto", description="class-1 datagrams per second (O->T taken plus T->O sent) one worker admits "
-        "connections for; past it a Forward Open gets 0x01/0x0113. auto: measured at start (the CPU cost of "
-        "a consumed and produced packet on this machine, for 70 % of a core)")
-
+        "auto", description="class-1 datagrams/s (O->T taken plus T->O sent) one worker admits connections for; "
+        f"past it a Forward Open gets 0x01/0x0113. auto: measured at start (a pair's CPU, for {BUDGET_UTILISATION:.0%}"
+        " of a core), lowered to what the I/O thread really spends, held while it runs late")
+    measure: bool = Field(True, description="measure every O->T stream for the report (cip/o_t_measure.py)")
     @field_validator("budget_datagrams_per_s")
     @classmethod
     def _positive(cls, value: int | str) -> int | str:
@@ -263,15 +286,22 @@ class CyclicIoConfig(_Strict):
 
 class FarmConfig(_Strict):
     devices: list[DeviceConfig] = Field(min_length=1)
+    groups: list[GroupConfig] = Field([], description="the topology (enip_farm/topology.py): named groups of "
+                                      "devices (a rack, a switch, a power feed, a ring) a fault or a scenario names")
     cyclic_io: CyclicIoConfig = CyclicIoConfig()
     discovery: bool = Field(True, description="answer broadcast ListIdentity on 0.0.0.0:44818")
     max_tcp_connections: int = Field(60000, ge=1, description="TCP connections of all devices at once (also "
                                      "bounded by the open-file limit)")
     wires: list[WireConfig] = []
     rules: list[RuleConfig] = []
-
-
+    bounds: BoundsConfig = Field(BoundsConfig(), description="the report's bounds (enip_farm/bounds.py)")
     _source: str = PrivateAttr("<config>")
+    _topology: Topology = PrivateAttr(default_factory=Topology)
+
+    @property
+    def topology(self) -> Topology:
+        """The groups resolved to their devices (`targets(name)`: a device's or a group's devices)."""
+        return self._topology
 
     @property
     def source(self) -> str:
@@ -300,31 +330,12 @@ class FarmConfig(_Strict):
                         f" (here by {device.name!r})" if field == "address" else "")
                     errors.append(InitErrorDetails(type=PydanticCustomError("duplicate", message),
                                                    loc=("devices", device.entry, field), input=str(value)))
+        self._topology, problems = resolve(self.groups, ((d.name, d.address) for d in self.devices))
+        errors += [InitErrorDetails(type=PydanticCustomError("group", message), loc=("groups", index, *where),
+                                    input=value) for index, where, message, value in problems]
         if errors:
             raise ValidationError.from_exception_data(type(self).__name__, errors)
         return self
-
-
-def _subnet_problem(first: IPv4Address, count: int, netmask: IPv4Address) -> str | None:
-    """Why the addresses first .. first + count - 1 cannot all be hosts of first's subnet, if they
-    cannot: a network or broadcast address, or a range that runs past the subnet. /31 and /32 have
-    neither (RFC 3021), so any address of theirs is a host."""
-    network = IPv4Network(f"{first}/{netmask}", strict=False)
-    if network.prefixlen >= 31:
-        return None
-    last = first + count - 1
-    subnet = f"the subnet {network} (netmask {netmask})"
-    for address, what in ((network.network_address, "network"), (network.broadcast_address, "broadcast")):
-        if count == 1 and first == address:
-            return (f"address {first} is the {what} address of {subnet}: no device can have it; "
-                    f"choose a host address ({network.network_address + 1} .. {network.broadcast_address - 1})")
-    if first == network.network_address:
-        return f"count {count} from {first} starts at the network address of {subnet}: start at {first + 1}"
-    if last >= network.broadcast_address:
-        return (f"count {count} from {first} runs past {subnet}: the addresses would end at {last}, the last "
-                f"host is {network.broadcast_address - 1}; start lower, use fewer, or widen the netmask "
-                "(e.g. netmask: 255.255.0.0)")
-    return None
 
 
 def as_config(source: FarmConfig | Mapping[str, Any] | str | Path) -> FarmConfig:
@@ -344,51 +355,42 @@ def is_profile_path(model: str) -> bool:
     return model.endswith((".yaml", ".yml", ".eds", ".EDS"))
 
 
-def device_location(index: int, name: str | None = None) -> str:
-    """How messages name a device: by its entry in the configuration's `devices` list."""
-    return f"device {name!r} (devices[{index}])" if name else f"devices[{index}]"
-
-
-def _describe(error: dict[str, Any], data: Any) -> str:
-    location = list(error["loc"])
-    where = ""
-    if len(location) >= 2 and location[0] == "devices" and isinstance(location[1], int):
-        index = location[1]
-        name = None
-        if isinstance(data, dict) and isinstance(data.get("devices"), list) and index < len(data["devices"]):
-            entry = data["devices"][index]
-            name = entry.get("name") if isinstance(entry, dict) else None
-        where = device_location(index, name)
-        location = location[2:]
-    field = ".".join(str(part) for part in location)
-    message = error["msg"].removeprefix("Value error, ")
-    if isinstance(error.get("input"), bool) and error["type"] == "literal_error":  # YAML 1.1 booleans
-        words = "on, yes" if error["input"] else "off, no"
-        message += f" (YAML reads an unquoted {words} as {str(error['input']).lower()}: quote the value, e.g. \"off\")"
-    return ", ".join(part for part in (where, field) if part) + f": {message}" if (where or field) else message
-
-
-def parse_config(data: Any, source: str = "<config>", base_dir: str | Path = ".") -> FarmConfig:
+def parse_config(data: Any, source: str = "<config>", base_dir: str | Path = ".", text: str | None = None,
+                 known: tuple[list[str], list[str]] | None = None) -> FarmConfig:
     """`source` names the configuration in messages; `base_dir`: where profile files named by a
-    device's model are looked up."""
+    device's model are looked up; `text`: the YAML it was read from, whose lines the messages
+    give; `known`: the catalogue's base models and add-ons, checked with everything else. Every
+    problem is one line of the ConfigError, in the file's order (config_errors.py)."""
+    problem = not_a_cell(source, data)
+    if problem:
+        raise ConfigError(problem)
+    context: dict[str, Any] = {"base_dir": str(base_dir), "known": known}
     try:
-        config = FarmConfig.model_validate(data, context={"base_dir": str(base_dir)})
+        config = FarmConfig.model_validate(data, context=context)
     except ValidationError as error:
-        lines = [f"{source}: {_describe(e, data)}" for e in error.errors()]
-        raise ConfigError("\n".join(lines)) from None
+        errors: list[dict[str, Any]] = list(error.errors())
+        if not any(e["type"] == "duplicate" for e in errors):  # told once every device is valid: tell them now
+            errors += [{"loc": loc, "msg": message, "type": "duplicate"} for loc, message in duplicates(data)]
+        lines = line_map(text) if text is not None else {}
+        told = [(line_of(lines, tuple(e["loc"])), describe(e, data, FarmConfig)) for e in errors]
+        told.sort(key=lambda item: item[0] or 0)
+        raise ConfigError("\n".join(f"{source}:{line}: {message}" if line else f"{source}: {message}"
+                                    for line, message in dict.fromkeys(told))) from None
     config._source = source
     return config
 
 
-def load_config(path: str | Path) -> FarmConfig:
+def load_config(path: str | Path, known: tuple[list[str], list[str]] | None = None) -> FarmConfig:
+    """A configuration file (see `parse_config`); a YAML error is one line at its line and column."""
     path = Path(path)
     try:
-        data = yaml.safe_load(path.read_text())
+        text = path.read_text()
+        data = yaml.safe_load(text)
     except OSError as error:
         raise ConfigError(f"{path}: cannot read: {error.strerror}") from None
     except yaml.YAMLError as error:
-        raise ConfigError(f"{path}: not valid YAML: {error}") from None
-    return parse_config(data, str(path), path.parent)
+        raise ConfigError(yaml_problem(str(path), error)) from None
+    return parse_config(data, str(path), path.parent, text, known)
 
 
 def default_config_path() -> Path:

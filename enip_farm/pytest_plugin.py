@@ -5,8 +5,14 @@
         farm["io1"].set(DI3=1)
         ...
 
+The report on the controller under test (`farm.report()`, cip/report.py): `--enip-report` (or the
+ini option `enip_report = true`) attaches every farm's report of a test to its result (JSON, a user
+property `enip_farm_report`, so `--junitxml` carries it), and a test marked
+`@pytest.mark.enip_bounds(interval_p99_api=1.2, reaction_p99_ms=30, ...)` fails when its cell broke
+a bound it asked for: the marker's, or the cell's YAML `bounds:` (the defaults only inform).
+
 `enip_farm(...)` takes a config file path (a cell's YAML, or a controller's EIO.cfg, imported as
-`enip-farm eio import` does, its warnings raised as `EioImportWarning`s), a config dict, or one
+`enip-farm eio import` does, its warnings raised as one `EioImportWarning`), a config dict, or one
 device's fields as keyword arguments. Devices go on fresh 127.x addresses (each test process takes
 its own block, so parallel tests never collide) unless `keep_addresses=True`. The farm serves from
 a background thread, so synchronous clients (pycomm3) and async tests alike can talk to it; at
@@ -15,7 +21,7 @@ teardown every socket and the thread are gone.
 
 from __future__ import annotations
 
-import itertools
+import json
 import os
 import warnings
 from collections.abc import Callable, Iterator
@@ -31,19 +37,10 @@ from enip_farm.device.catalogue import shipped_catalogue
 from enip_farm.eio.cfg import parse_cfg
 from enip_farm.eio.importer import EioImportWarning, import_eio
 from enip_farm.farm.farm import BindError, Farm
+from enip_farm.farm.loopback import LoopbackPool
 
-
-class AddressPool:
-    """Fresh 127.x addresses for one test process: its own block (the second octet, from the pid),
-    never one address twice. Calling the pool gives the next address."""
-
-    def __init__(self, block: int) -> None:
-        self.block = block
-        self._next = itertools.count(1)
-
-    def __call__(self) -> str:
-        n = next(self._next)
-        return f"127.{self.block}.{n // 250 % 250}.{n % 250 + 1}"
+#: Kept under its first name: tests and users import it from here.
+AddressPool = LoopbackPool
 
 
 @pytest.fixture(scope="session")
@@ -61,10 +58,16 @@ def _config_dict(source: str | Path | dict[str, Any] | None, device: dict[str, A
         return dict(source)
     if str(source).lower().endswith(".cfg"):  # the controller's EIO.cfg, as `enip-farm eio import` reads it
         result = import_eio(parse_cfg(Path(source).read_text(), str(source)), shipped_catalogue())
-        for warning in result.warnings:  # what `eio import` prints: pytest shows them in its summary
-            warnings.warn(warning, EioImportWarning, stacklevel=4)
+        if result.warnings:  # what `eio import` prints, as one warning: pytest's summary shows it once per import
+            warnings.warn(eio_summary(str(source), result.warnings), EioImportWarning, stacklevel=4)
         return result.document
     return yaml.safe_load(Path(source).read_text())
+
+
+def eio_summary(source: str, lines: list[str]) -> str:
+    """An EIO.cfg import's warnings as one message: a count, then each line as `eio import` prints it."""
+    return f"{source}: imported with {len(lines)} warning{'s' if len(lines) != 1 else ''}:\n" + "\n".join(
+        f"  {line}" for line in lines)
 
 
 def start_farm(stack: ExitStack, addresses: Callable[[], str], source: str | Path | dict[str, Any] | None = None, *,
@@ -92,9 +95,60 @@ def start_farm(stack: ExitStack, addresses: Callable[[], str], source: str | Pat
     raise AssertionError("unreachable")
 
 
+#: The farms a test started (its report is taken from them once the test has run).
+FARMS = pytest.StashKey[list[Farm]]()
+#: The sources of the bounds a test asked for (enip_farm/bounds.py): the marker's and the YAML's.
+ASKED = ("test", "cell configuration", "device configuration")
+
+
 @pytest.fixture
-def enip_farm(free_address: AddressPool) -> Iterator[Callable[..., Farm]]:
+def enip_farm(free_address: AddressPool, request: pytest.FixtureRequest) -> Iterator[Callable[..., Farm]]:
     """A factory: enip_farm("cell.yaml"), enip_farm("EIO.cfg"), enip_farm({"devices": [...]}), enip_farm(name="io1",
     model="DSQC1030", addons=["DSQC1031"]); options keep_addresses, discovery, http."""
+    farms = request.node.stash.setdefault(FARMS, [])
+
+    def start(*args: Any, **kwargs: Any) -> Farm:
+        farm = start_farm(stack, free_address, *args, **kwargs)
+        farms.append(farm)
+        return farm
+
     with ExitStack() as stack:
-        yield lambda *args, **kwargs: start_farm(stack, free_address, *args, **kwargs)
+        yield start
+    farms.clear()
+
+
+def pytest_addoption(parser: pytest.Parser) -> None:
+    parser.getgroup("enip-farm").addoption(
+        "--enip-report", action="store_true", default=None,
+        help="attach each test's enip-farm report (the controller under test, measured) to its result")
+    parser.addini("enip_report", type="bool", default=False, help="as --enip-report")
+
+
+def pytest_configure(config: pytest.Config) -> None:
+    config.addinivalue_line("markers", "enip_bounds(**bounds): bounds of the enip-farm report (enip_farm/bounds.py) "
+                                       "the test asks for; a cell that breaks one fails the test")
+
+
+@pytest.hookimpl(hookwrapper=True)
+def pytest_runtest_makereport(item: pytest.Item, call: pytest.CallInfo[None]) -> Iterator[None]:
+    """After a test's call: its farms' reports attached (--enip-report) and held against the bounds it asked for."""
+    outcome = yield
+    farms = item.stash.get(FARMS, None)
+    marker = item.get_closest_marker("enip_bounds")
+    attach = item.config.getoption("enip_report") or item.config.getini("enip_report")
+    if call.when != "call" or not farms or not (attach or marker):
+        return
+    result = outcome.get_result()  # type: ignore[attr-defined]
+    broken = []
+    for farm in farms:
+        if not farm.running:
+            continue
+        report = farm.report(dict(marker.kwargs) if marker is not None else None)
+        if attach:  # on the call's result, and on the item for the teardown's (JUnit XML reads that one)
+            prop = ("enip_farm_report", json.dumps(report.as_dict()))
+            result.user_properties.append(prop)
+            item.user_properties.append(prop)
+        broken += [f"{where}: {verdict.line}" for where, verdict in report.failed() if verdict.source.startswith(ASKED)]
+    if broken and result.passed:
+        result.outcome = "failed"
+        result.longrepr = "enip-farm: the cell broke bounds the test asked for:\n  " + "\n  ".join(broken)

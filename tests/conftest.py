@@ -29,6 +29,57 @@ os.environ["PYTHONPATH"] = os.pathsep.join(filter(None, [str(ROOT), os.environ.g
 os.environ.setdefault("HYPOTHESIS_STORAGE_DIRECTORY", os.path.join(tempfile.gettempdir(), "enip-farm-hypothesis"))
 
 
+# -- no silent skips on CI ------------------------------------------------------------------------------
+# A test skips where its tool or privilege is missing (tshark, kubectl, chromium, root, a network
+# namespace, a Docker engine). On CI (.ci/run exports CI=1) every skip fails instead, so the suite
+# cannot shrink unnoticed when an install step breaks, except the skips below: what CI can never
+# have, matched by a part of the skip's reason, each with why. The summary prints them.
+CI_MAY_SKIP: dict[str, str] = {
+}
+_allowed_skips: list[tuple[str, str]] = []  # (test, reason) skipped on CI under CI_MAY_SKIP
+
+
+def _skip_reason(report: pytest.TestReport | pytest.CollectReport) -> str:
+    longrepr = report.longrepr
+    reason = longrepr[2] if isinstance(longrepr, tuple) else str(longrepr)
+    return reason.removeprefix("Skipped: ")
+
+
+def _fail_skip_on_ci(report: pytest.TestReport | pytest.CollectReport) -> None:
+    if not os.environ.get("CI") or not report.skipped or hasattr(report, "wasxfail"):
+        return
+    reason = _skip_reason(report)
+    if any(part in reason for part in CI_MAY_SKIP):
+        _allowed_skips.append((report.nodeid, reason))
+        return
+    report.outcome = "failed"
+    report.longrepr = (f"skipped on CI (CI={os.environ['CI']}): {reason}\nCI must have what this test needs "
+                       "(.ci/run installs it); if CI never can, add the reason to CI_MAY_SKIP in tests/conftest.py")
+
+
+@pytest.hookimpl(hookwrapper=True)
+def pytest_runtest_makereport(item: pytest.Item, call: pytest.CallInfo) -> Iterator[None]:
+    outcome = yield
+    _fail_skip_on_ci(outcome.get_result())
+
+
+@pytest.hookimpl(hookwrapper=True)
+def pytest_make_collect_report(collector: pytest.Collector) -> Iterator[None]:
+    outcome = yield
+    _fail_skip_on_ci(outcome.get_result())
+
+
+def pytest_terminal_summary(terminalreporter: Any) -> None:
+    if not os.environ.get("CI"):
+        return
+    write = terminalreporter.write_line
+    terminalreporter.section("skips allowed on CI (tests/conftest.py CI_MAY_SKIP)")
+    for part, why in CI_MAY_SKIP.items() or {"(none)": "every skip fails on CI"}.items():
+        write(f"{part}: {why}")
+    for nodeid, reason in _allowed_skips:
+        write(f"skipped {nodeid}: {reason}")
+
+
 def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
     for item in items:
         if "enip_farm" in getattr(item, "fixturenames", ()) and item.get_closest_marker("system") is None:

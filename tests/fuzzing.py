@@ -236,10 +236,12 @@ class SessionMirror:
     def __init__(self) -> None:
         self.buffer = b""
         self.handle = 0  # the session handle registered on this connection
-        self.closed = False  # an UnregisterSession, an oversize header or an Identity Reset ended it
+        self.closed = False  # an UnregisterSession or an Identity Reset ended it
+        self.skip = 0  # bytes of an oversize message still to come, dropped as they arrive
+        self.skip_header = b""  # that message's header
         self.reset_frame: int | None = None  # index (from 0, among frames taken) of the frame whose
         # successful Identity Reset restarted the device: its reply was the connection's last
-        self.frames = 0  # complete frames (or oversize headers) taken
+        self.frames = 0  # whole messages taken (an oversize one's data dropped)
         self.replies = 0
         self.connections: dict[int, None] = {}  # O->T ids handed out in Forward Open replies, in order
         self.last_connected: dict[int, tuple[int, bytes]] = {}  # id -> (sequence count, its reply)
@@ -253,39 +255,46 @@ class SessionMirror:
         if self.closed:
             return 0
         pending = iter(replies)
-        buffer = self.buffer + chunk
         taken = 0
+        if self.skip:  # the rest of an oversize message: read and dropped (Vol. 2, 2-3.3)
+            dropped = min(self.skip, len(chunk))
+            self.skip -= dropped
+            chunk = chunk[dropped:]
+            if not self.skip:
+                taken = 1
+                self._take(self.skip_header, b"", pending, oversize=True)
+        buffer = self.buffer + chunk
         while len(buffer) >= 24 and not self.closed and (limit is None or taken < limit):
-            command, length, handle, _, context, options = HEADER.unpack_from(buffer)
-            if length > MAX_LENGTH:
-                self.frames += 1
-                taken += 1
-                self._check(next(pending, None), buffer[:24], b"", oversize=True)
-                self.closed = True
+            length = U16.unpack_from(buffer, 2)[0]
+            if length > MAX_LENGTH and len(buffer) < 24 + length:
+                self.skip_header, self.skip = buffer[:24], 24 + length - len(buffer)
                 buffer = b""
                 break
             if len(buffer) < 24 + length:
                 break
             header, body, buffer = buffer[:24], buffer[24 : 24 + length], buffer[24 + length :]
-            self.frames += 1
             taken += 1
-            if options or command == NOP:
-                continue  # no reply: options other than 0 are discarded (Vol. 2, 2-3.6), NOP never answered
-            if command == UNREGISTER and handle and handle == self.handle:
-                self.closed = True
-                self.handle = 0
-                break
-            self._check(next(pending, None), header, body)
-            if self.closed:  # the request restarted the device: the connection ends after its reply
-                break
-        self.buffer = buffer
+            self._take(header, body, pending, oversize=length > MAX_LENGTH)
+        self.buffer = b"" if self.closed else buffer
         expect(next(pending, None) is None, "more replies than frames that call for one")
         return taken
 
+    def _take(self, header: bytes, body: bytes, pending: Iterator[bytes], oversize: bool) -> None:
+        """One whole message (an oversize one's body dropped): its reply, if it calls for one."""
+        command, _, handle, status, _, options = HEADER.unpack(header)
+        self.frames += 1
+        if options or status or command == NOP:
+            return  # no reply: non-zero options (Vol. 2, 2-3.7) or status (2-3.5), a NOP (2-4.1)
+        if command == UNREGISTER and handle and handle == self.handle and not oversize:
+            self.closed = True
+            self.handle = 0
+            return
+        self._check(next(pending, None), header, body, oversize)
+
     @property
     def backlog(self) -> bool:
-        """A whole frame (or an oversize header) buffered and not taken yet."""
-        if self.closed or len(self.buffer) < 24:
+        """A whole frame (or an oversize header, which can be taken) buffered and not taken yet."""
+        if self.closed or self.skip or len(self.buffer) < 24:
             return False
         length = U16.unpack_from(self.buffer, 2)[0]
         return length > MAX_LENGTH or len(self.buffer) >= 24 + length
@@ -691,7 +700,8 @@ class FrameGenerator:
         length = len(body)
         roll = rng.random()
         if roll < 0.003:
-            length = rng.randint(MAX_LENGTH + 1, 0xFFFF)  # oversize: the connection ends
+            length = rng.randint(MAX_LENGTH + 1, 0xFFFF)  # oversize: read whole and refused, the stream goes on
+            body += bytes(length - len(body))
         elif roll < 0.02:
             length = rng.randint(0, len(body) + 8)  # the framing slips
         frame = HEADER.pack(command & 0xFFFF, length, handle, 0 if rng.random() < 0.95 else rng.getrandbits(32),

@@ -131,7 +131,7 @@ class TcpFuzzer:
                 replies.append(whole)
         self._mirror = trial
         self.replies += len(replies)
-        if trial.closed:  # an UnregisterSession, an oversize header or an Identity Reset: the farm closes
+        if trial.closed:  # an UnregisterSession or an Identity Reset: the farm closes
             if self._read_frame(time.monotonic() + REPLY_WAIT_S) is not None:
                 raise self._fail("a reply after the stream ended")
             self.close()

@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import os
 import socket
+import time
 
 import pytest
 
@@ -57,7 +58,11 @@ def test_each_packet_leaves_from_its_device_address_and_port(free_address, nativ
             assert failures == [(9, 99)]  # EADDRNOTAVAIL
             assert got == sorted((f"packet {i}".encode(), sockets[i % 3].getsockname()) for i in range(9))
             assert {port for _, (_, port) in got} == ports
-        # and back: what waits on several sockets is read in one call, with its source
+        # and back: what waits on several sockets is read in one call, with its source and the
+        # kernel's receive time (SO_TIMESTAMPNS, as server/implicit.py sets it) in monotonic ns
+        for sock in sockets[:3]:
+            sock.setsockopt(socket.SOL_SOCKET, batch.SO_TIMESTAMPNS, 1)
+        sent_from = time.monotonic_ns()
         for i, sock in enumerate(sockets[:3]):
             receiver.sendto(f"o->t {i}".encode(), sock.getsockname())
             receiver.sendto(f"o->t {i}b".encode(), sock.getsockname())
@@ -67,7 +72,9 @@ def test_each_packet_leaves_from_its_device_address_and_port(free_address, nativ
             received += datagrams.receive(fds)
             if len(received) == 6:
                 break
-        assert sorted((fd, data, host, port) for fd, data, host, port in received) == sorted(
+        read_by = time.monotonic_ns()
+        assert all(sent_from <= at <= read_by for *_, at in received), (sent_from, received, read_by)
+        assert sorted((fd, data, host, port) for fd, data, host, port, _ in received) == sorted(
             (sockets[i].fileno(), f"o->t {i}{suffix}".encode(), "127.0.0.1", receiver.getsockname()[1])
             for i in range(3) for suffix in ("", "b"))
     finally:

@@ -63,3 +63,28 @@ def test_the_cyclic_bench_builds_and_counts_every_datagram(tmp_path: Path) -> No
     assert c["responder"]["o_t_received"] == c["o_t_sent_total"]
     assert c["responder"]["o_t_bad"] == c["responder"]["send_errors"] == 0
     assert c["responder"]["sockets"] == CONNECTIONS
+
+
+@pytest.mark.system
+@pytest.mark.skipif(not (os.environ.get("CC") or shutil.which("cc") or shutil.which("gcc")), reason="no C compiler")
+def test_refusals_are_counted_by_status_and_the_originator_spreads_over_threads(tmp_path: Path) -> None:
+    """Two workers with a budget of 500 datagrams/s each (two connections at 10 ms, 200/s each, and
+    not a third): of 6 devices, 3 per worker, 4 admitted and 2 refused 0x01/0x0113, the banner's
+    budget beside them; the originator's two pairs of threads (a socket each) count every datagram."""
+    out = tmp_path / "cyclic.json"
+    run = subprocess.run([sys.executable, str(ROOT / "bench" / "bench_cyclic.py"), "--rows", f"6@{RPI_MS}",
+                          "--seconds", "1", "--warmup", "0.5", "--workers", "2", "--realtime", "0",
+                          "--timeout-multiplier", "5", "--budget", "500", "--originator-threads", "2",
+                          "--no-responder", "--first-address", "127.0.238.1", "--json", str(out), "--per-connection"],
+                         cwd=ROOT, capture_output=True, text=True, timeout=120)
+    assert run.returncode == 0, run.stderr[-3000:]
+    assert "refused: 2 0x01/0x0113; worker 0 cyclic I/O budget: 500 datagrams/s per worker" in run.stderr
+    farm = json.loads(out.read_text())["rows"][0]["farm"]
+    assert (farm["offered"], farm["admitted"], farm["refused"], farm["refusals"]) == (6, 4, 2, {"0x01/0x0113": 2})
+    assert farm["threads"] == 2
+    assert farm["o_t_sent_window"] == 4 * 100 and farm["send_errors"] == 0
+    assert farm["o_t_received_window"] == farm["o_t_sent_window"]
+    assert farm["lost"] == farm["duplicates"] == farm["reordered"] == farm["unknown"] == farm["malformed"] == 0
+    for connection in farm["per_connection"]:  # each connection's T->O reached the thread of its socket
+        assert 50 <= connection["received"] <= 101, connection
+    assert farm["timeouts"] == farm["close_errors"] == 0

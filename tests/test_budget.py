@@ -5,23 +5,29 @@ and the budget measured at start. Unit tests with an injected clock, then one fa
 from __future__ import annotations
 
 import random
+from pathlib import Path
 
 import httpx
 import pytest
 
 from enip_farm.cip.admission import Originator
 from enip_farm.cip.assembly import AssemblyInstance
-from enip_farm.cip.budget import CyclicBudget
+from enip_farm.cip.budget import CALM_SECONDS, LAG_LIMIT_NS, MIN_DATAGRAMS, CyclicBudget
 from enip_farm.cip.connection_events import ConnectionRefused
 from enip_farm.cip.connection_path import KeyIdentity
 from enip_farm.cip.connection_policy import ConnectionPolicy, Refusal
 from enip_farm.cip.connection_table import ConnectionTable, Opened
-from enip_farm.server.calibrate import UTILISATION, measure_budget
+from enip_farm.config import BUDGET_UTILISATION as UTILISATION
+from enip_farm.config import CyclicIoConfig
+from enip_farm.server.calibrate import measure_budget
 from enip_farm.server.implicit import OVERLOAD_LAG_NS, Lag
+from enip_farm.server.running_budget import RunningBudget
 from tests.fuzzing import dsqc1030_profile
 from tests.helpers import RawClient, metric_samples
 from tests.test_connection_table import INPUT_ONLY_PATH, LISTEN_ONLY_PATH, MULTICAST, T0, request
 from tests.test_implicit import forward_close, forward_open
+
+ROOT = Path(__file__).resolve().parent.parent
 
 MS = 1_000_000
 ORIGINATOR = Originator("127.0.0.9")
@@ -149,3 +155,102 @@ def test_kernel_drops_are_read_per_address_from_the_udp_table(tmp_path) -> None:
         "0000000000000000 5\n")
     assert udp_drops(2222, table) == {"127.0.10.1": 17, "127.0.10.2": 0}
     assert udp_drops(2222, tmp_path / "missing") == {}
+
+
+def test_the_share_of_a_core_is_one_value_in_the_config_and_the_docs() -> None:
+    assert f"{UTILISATION:.0%} of a core" in CyclicIoConfig.model_fields["budget_datagrams_per_s"].description
+    share = f"{UTILISATION * 100:.0f} % of a core"
+    assert share in (ROOT / "docs" / "implicit-io.md").read_text()
+    assert share in (ROOT / "docs" / "benchmarks.md").read_text()
+
+
+def test_the_running_check_lowers_the_budget_to_the_cpu_per_datagram_it_sees() -> None:
+    budget = CyclicBudget(100_000, "measured at start: 10.0 us of CPU per O->T/T->O pair, for 50% of a core")
+    # 50 000 datagrams on 0.4 s of CPU: 8 us each; half a core carries 62 500 a second
+    budget.observe(400_000_000, 50_000, 1000, 0)
+    assert budget.datagrams_per_s == round(UTILISATION * 1e9 / 8_000, -2) == 62_500
+    assert budget.source == "lowered running: 8.00 us of CPU per datagram in the I/O thread, for 50% of a core"
+    assert budget.lowered == 1
+    budget.observe(100_000_000, 50_000, 1000, 0)  # cheaper now: no rise before CALM_SECONDS on time
+    assert budget.datagrams_per_s == 62_500
+    for _ in range(CALM_SECONDS - 2):
+        budget.observe(100_000_000, 50_000, 1000, 0)
+    assert budget.datagrams_per_s == 62_500
+    budget.observe(100_000_000, 50_000, 1000, 0)  # the CALM_SECONDS-th: up to the start figure, never past it
+    assert (budget.datagrams_per_s, budget.source) == (
+        100_000, "measured at start: 10.0 us of CPU per O->T/T->O pair, for 50% of a core")
+
+
+def test_a_second_with_few_datagrams_says_nothing() -> None:
+    budget = CyclicBudget(100_000, "measured")
+    budget.observe(900_000_000, MIN_DATAGRAMS - 1, 1000, 1000)  # expensive and late, but a few connections only
+    assert (budget.datagrams_per_s, budget.lowered) == (100_000, 0)
+
+
+def test_more_than_one_percent_of_turns_late_holds_the_budget_at_what_is_taken() -> None:
+    budget = CyclicBudget(100_000, "measured")
+    assert budget.reserve(30_000) is not None
+    budget.observe(100_000_000, 30_000, 1000, 10)  # 1 %: on time
+    assert budget.datagrams_per_s == 100_000
+    budget.observe(100_000_000, 30_000, 1000, 11)  # more than 1 % late by more than LAG_LIMIT_NS
+    assert budget.datagrams_per_s == 30_000
+    assert budget.source == ("held at what is taken: 11 of 1000 turns of the I/O thread in a second ran more "
+                             "than 2 ms late")
+    assert budget.reserve(200) is None and budget.refused == 1
+    for _ in range(CALM_SECONDS):  # on time again, the CPU per datagram allowing the start figure
+        budget.observe(100_000_000, 30_000, 1000, 0)
+    assert budget.datagrams_per_s == 100_000 and budget.reserve(200) is not None
+
+
+def test_the_thread_side_counts_a_second_and_reads_its_cpu_once_a_second() -> None:
+    budget = CyclicBudget(100_000, "measured")
+    cpu = iter([1_000_000_000, 1_500_000_000, 9_000_000_000])
+    running = RunningBudget(budget, lambda: next(cpu))
+    running.tick(T0)  # the first second starts: CPU read
+    running.datagrams += MIN_DATAGRAMS
+    for lag in (0, LAG_LIMIT_NS, LAG_LIMIT_NS + 1):
+        running.turn(lag)
+    assert (running.turns, running.late_turns) == (3, 1)
+    running.tick(T0 + 999_999_999)  # not a second yet: the CPU is not read
+    assert budget.lowered == 0
+    running.tick(T0 + 1_000_000_000)  # 0.5 s of CPU, 1 of 3 turns late: held at what is taken (nothing)
+    assert budget.datagrams_per_s == 0 and budget.lowered == 1
+    assert (running.datagrams, running.turns, running.late_turns) == (0, 0, 0)
+
+
+def test_a_window_held_up_past_a_second_is_counted_per_second() -> None:
+    """A loop held up for 3 s (a busy machine): its datagrams are 1/3 as many per second, too few to
+    say anything; the CPU per datagram is the same."""
+    budget = CyclicBudget(100_000, "measured")
+    cpu = iter([0, 900_000_000, 900_000_000, 1_800_000_000])
+    running = RunningBudget(budget, lambda: next(cpu))
+    running.tick(T0)
+    running.datagrams += MIN_DATAGRAMS * 2
+    running.turn(LAG_LIMIT_NS + 1)
+    running.tick(T0 + 3_000_000_000)  # 2/3 of MIN_DATAGRAMS a second: nothing said
+    assert (budget.datagrams_per_s, budget.lowered) == (100_000, 0)
+    running.tick(T0 + 4_000_000_000)  # a quiet second: nothing
+    running.datagrams += 3 * MIN_DATAGRAMS  # then 3 s of 60 000 datagrams on 0.9 s of CPU: 15 us each
+    running.tick(T0 + 7_000_000_000)
+    assert budget.datagrams_per_s == round(UTILISATION * 1e9 / 15_000, -2)
+
+
+def test_a_configured_budget_is_not_checked() -> None:
+    running = RunningBudget(None, lambda: 0)
+    running.tick(T0)
+    running.datagrams += 50_000
+    running.tick(T0 + 2_000_000_000)  # nothing to hand the figures to; no error
+    assert running.datagrams == 0
+
+
+@pytest.mark.integration  # loopback sockets
+def test_the_budget_is_measured_over_the_workers_devices_and_leaves_nothing_open() -> None:
+    """One scratch device per device of the worker (here 3), each with its loopback socket: the
+    cost is a real one, and every socket, the epoll and the wake-up pipe are closed after."""
+    import os
+
+    opened = set(os.listdir("/proc/self/fd"))
+    budget = measure_budget([dsqc1030_profile()] * 3)
+    assert set(os.listdir("/proc/self/fd")) <= opened
+    pair_us = float(budget.source.split(": ")[1].split(" us")[0])
+    assert 0.5 < pair_us < 500

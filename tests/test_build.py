@@ -106,7 +106,7 @@ def test_problems_of_a_count_entry_are_reported_once() -> None:
     with pytest.raises(ConfigError) as error:
         build_profiles(config, shipped_catalogue())
     assert str(error.value).splitlines() == [
-        "cell.yaml: device 'io1' (devices[0]), addons: unknown add-on 'DSQC9'; known: "
+        "cell.yaml: device 'io1' (devices[0]), addons: unknown add-on 'DSQC9' (did you mean DSQC1033?); known: "
         + ", ".join(shipped_catalogue().addons())]
 
 
@@ -119,8 +119,8 @@ def test_validate_reports_model_addon_and_wiring_problems(tmp_path: Path) -> Non
     result = subprocess.run([*CLI, "validate", str(path)], capture_output=True, text=True, timeout=60)
     assert result.returncode == 2 and "Traceback" not in result.stderr
     assert result.stderr.splitlines() == [
-        f"{path}: wire a.DO1-8 -> b.DI1-7: both ends need the same kind and number of signals",
-        f"{path}: wire a.DI1 -> b.DI2: wires go from outputs (DO, AO) to inputs (DI, AI)"]
+        f"{path}:9: wire a.DO1-8 -> b.DI1-7: both ends need the same kind and number of signals",
+        f"{path}:11: wire a.DI1 -> b.DI2: wires go from outputs (DO, AO) to inputs (DI, AI)"]
 
 
 def _identity_capture(path: Path, product_name: str) -> Path:
@@ -178,3 +178,15 @@ def test_a_chain_of_thousands_of_devices_does_not_exhaust_the_stack(closed: bool
         build_profiles(config, shipped_catalogue())
     cycle = [f"d{n}.{end}" for n in range(3000) for end in ("inputs", "outputs")] + ["d0.inputs"]
     assert str(error.value) == "<config>: wiring cycle: " + " -> ".join(cycle)
+
+
+def test_every_worker_gets_the_cyclic_io_settings() -> None:
+    """`serve --workers N`: each worker's I/O thread has the budget and the measurement configured
+    (they were dropped, and every worker measured its own budget whatever the config said)."""
+    config = parse_config({"cyclic_io": {"budget_datagrams_per_s": 150000, "measure": False},
+                           "devices": [{"name": f"d{i}", "address": f"127.0.0.{5 + i}", "model": "DSQC1030"}
+                                       for i in range(3)]})
+    slices = [parse_config(part.model_dump(mode="json", by_alias=True), f"worker {i}")
+              for i, part in enumerate(split(config, 2))]
+    assert [(s.cyclic_io.budget_datagrams_per_s, s.cyclic_io.measure) for s in slices] == [(150000, False)] * 2
+    assert [s.bounds for s in slices] == [config.bounds] * 2

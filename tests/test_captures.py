@@ -147,7 +147,7 @@ def _record_a_session(free_address: AddressPool, tmp_path: Path) -> tuple[Path, 
 
 
 @pytest.mark.system
-def test_recording_replays_as_golden_against_the_farm(free_address: AddressPool, tmp_path: Path) -> None:
+def test_recording_replays_as_golden_against_the_farm(free_address: AddressPool, tmp_path: Path, enip_farm) -> None:
     recording, addresses = _record_a_session(free_address, tmp_path)
     groups = load_exchanges(recording)
     assert [g[0].transport for g in groups] == ["tcp", "tcp", "udp"]
@@ -156,6 +156,11 @@ def test_recording_replays_as_golden_against_the_farm(free_address: AddressPool,
     result = _golden(str(recording), "--config", str(same), "--map", f"{addresses[0]}=a", "--map",
                      f"{addresses[1]}=b")
     assert result.returncode == 0, result.stdout + result.stderr
+    # beside a farm serving those addresses: golden moves to its own, with the same serial numbers
+    enip_farm(str(same), keep_addresses=True)
+    beside = _golden(str(recording), "--config", str(same), "--map", f"{addresses[0]}=a", "--map",
+                     f"{addresses[1]}=b")
+    assert (beside.returncode, beside.stdout) == (0, result.stdout), beside.stdout + beside.stderr
     # the same capture, answered by farm devices on other addresses (the socket address is masked)
     serials = [zlib.crc32(bytes(map(int, a.split(".")))) for a in addresses]  # the originals' default serials
     moved = _config(tmp_path, [{"name": n, "address": free_address(), "model": "DSQC1030",

@@ -40,7 +40,12 @@ def client(dsqc1030: str):
         (bytes((0x0E, 2)) + b"\x91\x02ab", GeneralStatus.PATH_SEGMENT_ERROR),  # symbolic segment
         (bytes((0x0E, 1)) + b"\x24\x01", GeneralStatus.PATH_SEGMENT_ERROR),  # no class segment
         (bytes((0x0E, 2)) + b"\x20\x04\x23\x00", GeneralStatus.PATH_SEGMENT_ERROR),  # reserved format
-        (bytes((0x0E, 1)) + b"\x21\x00", GeneralStatus.PATH_SEGMENT_ERROR),  # truncated 16-bit segment
+        (bytes((0x0E, 1)) + b"\x21\x00", GeneralStatus.PATH_SIZE_INVALID),  # a 16-bit class segment cut short
+        (bytes((0x0E, 0)), GeneralStatus.PATH_SIZE_INVALID),  # no path at all
+        (bytes((0x0E, 2)) + b"\x20\x04\x25\x00", GeneralStatus.PATH_SIZE_INVALID),  # 16-bit instance cut short
+        (bytes((0x0E, 3)) + b"\x20\x04\x26\x00\x01\x00", GeneralStatus.PATH_SIZE_INVALID),  # 32-bit cut short
+        (bytes((0x0E, 2)) + b"\x20\x04\x34\x04", GeneralStatus.PATH_SIZE_INVALID),  # electronic key cut short
+        (bytes((0x0E, 1)) + b"\x20", GeneralStatus.PATH_SIZE_INVALID),  # path size beyond the request
         (bytes((0x0E, 9)) + b"\x20\x04\x24\x64", GeneralStatus.PATH_SIZE_INVALID),  # size beyond the request
     ],
 )

@@ -10,6 +10,7 @@ import asyncio
 import logging
 import math
 import re
+import shutil
 import signal
 import socket
 import subprocess
@@ -23,6 +24,7 @@ from click.testing import CliRunner
 from pycomm3 import CIPDriver, Services
 
 from enip_farm.cli import main
+from enip_farm.config import parse_config
 from enip_farm.device.device import Device
 from enip_farm.device.faults import Fault
 from enip_farm.farm.console import Console
@@ -36,7 +38,7 @@ from enip_farm.protocol.safety.validator import ticks
 from enip_farm.protocol.session import EncapsulationSession, MessageContext
 from enip_farm.pytest_plugin import AddressPool
 from enip_farm.server.limits import RateLimitedLog
-from tests.helpers import CLI, STARTUP_S, RawClient, read_lines, serving, wait_for
+from tests.helpers import CLI, ROOT, STARTUP_S, RawClient, read_lines, serving, wait_for
 from tests.test_implicit import forward_close, forward_open
 from tests.test_safety import T0, _pid, safety_open
 
@@ -304,6 +306,31 @@ def test_a_flood_of_connections_gives_a_bounded_number_of_lines(enip_farm, lines
 # -- serve -------------------------------------------------------------------------------------------
 
 
+def test_the_device_table_names_models_alike_and_summarises_past_a_screenful(tmp_path: Path) -> None:
+    """The MODEL column names what the configuration names (a catalogue model, or a profile file:
+    a learned profile and an EDS alike), and a cell longer than a screen gets a screenful of rows
+    and one line for the rest (issue 30)."""
+    from enip_farm.farm.table import TABLE_HEADER, device_rows, device_table
+
+    eds = ROOT / "tests" / "data" / "eds" / "abb_robotics_anybus_enip_fa.eds"
+    learned = CliRunner().invoke(main, ["learn", str(ROOT / "captures" / "dsqc1030_explicit_session.pcap"), "-o",
+                                        str(tmp_path / "seed.yaml")])
+    assert learned.exit_code == 0, learned.output
+    shutil.copy(eds, tmp_path / eds.name)
+    config = {"discovery": False, "devices": [
+        {"name": "w{n}", "address": "127.0.30.1", "count": 30, "model": "DSQC1030"},
+        {"name": "x", "address": "127.0.30.100", "model": "seed.yaml"},
+        {"name": "y", "address": "127.0.30.101", "model": eds.name},
+        {"name": "z", "address": "127.0.30.102", "model": "DSQC1030", "addons": ["DSQC1032"]}]}
+    farm = Farm(parse_config(config, "cell.yaml", tmp_path))
+    rows = device_rows(farm.devices.values())
+    assert [model for _, _, model in rows[-3:]] == ["seed.yaml", eds.name, "DSQC1030+DSQC1032"]
+    assert device_table(rows, limit=40).splitlines() == [TABLE_HEADER, *(line for _, line, _ in rows)]
+    assert device_table(rows, limit=10).splitlines() == [
+        TABLE_HEADER, *(line for _, line, _ in rows[:9]),
+        f"... and 24 more devices: 33 in all (30 DSQC1030, 1 seed.yaml, 1 {eds.name}, 1 DSQC1030+DSQC1032)"]
+
+
 def test_serve_http_port_out_of_range_is_refused() -> None:
     result = CliRunner().invoke(main, ["serve", "--http", "70000"])
     assert result.exit_code == 2
@@ -387,7 +414,9 @@ def test_bind_problems_are_one_line(enip_farm, free_address: AddressPool, tmp_pa
     port = holder.getsockname()[1]
     cases = [
         (["--config", str(_config(tmp_path, taken))],
-         f"device 'io1': cannot bind TCP {taken}:44818: the port is already in use there"),
+         f"device 'io1': cannot bind TCP {taken}:44818: the port is already in use there (another farm or EtherNet/IP "
+         "stack?). Stop it (`ss -ltunp 'sport = :44818'` names the process), or give the device an address nothing "
+         "serves (on Linux any 127.x.y.z is this host's)."),
         (["--config", str(_config(tmp_path, "192.0.2.1", "remote.yaml"))],  # RFC 5737: on no interface
          "device 'io1': cannot bind TCP 192.0.2.1:44818: the address is not assigned to any interface of this host"),
         (["--config", str(_config(tmp_path, free_address(), "free.yaml")), "--http", str(port)],

@@ -26,10 +26,10 @@ from enip_farm.control.io_changes import IoChange, SignalDiff, coalesce
 from enip_farm.control.stream import EventHub
 from enip_farm.device.build import build_profiles
 from enip_farm.device.catalogue import shipped_catalogue
-from enip_farm.device.events import Event, ImageChange
+from enip_farm.device.events import Event, FaultInjected, ImageChanged
 from enip_farm.device.faults import FaultKind
 from enip_farm.device.signals import SignalMap
-from tests.helpers import CLI, ROOT, read_lines, wait_for
+from tests.helpers import CLI, ROOT, RawClient, read_lines, wait_for
 
 MS = 1_000_000  # ns
 S = 1_000_000_000  # ns
@@ -45,7 +45,7 @@ def _diff(**device: object) -> SignalDiff:
 
 
 def _change(device: str, role: str, old: str, new: str, at: int = 1_000_000_000) -> Event:
-    return Event(at, at + 1000 * S, device, "image changed", ImageChange(role, bytes.fromhex(old), bytes.fromhex(new)))
+    return Event(at, at + 1000 * S, device, ImageChanged(role, bytes.fromhex(old), bytes.fromhex(new)))
 
 
 # -- signals by name (unit) -------------------------------------------------------------------------------
@@ -66,7 +66,7 @@ def test_coalesce_merges_each_devices_image_changes_into_one_io_event() -> None:
     diff = _diff(signals=NAMED)
     events = [
         _change("a", "input", "0000", "0100", 1_000 * MS),
-        Event(1_100 * MS, 1_001_100 * MS, "a", "fault injected", "drop"),
+        Event(1_100 * MS, 1_001_100 * MS, "a", FaultInjected({"kind": "drop"})),
         _change("a", "input", "0100", "0300", 1_200 * MS),
         _change("b", "input", "0000", "0100", 1_300 * MS),
         _change("a", "output", "0000", "0001", 1_400 * MS),
@@ -117,7 +117,8 @@ def test_the_scripts_are_es_modules_each_reached_from_the_entry() -> None:
     visit("dashboard.js", ())
     assert reached == set(graph), set(graph) - reached
     assert sorted(graph) == ["api.js", "dashboard.js", "devices.js", "dom.js", "event-log.js", "events.js",
-                             "faults-panel.js", "frame.js", "io-panel.js", "overview.js", "table.js"]
+                             "faults-panel.js", "frame.js", "histogram.js", "inspect.js", "io-panel.js", "overview.js",
+                             "svg.js", "table.js", "timeline.js"]
     assert all("'use strict'" not in (WEB / name).read_text() for name in graph)  # modules are strict already
 
 
@@ -140,7 +141,8 @@ def test_the_page_is_package_data_and_names_no_other_host() -> None:
     urls = _references((WEB / "index.html").read_text())
     assert sorted(urls) == ["dashboard/dashboard.css", "dashboard/dashboard.js", "data:,", "docs"]
     for path in sorted(WEB.iterdir()):
-        assert not re.search(r"https?://", path.read_text()), path.name
+        # SVG's namespace name (svg.js) is a name, not an address the page loads
+        assert not re.search(r"https?://(?!www\.w3\.org/2000/svg')", path.read_text()), path.name
     assert '"control/web/*"' in (ROOT / "pyproject.toml").read_text()
 
 
@@ -219,6 +221,27 @@ def test_a_1khz_change_rate_is_coalesced_to_one_event_per_tick(enip_farm) -> Non
     assert [state["DI1"], state["DI2"], state["DI16"]] == [*io.get("DI1-2"), 1]
 
 
+def test_state_tells_what_is_open_apart_from_the_totals(enip_farm) -> None:
+    """Issue 30: "TCP 7 · sessions 7" were totals since start, shown beside "0 connections"; the
+    state says what is open now too (`open`), and the totals stay totals."""
+    farm = enip_farm(name="io", model="DSQC1030", http=True)
+    base, address = f"http://127.0.0.1:{farm.http.port}", farm["io"].address
+
+    def state() -> dict:
+        (one,) = httpx.get(f"{base}/state", params={"device": "io"}).json()
+        return {"open": one["open"], "tcp": one["counters"]["tcp_connections"], "sessions": one["counters"]["sessions"]}
+
+    clients = [RawClient(address) for _ in range(3)]
+    try:
+        for client in clients[:2]:
+            client.register()
+        assert wait_for(lambda: state() == {"open": {"tcp": 3, "sessions": 2}, "tcp": 3, "sessions": 2})
+    finally:
+        for client in clients:
+            client.close()
+    assert wait_for(lambda: state() == {"open": {"tcp": 0, "sessions": 0}, "tcp": 3, "sessions": 2}), state()
+
+
 def test_state_shows_signals_connections_counters_and_faults(enip_farm) -> None:
     farm = enip_farm(name="io", model="DSQC1030", signals=NAMED, implicit={"first_watchdog_s": 0}, http=True)
     base, io = f"http://127.0.0.1:{farm.http.port}", farm["io"]
@@ -233,6 +256,7 @@ def test_state_shows_signals_connections_counters_and_faults(enip_farm) -> None:
     assert (state["status"], state["owners"], state["connections"], state["faults"]) == (0x0030, [], [], [])
     assert state["counters"] == {"o_t_packets": 0, "t_o_packets": 0, "connection_timeouts": 0,
                                  "tcp_connections": 0, "sessions": 0}
+    assert state["open"] == {"tcp": 0, "sessions": 0}
     enip = ethernetip.EtherNetIP(io.address)  # a real scanner's class-1 connection
     conn = enip.explicit_conn(io.address)
     assert conn.registerSession() == 0
@@ -272,7 +296,7 @@ def test_the_page_passes_the_guard_without_a_token_and_nothing_else_does(free_ad
         assert page.status_code == 200 and page.headers["content-type"].startswith("text/html")
         assert page.text == (WEB / "index.html").read_text()
         scripts = sorted(path.name for path in WEB.glob("*.js"))
-        assert len(scripts) == 11
+        assert len(scripts) == 15
         for name, kind in (*((name, "text/javascript; charset=utf-8") for name in scripts),
                            ("dashboard.css", "text/css; charset=utf-8")):
             asset = httpx.get(f"{base}/dashboard/{name}")

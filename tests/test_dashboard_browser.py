@@ -82,6 +82,24 @@ def test_clicking_an_input_sets_the_devices_input_image(enip_farm, browser) -> N
     assert page_errors(browser) == []
 
 
+def test_the_card_says_what_is_open_and_labels_the_totals(enip_farm, browser) -> None:
+    """Issue 30: "TCP 7 · sessions 7" beside "0 connections" read as open; they were totals."""
+    from tests.helpers import RawClient
+
+    farm = enip_farm(name="io", model="DSQC1030", http=True)
+    open_page(browser, f"http://127.0.0.1:{farm.http.port}/", "io")
+
+    def lines() -> list[str]:
+        return browser.find_element("css selector", ".card[data-device='io'] .conn").text.splitlines()
+
+    with RawClient(farm["io"].address) as client:
+        client.register()
+        until(lambda: lines()[:1] == ["0 connections · TCP 1 open · 1 session open"], lambda: f"open: {lines()}")
+    until(lambda: lines() == ["0 connections · TCP 0 open · 0 sessions open",
+                              "since start: TCP 1, sessions 1, O→T 0, T→O 0, timeouts 0"], lambda: f"closed: {lines()}")
+    assert page_errors(browser) == []
+
+
 def test_an_output_written_over_cip_shows_within_200_ms(enip_farm, browser) -> None:
     """Each write's reply is stamped here after pycomm3 returns; the LED's change is stamped in the
     page. The path: the image changes under the request, the stream's next tick (every 20 ms)

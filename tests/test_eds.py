@@ -144,7 +144,7 @@ def test_import_a_vendors_eds(newline: str) -> None:
     assert [(p["instance"], p["name"], p.get("default")) for p in parameters] == [
         (1, "RPI", 10000), (2, "Digital inputs", 0), (3, "Digital outputs", 0), (4, "Analog input", 0),
         (5, "T->O size", 8), (6, "Filter time", 3)]
-    assert name == "EX-IO_8DI/8DO/2AI" and document == {"models": {name: EXAMPLE_MODEL}}
+    assert name == "EX-IO_8DI_8DO_2AI" and document == {"models": {name: EXAMPLE_MODEL}}
     assert [(c["entry"], c["kind"], c["configuration"], c["o_t"], c["t_o"], c["o_t_size"], c["t_o_size"],
              c["o_t_format"], c["t_o_multicast"], c["t_o_point_to_point"]) for c in connections] == EXAMPLE_CONNECTIONS
     assert {c["t_o_format"] for c in connections} == {"modeless"} and {tuple(c["rpi_us"]) for c in connections} == {
@@ -161,7 +161,7 @@ def test_import_refuses_what_it_cannot_serve() -> None:
         read_eds(text.replace("ProdCode = 4711;", ""), "x.eds")
     too_big = text.replace("Param1,,Assem150,", "Param1,500,Assem150,")
     _, document, notes = eds_profile(read_eds(too_big, "x.eds"), "x.eds")
-    assert [c["entry"] for c in document["models"]["EX-IO_8DI/8DO/2AI"]["connections"]] == [
+    assert [c["entry"] for c in document["models"]["EX-IO_8DI_8DO_2AI"]["connections"]] == [
         "Connection2", "Connection3", "Connection4"]
     assert notes == ["Connection1 'Exclusive Owner' (exclusive owner, path 20 04 24 97 2C 96 2C 64): o_t_size 500 is "
                      "beyond the farm's 496 bytes; not served"]

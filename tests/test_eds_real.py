@@ -60,6 +60,16 @@ def _read(name: str) -> tuple[EdsDevice, str, dict, list[str]]:
     return device, model_name, document, notes
 
 
+def test_a_model_is_named_after_the_whole_product_name_in_safe_characters() -> None:
+    """Issue 30: `ABB EtherNet/IP Anybus Adapter Device` made the model `ABB_EtherNet/IP_Anybus_Adapter_D`
+    (cut at the identity object's 32 characters, a slash in it)."""
+    device, model_name, document, notes = _read("abb_robotics_anybus_enip_fa.eds")
+    assert device.product_name == "ABB EtherNet/IP Anybus Adapter Device"
+    assert model_name == "ABB_EtherNet_IP_Anybus_Adapter_Device"
+    assert document["models"][model_name]["identity"]["product_name"] == "ABB EtherNet/IP Anybus Adapter D"
+    assert "product name 'ABB EtherNet/IP Anybus Adapter Device' cut to 32 characters" in notes
+
+
 def test_the_real_files_are_ten_from_at_least_five_vendors() -> None:
     assert FILES == sorted(EXPECTED) and len(FILES) == 10
     assert len({vendor for vendor, _, _ in EXPECTED.values()}) == 8

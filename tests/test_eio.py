@@ -13,10 +13,12 @@ from pathlib import Path
 
 import pytest
 import yaml
+from click.testing import CliRunner
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from pycomm3 import CIPDriver, Services
 
+from enip_farm.cli import main
 from enip_farm.config import parse_config
 from enip_farm.device.build import build_profiles
 from enip_farm.device.catalogue import shipped_catalogue
@@ -117,6 +119,41 @@ def test_every_malformed_line_gets_its_own_line() -> None:
         'EIO.cfg:4: the value "b" follows no -Attribute',
         "EIO.cfg:6: expected an entry (-Attribute value ...), a section line (NAME:) or a # line, found 'junk'",
         "EIO.cfg:7: a quoted string is not closed"]
+
+
+def _cut(lines: int, then: str = "") -> str:
+    """tests/data/EIO.cfg's first `lines` lines, each with its line break, then `then`."""
+    return "".join(DATA.read_text().splitlines(keepends=True)[:lines]) + then
+
+
+@pytest.mark.parametrize(("text", "error"), [
+    # cut inside an entry, inside a line: Gripper's -OutputAssembly would be the flag -OutputAssemb
+    (_cut(11, "      -VendorId 75 -ProductCode 1030 -DeviceType 7 -OutputAssemb"),
+     "EIO.cfg:12: the file ends inside this line (no line break after it): it looks cut short (a copy that "
+     "stopped?): take the whole file again; if it is whole, end its last line with a line break"),
+    (_cut(11), "EIO.cfg:11: the file ends with a line that continues (\\) on a line that is not there, where "
+               "RobotWare ends with an entry's line: it looks cut short (a copy that stopped?): take the whole file "
+               "again"),
+    # cut between entries: after the blank line before Conveyor, the # line before a section, a section line
+    (_cut(15), "EIO.cfg:15: the file ends with a blank line, which comes before an entry, where RobotWare ends with "
+               "an entry's line: it looks cut short (a copy that stopped?): take the whole file again"),
+    (_cut(26), "EIO.cfg:26: the file ends with a # line and no entry after it, where RobotWare ends with an entry's "
+               "line: it looks cut short (a copy that stopped?): take the whole file again"),
+    (_cut(27, "\n"), "EIO.cfg:27: the file ends with the section line LOCAL_DEVICE: and no entry after it, where "
+                     "RobotWare ends with an entry's line: it looks cut short (a copy that stopped?): take the whole "
+                     "file again"),
+])
+def test_a_file_cut_short_is_refused_naming_its_last_line(text: str, error: str) -> None:
+    with pytest.raises(CfgError) as raised:
+        parse(text)
+    assert str(raised.value) == error
+
+
+def test_whole_files_are_not_cut_short() -> None:
+    assert len(parse(DATA.read_text()).entries) == 27
+    assert len(parse(DATA.read_text().replace("\n", "\r\n")).entries) == 27
+    assert len(parse(_cut(25)).entries) == 4  # cut right after an entry's line break: nothing can tell
+    assert parse("EIO:CFG_1.0::\n\n").entries == ()  # a header alone is whole (and has nothing to import)
 
 
 _names = st.from_regex(r"[A-Z][A-Za-z0-9_]{0,20}", fullmatch=True)
@@ -327,7 +364,7 @@ def test_a_device_entry_of_another_section_with_an_address_and_vendor_is_read_as
 
 
 @pytest.mark.parametrize(("text", "message"), [
-    ("SYS:CFG_1.0:6:0::\n#\nCAB_TASK_MODULES:\n",
+    ("SYS:CFG_1.0:6:0::\n#\nCAB_TASK_MODULES:\n\n      -File \"HOME:/m.mod\"\n",
      "EIO.cfg:1: a SYS configuration file, not EIO (the I/O configuration)"),
     ('EIO:CFG_1.0::\n#\nEIO_SIGNAL:\n      -Name "a" -SignalType "DI" -Device "x" -DeviceMap "0"\n',
      "EIO.cfg: no EtherNet/IP device (ETHERNETIP_DEVICE entry) the farm can serve: nothing to import"),
@@ -490,9 +527,11 @@ def test_an_imported_cell_answers_as_the_controller_expects(enip_farm) -> None:
 def test_named_signals_of_an_imported_cell_over_cip(enip_farm) -> None:
     with pytest.warns(EioImportWarning) as caught:
         farm = enip_farm(DATA)  # the fixture imports a controller's EIO.cfg as `eio import` does
-    # every warning `eio import` gives, as a Python warning pointing at this test (was: none at all)
-    assert [str(w.message) for w in caught] == import_eio(parse_cfg(DATA.read_text(), str(DATA)),
-                                                          shipped_catalogue()).warnings
+    # every warning `eio import` gives, in one Python warning pointing at this test (was: none at all, then
+    # one each: 13 per test in pytest's summary)
+    lines = import_eio(parse_cfg(DATA.read_text(), str(DATA)), shipped_catalogue()).warnings
+    assert [str(w.message) for w in caught] == [f"{DATA}: imported with 13 warnings:\n" + "\n".join(
+        f"  {line}" for line in lines)]
     assert {w.filename for w in caught} == {__file__}
     gripper, vision = farm["Gripper"], farm["Vision"]
     gripper.set(diGripperClosed=1, giGripperState=5, aiGripperPos=100.0)
@@ -556,7 +595,7 @@ def test_cli_import_validate_export_import(tmp_path: Path) -> None:
      "address)\n"),
     (["eio", "export", "--config", "cell.yaml"],
      {"cell.yaml": "devices:\n  - {name: io1, address: 127.0.30.1, model: DSQC9999}\n"},
-     "cell.yaml: device 'io1' (devices[0]), model: unknown base model 'DSQC9999'; known: DSQC1030, DSQC1042, "
+     "cell.yaml:2: device 'io1' (devices[0]), model: unknown base model 'DSQC9999'; known: DSQC1030, DSQC1042, "
      f"{GENERIC_MODEL}\n"),
 ])
 def test_cli_errors_are_one_line_each_and_exit_2(tmp_path: Path, args: list[str], files: dict[str, str],
@@ -572,3 +611,13 @@ def test_cli_errors_are_one_line_each_and_exit_2(tmp_path: Path, args: list[str]
 def test_cli_refuses_a_bad_base_address(tmp_path: Path) -> None:
     result = _cli("eio", "import", str(DATA), "--base-address", "127.0.300.1", cwd=tmp_path)
     assert result.returncode == 2 and "--base-address" in result.stderr and "Traceback" not in result.stderr
+
+
+def test_cli_refuses_a_cut_file_and_writes_nothing(tmp_path: Path) -> None:
+    (tmp_path / "EIO.cfg").write_text(_cut(11, "      -VendorId 75 -ProductCode 1030 -DeviceType 7 -OutputAssemb"))
+    result = CliRunner().invoke(main, ["eio", "import", str(tmp_path / "EIO.cfg"), "-o", str(tmp_path / "c.yaml")])
+    assert (result.exit_code, result.output) == (2, f"{tmp_path / 'EIO.cfg'}:12: the file ends inside this line (no "
+                                                 "line break after it): it looks cut short (a copy that stopped?): "
+                                                 "take the whole file again; if it is whole, end its last line with a "
+                                                 "line break\n")
+    assert not (tmp_path / "c.yaml").exists()

@@ -76,14 +76,15 @@ def test_unregister_with_wrong_handle_gets_0x0064_and_stays_open(dsqc1030: str) 
         _still_usable(c)
 
 
-def test_length_over_maximum_gets_0x0065_and_closes(dsqc1030: str) -> None:
+def test_length_over_maximum_gets_0x0065_once_read_whole_and_stays_open(dsqc1030: str) -> None:
+    """Vol. 2, 2-3.3: the whole message is read even when it exceeds the target's buffers."""
     with RawClient(dsqc1030) as c:
         c.register()
-        c.send(HEADER.pack(Command.SEND_RR_DATA, 0xFFFF, 1, 0, CONTEXT, 0))
+        c.send(HEADER.pack(Command.SEND_RR_DATA, 0xFFFF, 1, 0, CONTEXT, 0) + bytes(0xFFFF))
         reply = c.recv_frame()
         assert reply.header.status == EncapsulationStatus.INVALID_LENGTH
         assert reply.header.sender_context == CONTEXT
-        assert c.is_closed()
+        _still_usable(c)
 
 
 def test_malformed_cpf_gets_0x0003_and_stays_open(dsqc1030: str) -> None:

@@ -146,10 +146,17 @@ def test_one_http_port_drives_the_devices_of_every_worker(free_address: AddressP
             assert [d["name"] for d in state] == ["io6", "io1"] and all(d["signals"][2]["value"] == 1 for d in state)
             assert [d["name"] for d in client.get("/state").json()] == names
             assert client.get("/state", params={"device": "nope"}).status_code == 404
+            report = client.get("/report").json()  # every worker's, merged; nothing measured yet
+            assert [d["device"] for d in report["devices"]] == names and report["verdict"] == "not judged"
+            asked = client.get("/report", params={"device": ["io6", "io1"]}).json()
+            assert [d["device"] for d in asked["devices"]] == ["io6", "io1"]
+            assert client.get("/report", params={"device": "nope"}).status_code == 404
             metrics = client.get("/metrics").text
             assert metrics.count("# HELP enip_farm_tcp_connections_total") == 1
             assert [f.name for f in text_string_to_metric_families(metrics)].count("enip_farm_tcp_connections") == 1
-            assert metric_samples(metrics, "enip_farm_tcp_connections_total") == {(("device", n),): 0.0 for n in names}
+            assert metric_samples(metrics, "enip_farm_tcp_connections_total") == {
+                (("device", n), ("worker", str(owners[n] + 1))): 0.0 for n in names}  # each sample says its worker
+            assert metric_samples(metrics, "enip_farm_worker_up") == {(("worker", str(i)),): 1.0 for i in (1, 2, 3)}
             with ApiClient(api, "s3cret") as reader, reader.events({"kind": "fault injected"}, STARTUP_S) as events:
                 for name in ("io1", "io6"):
                     injected = client.post(f"/devices/{name}/faults", json={"kind": "delay", "delay_ms": 1})

@@ -15,6 +15,7 @@ import pytest
 
 from enip_farm.config import parse_config
 from enip_farm.control.guard import MAX_BODY, allowed_hosts, host_name
+from enip_farm.device.events import TcpConnected
 from enip_farm.device.faults import MAX_DELAY_MS, Fault, FaultError
 from enip_farm.pytest_plugin import AddressPool
 from tests.helpers import wait_for
@@ -116,14 +117,22 @@ def test_the_fault_kinds_are_listed_with_their_parameters(enip_farm) -> None:
     base = f"http://127.0.0.1:{farm.http.port}"
     kinds = httpx.get(f"{base}/fault-kinds").json()
     assert [kind["kind"] for kind in kinds] == ["delay", "drop", "close", "reset", "offline", "status", "stop-io",
-                                                "identity"]
+                                                "identity", "power-loss", "link-down", "flapping-link",
+                                                "degraded-link", "address-conflict", "wrong-module", "safety-crc",
+                                                "safety-stale", "safety-time-coordination"]
     assert all(set(kind) == {"kind", "summary", "parameters"} for kind in kinds)
     assert all(kind["summary"] and "\n" not in kind["summary"] for kind in kinds)
     schemas = {kind["kind"]: kind["parameters"] for kind in kinds}
     assert {name: sorted(schema["properties"]) for name, schema in schemas.items()} == {
         "delay": ["delay_ms", "duration_s", "max_delay_ms"], "drop": ["duration_s"], "close": ["duration_s"],
         "reset": ["duration_s"], "offline": ["duration_s"], "status": ["duration_s", "service", "status"],
-        "stop-io": ["duration_s"], "identity": ["duration_s"]}
+        "stop-io": ["duration_s"], "identity": ["duration_s"], "power-loss": ["boot_time_s", "duration_s"],
+        "link-down": ["duration_s"], "address-conflict": ["duration_s", "phase", "remote_mac"],
+        "flapping-link": ["count", "duration_s", "duty", "max_s", "min_s", "period_s", "random", "seed"],
+        "wrong-module": ["duration_s", "major_revision", "minor_revision", "product_code"],
+        "safety-crc": ["duration_s"], "safety-stale": ["duration_s"], "safety-time-coordination": ["duration_s"],
+        "degraded-link": ["delay_ms", "direction", "duplicate", "duration_s", "jitter_ms", "loss", "reorder",
+                          "reorder_ms", "seed"]}
     assert schemas["status"]["required"] == ["service", "status"]
     assert schemas["status"]["properties"]["service"]["anyOf"][0] == {"type": "integer", "minimum": 0, "maximum": 255}
     assert schemas["delay"]["properties"]["delay_ms"]["maximum"] == MAX_DELAY_MS
@@ -135,7 +144,7 @@ def test_the_fault_kinds_are_listed_with_their_parameters(enip_farm) -> None:
 
 
 def test_a_parameter_no_kind_takes_is_refused_and_another_kinds_is_ignored() -> None:
-    with pytest.raises(FaultError, match=r"^delay_msec: is not a parameter of any fault kind \(delay_ms, "):
+    with pytest.raises(FaultError, match=r"^delay_msec: is not a parameter of any fault kind \(.*delay_ms, "):
         Fault("delay", delay_msec=800)
     assert Fault("drop", delay_ms=0.0, service=None).parameters() == {"kind": "drop"}  # what the CLI sends
     assert Fault("close", duration_s=2).duration_ns == 2_000_000_000
@@ -277,14 +286,14 @@ def test_a_reader_that_stops_loses_counted_events_and_slows_nobody(enip_farm) ->
     hub, port, device = farm.http.hub, farm.http.port, farm.devices["io"]
     hub.queue_size = 64
     sent = 0
-    with _subscribe(port, "?kind=burst", rcvbuf=4096) as sock:
+    with _subscribe(port, "?kind=tcp%20connected", rcvbuf=4096) as sock:
         (subscriber,) = hub.subscribers
         deadline = time.monotonic() + DEADLINE_S
         # from this thread, as the Python API would: record() never waits for the stream
         while not (subscriber.lost_total and len(subscriber.queue) == hub.queue_size):  # full: the stream waits
             assert time.monotonic() < deadline and sent < 100_000, "the stream never stalled"
             for _ in range(100):
-                device.record("burst", f"{sent:06} " + "x" * 2000)
+                device.record(TcpConnected(f"{sent:06} " + "x" * 2000))
                 sent += 1
             time.sleep(0.001)  # lets the loop hand the batch out
         assert httpx.get(f"http://127.0.0.1:{port}/devices/io", timeout=DEADLINE_S).status_code == 200
@@ -313,7 +322,7 @@ def test_a_stalled_stream_is_closed(enip_farm) -> None:
         while hub.subscribers:
             assert time.monotonic() < deadline, "the stalled stream is still open"
             for _ in range(50):
-                device.record("burst", "x" * 2000)
+                device.record(TcpConnected("x" * 2000))
             time.sleep(0.01)
 
 

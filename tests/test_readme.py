@@ -1,16 +1,18 @@
-"""The README's examples run as written (README.md, *README examples are tests*): each fenced block
-is preceded by a marker saying what becomes of it.
+"""The examples of the README and of the documentation pages run as written (README.md and docs/*.md;
+docs/development.md, *README examples are tests*): each fenced block is preceded by a marker saying
+what becomes of it.
 
 - `<!-- example: run -->`: run against the default cell, served as the quick start serves it
-  (`enip-farm serve --http 8044`) in a network namespace of its own, in README order; python blocks
-  with this tree's package, sh blocks with bash -e and this tree's `enip-farm`. Exit 0, and every
-  `print(...)  # VALUE` line prints VALUE.
+  (`enip-farm serve --http 8044`) in a network namespace of its own, the README's first, then each
+  page's in file order; python blocks with this tree's package, sh blocks with bash -e and this
+  tree's `enip-farm`. Exit 0, and every `print(...)  # VALUE` line prints VALUE.
 - `<!-- example-test -->`: a pytest file, run with pytest.
 - `<!-- example: config -->`: a yaml configuration, validated.
 - `<!-- example: skip (why) -->`: not run.
 
 Every python and sh block carries one. The quick start itself runs in a fresh venv of the machine's
-python3 (`test_quick_start_in_a_fresh_venv`)."""
+python3 (`test_quick_start_in_a_fresh_venv`). The pages build into a site with `mkdocs build
+--strict` (`test_the_documentation_site_builds_strictly`), and every page is in its nav."""
 
 from __future__ import annotations
 
@@ -32,6 +34,7 @@ from enip_farm.device.catalogue import shipped_catalogue
 from tests.helpers import CLI, ROOT, STARTUP_S, own_network_namespace, read_lines
 
 README = ROOT / "README.md"
+PAGES = sorted((ROOT / "docs").glob("*.md"))  # the documentation site's pages (mkdocs.yml)
 _MARKER = re.compile(r"<!-- (example-test|example: (\w+)(?: \((.*)\))?) -->")
 _CHECKED = ("python", "sh")  # blocks of these languages must say what becomes of them
 EXAMPLE_TIMEOUT_S = 120.0
@@ -39,6 +42,7 @@ EXAMPLE_TIMEOUT_S = 120.0
 
 @dataclass(frozen=True)
 class Block:
+    source: str  # README.md or docs/PAGE.md
     line: int  # 1-based line of the opening fence
     language: str
     text: str
@@ -46,10 +50,10 @@ class Block:
     reason: str = ""
 
     def __str__(self) -> str:
-        return f"README.md:{self.line} ({self.language})"
+        return f"{self.source}:{self.line} ({self.language})"
 
 
-def readme_blocks(text: str) -> list[Block]:
+def readme_blocks(text: str, source: str = "README.md") -> list[Block]:
     """The fenced blocks at the start of a line, each with the marker on the last non-blank line before it."""
     lines = text.splitlines()
     blocks = []
@@ -66,12 +70,13 @@ def readme_blocks(text: str) -> list[Block]:
         if match:
             marker = "pytest" if match[1] == "example-test" else match[2]
             reason = match[3] or ""
-        blocks.append(Block(i + 1, language, "\n".join(lines[i + 1:end]) + "\n", marker, reason or ""))
+        blocks.append(Block(source, i + 1, language, "\n".join(lines[i + 1:end]) + "\n", marker, reason or ""))
         i = end + 1
     return blocks
 
 
-BLOCKS = readme_blocks(README.read_text())
+BLOCKS = [block for path in (README, *PAGES)
+          for block in readme_blocks(path.read_text(), str(path.relative_to(ROOT)))]
 
 
 def _of(marker: str) -> list[Block]:
@@ -90,7 +95,7 @@ def test_every_example_says_what_becomes_of_it() -> None:
 
 
 def test_the_quick_start_keeps_its_two_commands_and_ci_runs_the_test_command() -> None:
-    (quick,) = [b for b in BLOCKS if b.language == "sh" and "enip-farm serve" in b.text][:1]
+    (quick,) = [b for b in BLOCKS if b.source == "README.md" and b.language == "sh" and "enip-farm serve" in b.text][:1]
     commands = [line.split("  #")[0].strip() for line in quick.text.splitlines()]
     assert len(commands) == 2
     venv = "python3 -m venv .venv && . .venv/bin/activate && "
@@ -99,6 +104,43 @@ def test_the_quick_start_keeps_its_two_commands_and_ci_runs_the_test_command() -
     ci = (ROOT / ".ci" / "run").read_text()
     assert commands[1] in ci.splitlines()  # CI runs the README's test command as written
     assert "python3-venv" in ci  # Debian's venv module, for both commands
+
+
+def test_the_documentation_site_builds_strictly(tmp_path: Path) -> None:
+    """`mkdocs build --strict` of docs/ (mkdocs.yml): a broken link or anchor between pages, a page
+    outside the nav or any other warning fails it; every page is in the nav."""
+    import yaml
+    from mkdocs.commands.build import build
+    from mkdocs.config import load_config
+
+    config = load_config(str(ROOT / "mkdocs.yml"), strict=True, site_dir=str(tmp_path / "site"))
+    build(config)
+
+    def pages_of(nav: object) -> list[str]:
+        if isinstance(nav, str):
+            return [nav]
+        items = nav.values() if isinstance(nav, dict) else nav
+        return [page for item in items for page in pages_of(item)]  # type: ignore[union-attr]
+
+    in_nav = pages_of(yaml.safe_load((ROOT / "mkdocs.yml").read_text())["nav"])
+    assert sorted(in_nav) == sorted(path.name for path in PAGES), "every page of docs/ in mkdocs.yml's nav, once"
+    assert sorted(path.name for path in (tmp_path / "site").glob("*.html")) == sorted(
+        ["404.html", *(name[:-3] + ".html" for name in in_nav)])
+
+
+def test_the_readme_links_to_pages_and_sections_that_exist() -> None:
+    """The README is outside the site: its links into docs/ are checked here, anchors included."""
+    from markdown.extensions.toc import slugify
+
+    links = re.findall(r"\]\((docs/[^)#]+)(?:#([^)]+))?\)", README.read_text())
+    assert len(links) >= 20
+    for target, anchor in links:
+        path = ROOT / target
+        assert path.is_file(), f"README links to {target}, which is not there"
+        if anchor and path.suffix == ".md":
+            headings = [slugify(line.lstrip("#").strip().replace("`", ""), "-")
+                        for line in path.read_text().splitlines() if line.startswith("#")]
+            assert anchor in headings, f"README links to {target}#{anchor}: its headings are {headings}"
 
 
 @pytest.mark.parametrize("block", _of("config"), ids=str)
@@ -224,7 +266,7 @@ def test_quick_start_in_a_fresh_venv(tmp_path: Path) -> None:
     pycomm3 example with the venv's own Python and `enip-farm io get io1`, nothing from this tree's
     path."""
     prefix = own_network_namespace()
-    (quick,) = [b for b in BLOCKS if b.language == "sh" and "enip-farm serve" in b.text][:1]
+    (quick,) = [b for b in BLOCKS if b.source == "README.md" and b.language == "sh" and "enip-farm serve" in b.text][:1]
     first = quick.text.splitlines()[0].split("  #")[0].strip()
     setup, _, serve = first.rpartition(" && ")  # the venv, its activation and the install; then serve
     assert setup.startswith("python3 -m venv") and setup.endswith('pip install ".[clients]"') and serve.startswith(
@@ -246,7 +288,8 @@ def test_quick_start_in_a_fresh_venv(tmp_path: Path) -> None:
                                   tmp_path / "serve.log")
     try:
         cell = Cell(process, env)
-        example = next(b for b in _of("run") if b.language == "python" and "pycomm3" in b.text)
+        example = next(b for b in _of("run")
+                       if b.source == "README.md" and b.language == "python" and "pycomm3" in b.text)
         script = tmp_path / "example.py"
         script.write_text(example.text)
         result = cell.inside([str(tree / ".venv" / "bin" / "python"), str(script)], cwd=tmp_path)

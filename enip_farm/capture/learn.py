@@ -39,6 +39,7 @@ from pathlib import Path
 from types import MappingProxyType
 from typing import Any
 
+from enip_farm import words
 from enip_farm.capture.exchanges import Exchange, exchanges_of
 from enip_farm.capture.packets import Packet, read_capture
 from enip_farm.config import DeviceConfig
@@ -353,9 +354,8 @@ def _profile(capture: str, address: str, evidence: _Evidence, name: str | None, 
     identity = {**_PLACEHOLDER, "revision": list(_PLACEHOLDER["revision"]), **evidence.identity}
     assemblies, sizes, unverified_assemblies = _assemblies(evidence)
     unverified += unverified_assemblies + ["io layout"]
-    model_name = name or str(identity["product_name"]).replace(" ", "_") or "learned"
-    if several:
-        model_name += "_" + address.replace(".", "_")
+    model_name = (name or words.model_name(str(identity["product_name"])) or "learned") + (
+        "_" + address.replace(".", "_") if several else "")
     while model_name in taken:
         model_name += "_learned"
     model: dict[str, Any] = {

@@ -4,6 +4,14 @@ Forward Open whose connection would take the thread past it is refused with the 
 Manager's out-of-resources status, 0x01/0x0113 (Vol. 1, 3-5.5.2 and table 3-5.33), so the
 connections already open keep their timing instead of every one of them going late.
 
+A budget measured at start (`auto`) is then checked against what the I/O thread really does, once a
+second (`observe`, sans-IO: the figures are passed in): lowered to what the thread's real CPU per
+datagram allows (its system calls included), and held at what is taken in a second in which the
+thread's turns ran more than `LAG_LIMIT_NS` late; it rises again (never past the figure measured
+at start) only after `CALM_SECONDS` seconds on time since it was last lowered. Only a second of
+`MIN_DATAGRAMS` or more counts: the check is for a thread near its budget, not for a few
+connections on a busy machine. A configured budget is the operator's and is never moved.
+
 Shared by every device's connection table of that thread, which reserve and release under their
 device locks; the budget has its own lock."""
 
@@ -11,6 +19,16 @@ from __future__ import annotations
 
 import threading
 from typing import NamedTuple
+
+from enip_farm.config import BUDGET_UTILISATION
+
+#: The promise to the connections admitted: their T->O no later than this (period error p99 2 ms).
+LAG_LIMIT_NS = 2_000_000
+#: Fewer datagrams than this in a second (100 connections at 10 ms) say too little of the cost per
+#: datagram (the turns' own cost is most of it) and are far from any budget.
+MIN_DATAGRAMS = 20_000
+#: Seconds on time before a lowered budget may rise again.
+CALM_SECONDS = 10
 
 
 class Reservation(NamedTuple):
@@ -21,13 +39,17 @@ class Reservation(NamedTuple):
 
 class CyclicBudget:
     """`datagrams_per_s` for all the connections of one I/O thread; `source` says where the figure
-    came from (configured, or measured at start with the cost per packet)."""
+    came from (configured, or measured at start with the cost per packet, or lowered running)."""
 
     def __init__(self, datagrams_per_s: float, source: str = "configured") -> None:
         self.datagrams_per_s = float(datagrams_per_s)
         self.source = source
         self.reserved = 0.0
         self.refused = 0  # Forward Opens refused for want of budget
+        self.lowered = 0  # times the running check took the figure down
+        self._measured = self.datagrams_per_s  # the figure measured at start: the ceiling of any rise
+        self._measured_source = source
+        self._calm = 0  # seconds on time in a row
         self._lock = threading.Lock()
 
     @staticmethod
@@ -52,6 +74,39 @@ class CyclicBudget:
         """The figure once it is known (measured when the farm starts, or configured)."""
         with self._lock:
             self.datagrams_per_s, self.source = float(datagrams_per_s), source
+            self._measured, self._measured_source, self._calm = self.datagrams_per_s, source, 0
+
+    def observe(self, cpu_ns: int, datagrams: int, turns: int, late_turns: int) -> None:
+        """One second of the I/O thread: the CPU it spent (its system calls included), the datagrams
+        it took and sent, its turns with something due and how many of them ran more than
+        LAG_LIMIT_NS late. Only a second of at least MIN_DATAGRAMS says anything (a few
+        connections' cost is the turns', not the packets'). More than 1 % of the turns late: the
+        budget is held at what is taken (nothing more admitted); else it is what BUDGET_UTILISATION
+        of a core carries at the CPU per datagram seen, when that is lower than the figure; after
+        CALM_SECONDS such seconds on time it may rise again, up to the figure measured at start."""
+        if datagrams < MIN_DATAGRAMS or cpu_ns <= 0:
+            return
+        with self._lock:
+            if late_turns * 100 > turns:
+                self._calm = 0
+                if self.reserved < self.datagrams_per_s:
+                    self._lower(self.reserved, f"held at what is taken: {late_turns} of {turns} turns of the I/O "
+                                f"thread in a second ran more than {LAG_LIMIT_NS / 1e6:g} ms late")
+                return
+            self._calm += 1
+            carried = round(BUDGET_UTILISATION * 1e9 * datagrams / cpu_ns, -2)
+            cost = f"{cpu_ns / datagrams / 1000:.2f} us of CPU per datagram in the I/O thread"
+            if carried < self.datagrams_per_s:
+                self._lower(carried, f"lowered running: {cost}, for {BUDGET_UTILISATION:.0%} of a core")
+            elif self._calm >= CALM_SECONDS and self.datagrams_per_s < self._measured:
+                self.datagrams_per_s = min(self._measured, carried)
+                self.source = (self._measured_source if self.datagrams_per_s == self._measured else
+                               f"raised running: {cost}, {CALM_SECONDS} s on time")
+
+    def _lower(self, datagrams_per_s: float, source: str) -> None:
+        self.datagrams_per_s, self.source = float(datagrams_per_s), source
+        self.lowered += 1
+        self._calm = 0  # a rise counts its seconds on time from the last lowering
 
     def describe(self) -> str:
         """e.g. `96 000 datagrams/s per worker (480 connections at RPI 10 ms; measured at start: ...)`."""

@@ -12,6 +12,7 @@ from dataclasses import dataclass, field
 from enum import Enum
 
 from enip_farm.cip.budget import Reservation
+from enip_farm.cip.o_t_measure import OriginatorMeasure
 from enip_farm.protocol.connection import ConnectionTriad
 from enip_farm.protocol.safety.multicast import MulticastConsumer, MulticastProducer
 from enip_farm.protocol.safety.segment import Unid
@@ -57,6 +58,7 @@ class Connection:
     last_sequence: int | None = None  # 32-bit sequence of the last O->T packet consumed
     o_t_port: int | None = None  # the UDP port O->T comes from: the first valid packet's, then only it
     run: bool = False
+    short_data_reported: bool = False  # a variable-size O->T shorter than its assembly was reported once
     closed: bool = False
     last_reply: tuple[int, bytes, tuple] | None = None  # class 3: (sequence count, reply, items) for duplicates
     safety: SafetyConsumer | SafetyProducer | MulticastConsumer | None = None  # CIP Safety: its Safety Validator
@@ -64,26 +66,23 @@ class Connection:
     ounid: Unid | None = None  # CIP Safety: the originator's UNID
     t_o_sequence: int = 0  # CIP Safety server: the sequence of its time coordination messages
     reservation: Reservation | None = None  # what it holds of the I/O thread's budget (cip/budget.py)
+    measure: OriginatorMeasure | None = None  # the originator's O->T stream measured (cip/o_t_measure.py)
     #: Connection timeout: O->T RPI x 2^(2 + multiplier) (Vol. 1, 3-4.4.9), ns; both are fixed at the Forward Open.
     timeout_ns: int = field(init=False)
+    #: When the connection times out unless a valid packet arrives before: the first watchdog (from the
+    #: Forward Open) until the first packet, then the last valid packet + the timeout; a CIP Safety
+    #: connection's is its Safety Validator's. Moved on with each valid packet (cip/io_packets.py).
+    deadline: int = field(init=False)
 
     def __post_init__(self) -> None:
         self.timeout_ns = self.o_t_rpi * 1000 << (2 + min(self.timeout_multiplier, 7))
+        self.deadline = (self.safety.deadline if self.safety is not None
+                         else self.opened_at + max(self.timeout_ns, self.first_watchdog_ns))
 
     @property
     def timeout(self) -> float:
         """The connection timeout in seconds."""
         return self.timeout_ns / 1e9
-
-    @property
-    def deadline(self) -> int:
-        """When the connection times out unless a valid packet arrives before: the first watchdog
-        (from the Forward Open) until the first packet, then the last valid packet + the timeout."""
-        if self.safety is not None:
-            return self.safety.deadline
-        if self.last_received is None:
-            return self.opened_at + max(self.timeout_ns, self.first_watchdog_ns)
-        return self.last_received + self.timeout_ns
 
     @property
     def is_io(self) -> bool:
@@ -107,7 +106,7 @@ class Production:
     point: int | None = None  # the produced assembly (an EDS's connections); None: the input assembly
     header: bytes = b""  # the 32-bit run/idle header before the data (an EDS's T->O format 4)
     heartbeat: bool = False  # no data, the sequence count only (an EDS's heartbeat format)
+    due: int = field(init=False)  # when the next packet is due: start + count x period
 
-    @property
-    def due(self) -> int:
-        return self.start + self.count * self.period_ns
+    def __post_init__(self) -> None:
+        self.due = self.start + self.count * self.period_ns

@@ -5,7 +5,8 @@ Vol. 2, 3-2 and 3-3), in the style of aioquic's `QuicConnection`:
   cip/budget.py: past it 0x01/0x0113), Forward Close, and the close cascade of listen-only
   connections;
 - consumption of O->T packets (`receive_datagram`) and production of T->O packets on absolute
-  deadlines (`datagrams_to_send`, `produce`): cip/class1_io.py, a part of the table in its own module;
+  deadlines (`datagrams_to_send`, `produce`): what is due when is the table's `IoSchedule`
+  (cip/io_schedule.py), the bookkeeping of each packet its `IoPackets` (cip/io_packets.py);
 - supervision (`get_timer`, `handle_timer`): the first watchdog, then exactly the last valid
   packet + RPI x 2^(2 + multiplier);
 - CIP Safety connections (Vol. 5): a server consumes the safe outputs through its Safety Validator
@@ -24,15 +25,14 @@ called back.
 from __future__ import annotations
 
 import random
-from collections import Counter
+from collections import Counter, deque
 from collections.abc import Callable, Mapping
 from typing import NamedTuple
 
 from enip_farm.cip.admission import Admission, Originator
 from enip_farm.cip.assembly import AssemblyInstance
 from enip_farm.cip.budget import CyclicBudget
-from enip_farm.cip.class1_io import ClassOneIo, Datagram
-from enip_farm.cip.connection import Connection, ConnectionKind, Production
+from enip_farm.cip.connection import Connection, ConnectionKind
 from enip_farm.cip.connection_events import (
     ConnectionClosed,
     ConnectionEnded,
@@ -45,6 +45,11 @@ from enip_farm.cip.connection_events import (
 )
 from enip_farm.cip.connection_path import KeyIdentity
 from enip_farm.cip.connection_policy import ConnectionPolicy, Refusal, SafetyOpen
+from enip_farm.cip.io_packets import DROP_REASONS, Datagram, IoPackets
+from enip_farm.cip.io_schedule import IoSchedule
+from enip_farm.cip.o_t_measure import OriginatorMeasure, end_word, forward_open_asked
+from enip_farm.cip.reconnection import Reconnections
+from enip_farm.cip.report import ReconnectAfter
 from enip_farm.protocol.commands import SocketAddress, encode_sockaddr
 from enip_farm.protocol.connection import ConnectionTriad, ForwardOpenRequest
 from enip_farm.protocol.cpf import ItemType
@@ -60,10 +65,6 @@ _NO_IO = 0x0030  # no I/O connection established
 _IO_RUN = 0x0060  # at least one I/O connection in run mode
 _IO_IDLE = 0x0070  # I/O connections established, all idle
 
-
-#: Why an O->T datagram was not taken; each reason is counted as `o_t_dropped_<reason>`.
-DROP_REASONS = ("malformed", "unknown_connection", "wrong_originator", "wrong_port", "stale", "wrong_size",
-                "io_stopped")
 #: The counters the table keeps (in the device's Counter).
 TABLE_COUNTERS = ("connection_timeouts", "o_t_packets", "t_o_packets", "o_t_short_data",
                   *(f"o_t_dropped_{reason}" for reason in DROP_REASONS),
@@ -81,10 +82,18 @@ class Opened(NamedTuple):
 
 
 _RUN_HEADER = b"\x01\x00\x00\x00"  # a T->O 32-bit run/idle header: run
+#: Ended connections whose measurement the table keeps (the report shows them after the open ones).
+ENDED_KEPT = 16
 
 
-class ConnectionTable(ClassOneIo):
-    """The CIP connections of one device. Every method takes the time, none reads a clock."""
+class ConnectionTable:
+    """The CIP connections of one device. Every method takes the time, none reads a clock.
+
+    Composed of two parts, each with one job: `schedule` (cip/io_schedule.py) says what is due next
+    and `packets` (cip/io_packets.py) keeps the books of each class-1 packet. Their hot calls are
+    the table's own: `receive_datagram(data, host, now, port)` (an O->T datagram: True if a
+    connection took it), `produce(now, horizon)` (the datagrams due, then the next time),
+    `get_timer()` and `supervision_due(now)`."""
 
     def __init__(self, assemblies: Mapping[str, AssemblyInstance], policy: ConnectionPolicy,
                  identity: Callable[[], KeyIdentity], counters: Counter[str] | None = None,
@@ -92,19 +101,26 @@ class ConnectionTable(ClassOneIo):
         self.assemblies = assemblies
         self.budget = budget
         self.policy = policy
-        # every assembly by instance: an EDS's connections consume and produce their own points
-        self._points = {a.instance_id: a for a in assemblies.values()}
         self.admission = Admission(assemblies, policy, identity, rng)
         self.counters: Counter[str] = counters if counters is not None else Counter()
         self.connections: dict[int, Connection] = {}  # by O->T connection id
-        # by (T->O connection id, destination): multicast connections to one group share a stream;
-        # point-to-point ones never do, even when two originators chose the same T->O id
-        self.productions: dict[tuple[int, tuple[str, int]], Production] = {}
         self._by_triad: dict[ConnectionTriad, Connection] = {}
         self._events: list[ConnectionEvent] = []
-        self._short_data_reported: set[int] = set()
         self._outbox: list[Datagram] = []  # to send at once (CIP Safety time coordination): datagrams_to_send
-        self._safety_connections = 0
+        self.packets = IoPackets(assemblies, policy, self.counters, self.connections, self._events, self._outbox,
+                                 self.close)  # the bookkeeping of each class-1 packet
+        self.schedule = IoSchedule(self.connections, self.packets.produce)  # what is due next
+        self.productions = self.schedule.productions  # the T->O streams, by (T->O connection id, destination)
+        # the hot calls go straight to the part that answers them
+        self.receive_datagram = self.packets.receive  # an O->T datagram: True if a connection took it
+        # (datagrams to send by `now`, by `horizon` if given; then `get_timer()`): the cyclic I/O thread's call
+        self.produce = self.schedule.produce
+        self.get_timer = self.schedule.get_timer  # the earliest time something is due
+        self.supervision_due = self.schedule.supervision_due  # whether `handle_timer(now)` would close one
+        #: Measure every I/O connection's O->T stream (cip/o_t_measure.py); the last ENDED_KEPT ended ones stay.
+        self.measuring = True
+        self.ended: deque[Connection] = deque(maxlen=ENDED_KEPT)
+        self.reconnections = Reconnections()
 
     # -- what the table says -------------------------------------------------------------------
 
@@ -113,11 +129,12 @@ class ConnectionTable(ClassOneIo):
         return bool(self._events)
 
     def pop_events(self) -> list[ConnectionEvent]:
-        events, self._events = self._events, []
+        events = self._events[:]  # the list itself is shared with the table's parts
+        self._events.clear()
         return events
 
     def _id_taken(self, connection_id: int) -> bool:
-        return connection_id in self.connections or any(key[0] == connection_id for key in self.productions)
+        return connection_id in self.connections or self.schedule.stream_id_taken(connection_id)
 
     def find(self, triad: ConnectionTriad) -> Connection | None:
         return self._by_triad.get(triad)
@@ -131,29 +148,20 @@ class ConnectionTable(ClassOneIo):
         owned = _OWNED if any(c.kind is ConnectionKind.EXCLUSIVE_OWNER for c in io) else 0
         return owned | (_IO_RUN if any(c.run for c in io) else _IO_IDLE)
 
-    def get_timer(self) -> int | None:
-        """The earliest time something is due: a T->O packet or a supervision deadline."""
-        earliest = None
-        for production in self.productions.values():
-            due = production.due
-            if earliest is None or due < earliest:
-                earliest = due
-        for connection in self.connections.values():
-            deadline = connection.deadline
-            if earliest is None or deadline < earliest:
-                earliest = deadline
-            safety = connection.safety
-            if type(safety) is SafetyConsumer and safety.tcoo_due is not None and (
-                    earliest is None or safety.tcoo_due < earliest):
-                earliest = safety.tcoo_due
-        return earliest
+    # -- class-1 I/O: the one way in, the one way out ----------------------------------------------
 
-    def supervision_due(self, now: int) -> bool:
-        """Whether `handle_timer(now)` would close a connection."""
-        for connection in self.connections.values():
-            if connection.deadline <= now:
-                return True
-        return False
+    @property
+    def answers_queued(self) -> bool:
+        """Datagrams wait to go at once (CIP Safety time coordination answering a ping): the
+        caller of `receive_datagram` (`IoPackets.receive`) calls `datagrams_to_send(now)` when this is true."""
+        return bool(self._outbox)
+
+    def datagrams_to_send(self, now: int) -> list[Datagram]:
+        """Everything to send by `now`, the one way out: the answers queued (CIP Safety time
+        coordination) and the T->O packets due, one per stream; a stream that fell a whole period
+        behind skips the missed periods rather than bursting."""
+        return self.produce(now)[0]
+
 
     # -- Forward Open, Forward Close -------------------------------------------------------------
 
@@ -164,33 +172,37 @@ class ConnectionTable(ClassOneIo):
             return connection
         if type(connection) is SafetyOpen:
             refusal = self._reserve(connection.connection, request, originator, now)
+            if refusal is None and self.measuring:
+                connection.connection.measure = OriginatorMeasure(
+                    connection.connection.o_t_rpi * 1000, now,
+                    forward_open_asked(request, connection.connection.timeout_ns))
             return refusal if refusal is not None else self._safety_opened(connection, now)
         if connection.is_io:
             refusal = self._reserve(connection, request, originator, now)
             if refusal is not None:
                 return refusal
+            if self.measuring:
+                connection.measure = OriginatorMeasure(connection.o_t_rpi * 1000, now,
+                                                       forward_open_asked(request, connection.timeout_ns))
+        self._opened(connection, now)
+        if not connection.is_io:
+            return Opened(connection, ())
+        if connection.kind is ConnectionKind.EXCLUSIVE_OWNER:
+            self.packets.consumed_assembly(connection).owned = True
+        if connection.configuration_data:  # the Forward Open's configuration data (an EDS's connections)
+            configuration = self.assemblies.get("configuration")
+            if configuration is not None and len(configuration.data) == len(connection.configuration_data):
+                configuration.data[:] = connection.configuration_data
+        self.schedule.add(connection, now, point=connection.t_o_point if self.policy.declared else None,
+                          header=_RUN_HEADER if connection.t_o_run_idle_header else b"",
+                          heartbeat=connection.t_o_heartbeat)
+        self.reconnections.opened(originator.host, now, connection.measure)
+        return Opened(connection, _multicast_items(connection))
+
+    def _opened(self, connection: Connection, now: int) -> None:
         self.connections[connection.o_t_id] = connection
         self._by_triad[connection.triad] = connection
-        items: ReplyItems = ()
-        if connection.is_io:
-            if connection.kind is ConnectionKind.EXCLUSIVE_OWNER:
-                self._consumed(connection).owned = True
-            if connection.configuration_data:  # the Forward Open's configuration data (an EDS's connections)
-                configuration = self.assemblies.get("configuration")
-                if configuration is not None and len(configuration.data) == len(connection.configuration_data):
-                    configuration.data[:] = connection.configuration_data
-            key = (connection.t_o_id, connection.t_o_address)
-            production = self.productions.get(key)  # type: ignore[arg-type]
-            if production is not None:
-                production.users += 1
-            else:
-                self.productions[key] = Production(  # type: ignore[index]
-                    connection.t_o_id, connection.t_o_address, connection.t_o_rpi * 1000, now,  # type: ignore[arg-type]
-                    point=connection.t_o_point if self.policy.declared else None,
-                    header=_RUN_HEADER if connection.t_o_run_idle_header else b"", heartbeat=connection.t_o_heartbeat)
-            items = _multicast_items(connection)
         self._events.append(ConnectionOpened(now, connection))
-        return Opened(connection, items)
 
     def _reserve(self, connection: Connection, request: ForwardOpenRequest, originator: Originator,
                  now: int) -> Refusal | None:
@@ -199,7 +211,7 @@ class ConnectionTable(ClassOneIo):
         budget = self.budget
         if budget is None:
             return None
-        shares = (connection.t_o_id, connection.t_o_address) in self.productions
+        shares = self.schedule.shares(connection)
         rate = budget.rate(connection.o_t_rpi, None if shares else connection.t_o_rpi)
         connection.reservation = budget.reserve(rate)
         if connection.reservation is not None:
@@ -212,23 +224,11 @@ class ConnectionTable(ClassOneIo):
 
     def _safety_opened(self, opened: SafetyOpen, now: int) -> Opened:
         connection = opened.connection
-        self.connections[connection.o_t_id] = connection
-        self._by_triad[connection.triad] = connection
+        self.counters["safety_connections"] += 1
+        self._opened(connection, now)
         if connection.kind is ConnectionKind.SAFETY_OUTPUT:
             self.assemblies["output"].owned = True
-        else:
-            key = (connection.t_o_id, connection.t_o_address)
-            production = self.productions.get(key)  # type: ignore[arg-type]
-            if production is not None:  # another consumer of a multicast producer (protocol/safety/multicast.py)
-                production.users += 1
-            else:
-                safety = connection.safety
-                self.productions[key] = Production(  # type: ignore[index]
-                    connection.t_o_id, connection.t_o_address, connection.t_o_rpi * 1000, now,  # type: ignore[arg-type]
-                    safety=safety.producer if type(safety) is MulticastConsumer else safety)  # type: ignore[arg-type]
-        self.counters["safety_connections"] += 1
-        self._safety_connections += 1
-        self._events.append(ConnectionOpened(now, connection))
+        self.schedule.add(connection, now)
         return Opened(connection, _multicast_items(connection), opened.application_reply)
 
     def forward_close(self, triad: ConnectionTriad, now: int, host: str = "") -> Connection | None:
@@ -244,6 +244,10 @@ class ConnectionTable(ClassOneIo):
                 f"originator serial 0x{triad.originator_serial:08X})")))
         return connection
 
+    def device_back(self, after: ReconnectAfter, now: int) -> None:
+        """The device answers again (a fault cleared, a reset done): its originators are expected back."""
+        self.reconnections.device_back(after, now, {c.originator_host for c in self.connections.values() if c.is_io})
+
     def session_closed(self, session: object, now: int) -> None:
         """The TCP connection of a session ended: its class-3 connections end with it."""
         for connection in [c for c in self.connections.values() if c.owner is session]:
@@ -258,26 +262,24 @@ class ConnectionTable(ClassOneIo):
         if connection.reservation is not None and self.budget is not None:
             self.budget.release(connection.reservation)
             connection.reservation = None
-        if connection.safety is not None:
-            self._safety_connections -= 1
-            if type(connection.safety) is MulticastConsumer:  # only this consumer leaves the producer
-                connection.safety.leave()
+        if type(connection.safety) is MulticastConsumer:  # only this consumer leaves the producer
+            connection.safety.leave()
         self.connections.pop(connection.o_t_id, None)
         self._by_triad.pop(connection.triad, None)
-        self._short_data_reported.discard(connection.o_t_id)
         if connection.is_io:
-            key = (connection.t_o_id, connection.t_o_address)
-            production = self.productions.get(key)  # type: ignore[arg-type]
-            if production is not None:
-                production.users -= 1
-                if production.users <= 0:
-                    del self.productions[key]  # type: ignore[arg-type]
+            self.schedule.remove(connection)
         if connection.kind is ConnectionKind.EXCLUSIVE_OWNER:
-            output = self._consumed(connection)
+            output = self.packets.consumed_assembly(connection)
             output.owned = False
             if self.policy.outputs_off_on_idle if ended is ConnectionClosed else self.policy.outputs_off_on_fault:
                 output.data[:] = bytes(len(output.data))
         self._events.append(ended(now, connection, reason))
+        if connection.measure is not None:
+            connection.measure.end(now, end_word(ended.kind, reason), reason)
+            self.ended.append(connection)
+            host = connection.originator_host
+            if reason == "forward close" and not any(c.originator_host == host for c in self.connections.values()):
+                self.reconnections.left(host)
         if connection.kind is ConnectionKind.SAFETY_OUTPUT:  # whatever ends it: the safe state
             output = self.assemblies["output"]
             output.owned = False
@@ -294,7 +296,7 @@ class ConnectionTable(ClassOneIo):
 
     def handle_timer(self, now: int) -> None:
         """Close every connection whose deadline has come (at the deadline, not a tick before)."""
-        for connection in [c for c in self.connections.values() if c.deadline <= now]:
+        for connection in self.schedule.expired(now):
             self.counters["connection_timeouts"] += 1
             safety = connection.safety
             if type(safety) is SafetyConsumer:
@@ -307,6 +309,7 @@ class ConnectionTable(ClassOneIo):
                 reason = f"safety timeout: no time coordination for {(safety.timeout_pi + 2)} ping intervals"
             else:
                 reason = f"no packet for {connection.timeout_ns / 1e6:g} ms"
+            self.reconnections.timed_out(connection.originator_host, now)
             self.close(connection, reason, now, ConnectionTimedOut)
 
     # -- class-3 consumption -----------------------------------------------------------------------
@@ -318,6 +321,7 @@ class ConnectionTable(ClassOneIo):
         if connection is None or connection.is_io or connection.owner is not session:
             return None
         connection.last_received = now
+        connection.deadline = now + connection.timeout_ns
         connection.received += 1
         return connection
 

@@ -102,6 +102,8 @@ class InterfaceCounters:
 class EthernetLinkObject(CipClass):
     class_id = ClassCode.ETHERNET_LINK
     revision = 4
+    #: Get Attributes All of the class: 1-7 (Vol. 2's layout, which Wireshark's ENIP dissector decodes)
+    class_get_all = (1, 2, 3, 4, 5, 6, 7)
     optional_attributes = tuple(range(4, 12))
     optional_services = (Service.GET_AND_CLEAR,)
 

@@ -49,7 +49,8 @@ class IdentityObject(CipClass):
     revision = 1
     optional_attributes = (8,)
 
-    def __init__(self, *, vendor_id: int, device_type: int, product_code: Callable[[], int], revision: tuple[int, int],
+    def __init__(self, *, vendor_id: int, device_type: int, product_code: Callable[[], int],
+                 revision: tuple[int, int] | Callable[[], tuple[int, int]],
                  serial_number: int, product_name: str, status: Callable[[], int],
                  state: Callable[[], int] = lambda: STATE_OPERATIONAL) -> None:
         super().__init__()
@@ -57,7 +58,7 @@ class IdentityObject(CipClass):
             Attribute(1, UINT, value=vendor_id),
             Attribute(2, UINT, value=device_type),
             Attribute(3, UINT, product_code),
-            Attribute(4, REVISION, value=revision),
+            Attribute(4, REVISION, revision) if callable(revision) else Attribute(4, REVISION, value=revision),
             Attribute(5, WORD, status),
             Attribute(6, UDINT, value=serial_number),
             Attribute(7, SHORT_STRING, value=product_name),

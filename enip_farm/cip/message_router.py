@@ -46,6 +46,9 @@ class MessageRouter(CipClass):
 
     class_id = ClassCode.MESSAGE_ROUTER
     revision = 1
+    #: Get Attributes All of the class: revision, the optional attribute and service lists, the
+    #: highest ids (the layout Wireshark's CIP dissector decodes for the message router)
+    class_get_all = (1, 4, 5, 6, 7)
 
     def __init__(self, multiple_service_packet: bool = True, max_connections: int = 0,
                  active_connections: Callable[[], int] = lambda: 0) -> None:

@@ -19,7 +19,7 @@ import struct
 from collections.abc import Callable
 from typing import NamedTuple
 
-from enip_farm.cip.attribute import Attribute, CipInstance
+from enip_farm.cip.attribute import GET_ALL, Access, Attribute, CipInstance
 from enip_farm.cip.data_types import UINT, UINT_LIST
 from enip_farm.protocol.cip import Service
 from enip_farm.protocol.epath import RequestPath
@@ -63,25 +63,36 @@ class CipClass:
     The class attributes (Vol. 1, 4-4.1): 1 revision, 2 max instance, 3 number of instances, 4 the
     optional instance attributes implemented and 5 the optional services implemented (each a UINT
     count and that many UINTs; subclasses list them in `optional_attributes`/`optional_services`),
-    6 the highest class attribute id, 7 the highest instance attribute id. Get Attributes All of
-    instance 0 answers 1-7 in that order, as Wireshark's CIP dissector decodes them."""
+    6 the highest class attribute id, 7 the highest instance attribute id.
+
+    Get Attributes All of instance 0 answers the attributes in `class_get_all`, in id order. Each
+    object's definition says which: 1 revision, 2 max instance, 6 and 7 the highest ids for most
+    objects (a real 1769-L23E answers its Identity class so, `01 00 01 00 07 00 07 00`, and
+    Wireshark's CIP dissector decodes these four); the TCP/IP Interface and Ethernet Link objects
+    of Vol. 2 answer 1-7 (Wireshark's ENIP dissector decodes those seven).
+    """
 
     class_id: int = 0
     revision: int = 1
     optional_attributes: tuple[int, ...] = ()
     optional_services: tuple[int, ...] = ()
+    #: The class attributes Get Attributes All of instance 0 returns, in id order.
+    class_get_all: tuple[int, ...] = (1, 2, 6, 7)
 
     def __init__(self) -> None:
         self.instances: dict[int, CipInstance] = {}
+        def access(attribute_id: int) -> Access:
+            return GET_ALL if attribute_id in self.class_get_all else Access.GET
+
         self.class_instance = CipInstance((
-            Attribute(1, UINT, lambda: self.revision),
-            Attribute(2, UINT, lambda: max(self.instances, default=0)),
-            Attribute(3, UINT, lambda: len(self.instances)),
-            Attribute(4, UINT_LIST, lambda: self.optional_attributes),
-            Attribute(5, UINT_LIST, lambda: self.optional_services),
-            Attribute(6, UINT, lambda: max(self.class_instance.served_ids())),
+            Attribute(1, UINT, lambda: self.revision, access=access(1)),
+            Attribute(2, UINT, lambda: max(self.instances, default=0), access=access(2)),
+            Attribute(3, UINT, lambda: len(self.instances), access=access(3)),
+            Attribute(4, UINT_LIST, lambda: self.optional_attributes, access=access(4)),
+            Attribute(5, UINT_LIST, lambda: self.optional_services, access=access(5)),
+            Attribute(6, UINT, lambda: max(self.class_instance.served_ids()), access=access(6)),
             Attribute(7, UINT, lambda: max((max(i.served_ids(), default=0) for i in self.instances.values()),
-                                           default=0)),
+                                           default=0), access=access(7)),
         ))
         self.handlers: dict[int, Handler] = {
             Service.GET_ATTRIBUTE_SINGLE: self.get_attribute_single,

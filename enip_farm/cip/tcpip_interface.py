@@ -3,18 +3,21 @@ attributes 1-13 from the device's own address and configuration.
 
 | # | attribute | here |
 |---|---|---|
-| 1-3 | status, capability, control | valid configuration; 0: no BOOTP/DHCP, not settable; static; read-only |
+| 1-2 | status, capability | valid configuration; 0: no BOOTP, DNS or DHCP client, configuration not settable |
+| 3 | configuration control (DWORD) | settable to what attribute 2 offers: static (0) here; else 0x09 |
 | 4 | physical link object | path to Ethernet Link instance 1 |
 | 5 | interface configuration | address, mask, gateway of the device; no name servers or domain; read-only |
 | 6 | host name (STRING) | settable: up to 64 letters, digits and inner hyphens (RFC 1123 label) |
 | 7 | safety network number | a CIP Safety target's SNN, read-only; else 0x14 (six zero bytes in Get Attributes All) |
 | 8 | TTL value (USINT) | settable 1-255, default 1 |
 | 9 | multicast configuration | the device's T->O group: allocation 0 (CIP algorithm) or 1 (configured); read-only |
-| 10 | SelectAcd (BOOL) | settable 0/1, default 0 (stored; the farm runs no address conflict detection) |
-| 11 | last conflict detected | no conflict: 35 zero bytes; read-only |
+| 10 | SelectAcd (BOOL) | settable 0/1, default 0: whether the module detects an address conflict |
+| 11 | last conflict detected | ACD activity, remote MAC, ARP PDU (35 bytes): zeros until an `address-conflict` fault |
 | 12 | EtherNet/IP Quick Connect (BOOL) | settable 0/1, default 0 (stored) |
 | 13 | encapsulation inactivity timeout (UINT, s) | settable 0-3600, default 120 (server/tcp.py applies it) |
 
+Attribute 1's bits 6 (AcdStatus: a conflict detected) and 7 (AcdFault: the address given up) follow
+an `address-conflict` fault (device/hardware.py) while SelectAcd is 1; attribute 11 keeps the last one.
 Set values live until the device is reset to its out-of-box configuration (Identity Reset type 1,
 `restore_defaults`): like the module's non-volatile settings they survive a type-0 reset.
 Get Attributes All returns 1-13 in order, 7 as six zero bytes: 96 bytes plus the padded domain
@@ -35,12 +38,14 @@ from enip_farm.protocol.status import GeneralStatus
 
 #: Attribute 1: interface configuration status 1 = "valid configuration obtained".
 _STATUS_VALID = 1
-#: Attribute 2: configuration capability (Vol. 2, 5-4): no bit set. Bits 0 BOOTP client and 2
-#: DHCP client stay clear because no BOOTP or DHCP runs, bit 4 configuration settable because the
-#: address is the device's configured one (attribute 3 is then read-only, as the spec ties it to bit 4).
+#: Attribute 2: configuration capability (Vol. 2, 5-4): no bit set. Bits 0 BOOTP client, 1 DNS
+#: client and 2 DHCP client stay clear because none runs, bit 4 configuration settable because the
+#: address (attribute 5) is the device's configured one.
 _CAPABILITY = 0x00
-#: Attribute 3: configuration control 0 = static configuration.
-_CONTROL_STATIC = 0
+CAPABILITY_BOOTP, CAPABILITY_DNS, CAPABILITY_DHCP = 0x01, 0x02, 0x04
+#: Attribute 3: configuration control, bits 0-3 the method (0 static, 1 BOOTP, 2 DHCP, 3-15
+#: reserved), bit 4 DNS enable, bits 5-31 reserved. Out of the box: static.
+CONTROL_STATIC, CONTROL_BOOTP, CONTROL_DHCP, CONTROL_METHOD_MASK, CONTROL_DNS_ENABLE = 0, 1, 2, 0x0F, 0x10
 #: Attribute 13: the largest encapsulation inactivity timeout, seconds.
 MAX_INACTIVITY_TIMEOUT_S = 3600
 #: Attribute 6: the longest host name (RFC 1123), and what a name may be made of.
@@ -50,6 +55,10 @@ _HOST_NAME = re.compile(r"^[A-Za-z0-9](?:[A-Za-z0-9-]*[A-Za-z0-9])?$")
 _NO_SAFETY_NETWORK_NUMBER = bytes(6)
 #: Attribute 11: ACD activity 0 (no conflict), remote MAC and ARP PDU all zero.
 _NO_CONFLICT = bytes(1 + 6 + 28)
+#: Attribute 1: AcdStatus (a conflict detected) and AcdFault (the address given up), Vol. 2, 5-4.3.2.1.
+ACD_STATUS, ACD_FAULT = 0x40, 0x80
+#: Attribute 11's ACD activity: no conflict, probing the address, ongoing detection (Vol. 2, 5-4.3.2.11).
+ACD_NONE, ACD_PROBE, ACD_ONGOING = 0, 1, 2
 #: Attribute 9's allocation control: 0 the CIP algorithm (Vol. 2, 3-5.3), 1 a configured group.
 ALLOC_ALGORITHM, ALLOC_CONFIGURED = 0, 1
 #: Attribute 9: allocation control, reserved, number of groups, the first group's address.
@@ -85,9 +94,10 @@ INTERFACE_CONFIGURATION = Encoded("STRUCT of UDINT[5], STRING", _configuration_s
 class TcpIpSettings:
     """The settable attributes, as configured (out of box) or as clients set them."""
 
-    __slots__ = ("host_name", "ttl", "select_acd", "quick_connect", "inactivity_timeout_s")
+    __slots__ = ("configuration_control", "host_name", "ttl", "select_acd", "quick_connect", "inactivity_timeout_s")
 
     def __init__(self, host_name: str, inactivity_timeout_s: int) -> None:
+        self.configuration_control = CONTROL_STATIC
         self.host_name = host_name
         self.ttl = 1
         self.select_acd = 0
@@ -97,17 +107,21 @@ class TcpIpSettings:
     def copy(self) -> TcpIpSettings:
         settings = TcpIpSettings(self.host_name, self.inactivity_timeout_s)
         settings.ttl, settings.select_acd, settings.quick_connect = self.ttl, self.select_acd, self.quick_connect
+        settings.configuration_control = self.configuration_control
         return settings
 
 
 class TcpIpInterfaceObject(CipClass):
     class_id = ClassCode.TCP_IP_INTERFACE
     revision = 4
+    #: Get Attributes All of the class: 1-7 (Vol. 2's layout, which Wireshark's ENIP dissector decodes)
+    class_get_all = (1, 2, 3, 4, 5, 6, 7)
 
     def __init__(self, *, address: str, netmask: str, gateway: str, host_name: str,
                  inactivity_timeout_s: int = 120, multicast_group: str = "0.0.0.0",
                  multicast_configured: bool = False, safety_network_number: bytes | None = None) -> None:
         super().__init__()
+        self.capability = _CAPABILITY
         self._out_of_box = TcpIpSettings(host_name, inactivity_timeout_s)
         self.settings = self._out_of_box.copy()
         interface_configuration = (
@@ -121,9 +135,9 @@ class TcpIpInterfaceObject(CipClass):
         #: device replaces this getter with one that follows Apply_TUNID).
         self.safety_network_number: Callable[[], bytes] = lambda: safety_network_number or _NO_SAFETY_NETWORK_NUMBER
         self.instances[1] = CipInstance((
-            Attribute(1, DWORD, value=_STATUS_VALID),
-            Attribute(2, DWORD, value=_CAPABILITY),
-            Attribute(3, DWORD, value=_CONTROL_STATIC),
+            Attribute(1, DWORD, lambda: _STATUS_VALID | self.acd_bits),
+            Attribute(2, DWORD, lambda: self.capability),
+            Attribute(3, DWORD, lambda: self.settings.configuration_control, self._set_configuration_control),
             # physical link object: path size 2 words, path 20 F6 24 01 (Ethernet Link 1)
             Attribute(4, PHYSICAL_LINK, value=UINT.encode(2) + encode_request_path(ClassCode.ETHERNET_LINK, 1)),
             Attribute(5, INTERFACE_CONFIGURATION, value=interface_configuration),
@@ -134,11 +148,26 @@ class TcpIpInterfaceObject(CipClass):
             Attribute(8, USINT, lambda: self.settings.ttl, self._set_ttl),
             Attribute(9, _MCAST_CONFIG, value=multicast),
             Attribute(10, BOOL, lambda: self.settings.select_acd, self._setter_bool("select_acd")),
-            Attribute(11, Octets(len(_NO_CONFLICT)), value=_NO_CONFLICT),
+            Attribute(11, Octets(len(_NO_CONFLICT)), lambda: self.last_conflict),
             Attribute(12, BOOL, lambda: self.settings.quick_connect, self._setter_bool("quick_connect")),
             Attribute(13, UINT, lambda: self.settings.inactivity_timeout_s, self._set_inactivity_timeout),
         ))
         self.optional_attributes = tuple(i for i in self.instances[1].served_ids() if i > 5)
+        self.acd_bits = 0  # attribute 1's bits 6 and 7
+        self.last_conflict = _NO_CONFLICT
+
+    def conflict_detected(self, activity: int, remote_mac: bytes, arp_pdu: bytes, address_given_up: bool) -> bool:
+        """An address conflict (Vol. 2, 5-4.3.2.11): attribute 11 records it and attribute 1 says so, if
+        the module detects conflicts (SelectAcd, attribute 10, is 1). False: it detected nothing."""
+        if not self.settings.select_acd:
+            return False
+        self.last_conflict = bytes([activity]) + remote_mac + arp_pdu
+        self.acd_bits = ACD_STATUS | (ACD_FAULT if address_given_up else 0)
+        return True
+
+    def conflict_over(self) -> None:
+        """The other host left: the module holds its address again; attribute 11 keeps the record."""
+        self.acd_bits = 0
 
     @property
     def inactivity_timeout_s(self) -> int:
@@ -149,6 +178,20 @@ class TcpIpInterfaceObject(CipClass):
         self.settings = self._out_of_box.copy()
 
     # -- setters: encoded data in, a general status out ------------------------------------------
+
+    def _set_configuration_control(self, value: int) -> int:
+        """Attribute 3: a method, and DNS enable, that attribute 2 offers (static always is); a
+        reserved method or bit, or one the capabilities do not offer, is 0x09."""
+        offered = {CONTROL_STATIC}
+        if self.capability & CAPABILITY_BOOTP:
+            offered.add(CONTROL_BOOTP)
+        if self.capability & CAPABILITY_DHCP:
+            offered.add(CONTROL_DHCP)
+        if (value & ~(CONTROL_METHOD_MASK | CONTROL_DNS_ENABLE) or value & CONTROL_METHOD_MASK not in offered
+                or value & CONTROL_DNS_ENABLE and not self.capability & CAPABILITY_DNS):
+            return GeneralStatus.INVALID_ATTRIBUTE_VALUE
+        self.settings.configuration_control = value
+        return GeneralStatus.SUCCESS
 
     def _set_inactivity_timeout(self, value: int) -> int:
         if value > MAX_INACTIVITY_TIMEOUT_S:

@@ -4,7 +4,8 @@ it runs, so `enip-farm --help` and `enip-farm io get` start fast (bench/cli_star
 
 serve.py and running.py: `serve`; cell.py: loading a cell for a command; cells.py: `validate`,
 `models`, `addresses`, `probe` (prober.py), `compose`; io.py: `io get|set|watch`; faults.py:
-`fault`, `reset`; api.py: those commands' calls to the HTTP API (enip_farm/control/client.py);
+`fault`, `reset`; scenario.py: `scenario validate|run`; report.py: `report` (the controller under
+test, judged; --junit); api.py: those commands' calls to the HTTP API (enip_farm/control/client.py);
 eds.py, eio.py, captures.py (`golden`, `learn`); engines.py: `stack`, `k8s`, `fleet-api`.
 """
 
@@ -15,7 +16,7 @@ from typing import Any
 
 import click
 
-from enip_farm.cli import captures, cells, eds, eio, engines, faults, io, serve
+from enip_farm.cli import captures, cells, eds, eio, engines, faults, io, report, scenario, serve
 
 #: Modules the HTTP client imports when they are installed and no command uses: httpx's own command
 #: line (with rich and pygments, which import-linter brings), and trio (which selenium brings), whose
@@ -45,6 +46,6 @@ def main() -> None:
     """Virtual EtherNet/IP I/O devices (ABB scalable I/O) for testing robot controller software."""
 
 
-for _module in (serve, cells, io, faults, eds, captures, eio, engines):
+for _module in (serve, cells, io, faults, report, scenario, eds, captures, eio, engines):
     for _command in _module.COMMANDS:
         main.add_command(_command)

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import re
 import sys
+from contextlib import ExitStack
 from pathlib import Path
 
 import click
@@ -21,14 +22,15 @@ import click
 def golden(capture: Path, config_path: Path | None, device: str | None, address: str | None,
            mapping: tuple[str, ...]) -> None:
     """Replay a capture's requests against the farm and compare every reply field by field.
-    One line per exchange, a summary, exit status 0 only when all pass (1 when one fails, 2 for a
-    file that is not a capture or holds no EtherNet/IP exchange)."""
-    from contextlib import nullcontext
-
+    One line per exchange, a summary, exit status 0 only when all pass (1 when one fails or nothing
+    answers at --address, 2 for a file that is not a capture or holds no EtherNet/IP exchange).
+    Without --address, golden serves the cell itself on loopback addresses of its own, so it runs
+    beside `enip-farm serve`."""
     from enip_farm.capture.exchanges import exchanges_of
     from enip_farm.capture.golden import replay
     from enip_farm.capture.packets import read_capture
-    from enip_farm.cli.cell import load_cell, make_farm
+    from enip_farm.cli.cell import load_cell
+    from enip_farm.cli.golden_farm import own_farm
     from enip_farm.farm.farm import BindError
     from enip_farm.protocol.encapsulation import ENIP_PORT
     from enip_farm.words import plural
@@ -44,30 +46,43 @@ def golden(capture: Path, config_path: Path | None, device: str | None, address:
         damaged = f" ({plural(read.damaged, 'damaged frame')} skipped)" if read.damaged else ""
         click.echo(f"{capture}: no EtherNet/IP exchanges on port {ENIP_PORT}{damaged}", err=True)
         sys.exit(2)
-    farm = None if address else make_farm(load_cell(config_path, build=False))
-    names: dict[str, str] = {}
-    for item in mapping:
-        ip, _, name = item.partition("=")
-        names[ip] = name
-    if not address and not names:
-        if device is None and len(captured) > 1:
-            raise click.UsageError(f"the capture holds {len(captured)} devices ({', '.join(captured)}): use --map")
-        for ip in captured:
-            names[ip] = device or next(iter(farm.devices))  # type: ignore[union-attr]
-
-    def target(ip: str) -> str:
-        if address:
-            return address
-        if ip not in names or names[ip] not in farm.devices:  # type: ignore[union-attr]
-            raise click.UsageError(f"no farm device for captured address {ip}: use --map {ip}=NAME")
-        return farm.devices[names[ip]].profile.address  # type: ignore[union-attr]
-
+    if address and (device or mapping or config_path):
+        given = ", ".join(o for o, v in (("--device", device), ("--map", mapping), ("--config", config_path)) if v)
+        raise click.UsageError(f"{given}: only for the farm golden starts itself; with --address, what answers at "
+                               f"{address} is compared: leave out {given} or --address")
+    config = None if address else load_cell(config_path, build=False)
+    names = dict(item.partition("=")[::2] for item in mapping)
+    if config is not None:
+        known = [d.name for d in config.devices]
+        unknown = sorted({name for name in [device, *names.values()] if name and name not in known})
+        if unknown:
+            raise click.UsageError(f"no device {', '.join(map(repr, unknown))} in {config.source}; known: "
+                                   f"{', '.join(known)}")
+        if not names:
+            if device is None and len(captured) > 1:
+                raise click.UsageError(f"the capture holds {len(captured)} devices ({', '.join(captured)}): use --map")
+            names = {ip: device or known[0] for ip in captured}
     try:
-        with farm.running_in_thread() if farm else nullcontext():
+        with ExitStack() as stack:
+            farm = own_farm(stack, config) if config is not None else None
+
+            def target(ip: str) -> str:
+                if farm is None:
+                    return address  # type: ignore[return-value]
+                if ip not in names:
+                    raise click.UsageError(f"no farm device for captured address {ip}: use --map {ip}=NAME")
+                return farm.devices[names[ip]].profile.address
+
             results = replay(groups, target)
     except BindError as error:
-        click.echo(f"{error}\ngolden starts its own farm (the default cell, or --config); to replay against a farm "
-                   "that is already running, give the device's address: --address ADDRESS", err=True)
+        click.echo(str(error), err=True)
+        sys.exit(1)
+    except OSError as error:
+        if address is None:
+            raise
+        reason = error.strerror or str(error) or type(error).__name__  # refused, unreachable, timed out
+        click.echo(f"cannot replay against {address}:{ENIP_PORT}: {reason}; is a farm serving there? Start one "
+                   "(enip-farm serve), or leave out --address to let golden start its own", err=True)
         sys.exit(1)
     for result in results:
         click.echo(result.line())

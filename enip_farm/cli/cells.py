@@ -13,12 +13,24 @@ from enip_farm.cli.options import config_option, shard_option, table
 @click.command()
 @click.argument("config_path", type=click.Path(path_type=Path))
 def validate(config_path: Path) -> None:
-    """Check a cell configuration without binding anything."""
+    """Check a cell configuration without binding anything; warn of addresses this host does not have."""
     from enip_farm.cli.cell import load_cell
+    from enip_farm.config import device_location
+    from enip_farm.farm.listeners import is_host_address
     from enip_farm.words import plural
 
     config = load_cell(config_path)
-    click.echo(f"{config_path}: {plural(len(config.devices), 'device')}, valid")
+    elsewhere = [device for device in config.devices if not is_host_address(str(device.address))]
+    for device in elsewhere[:5]:
+        click.echo(f"{config_path}: warning: {device_location(device.entry, device.name)}: {device.address} is not an "
+                   "address of this host, so serve cannot bind it here", err=True)
+    if elsewhere:
+        more = f" (and {len(elsewhere) - 5} more)" if len(elsewhere) > 5 else ""
+        click.echo(f"{config_path}: warning: add each address to this host{more}, e.g. `sudo ip addr add "
+                   f"{elsewhere[0].address}/32 dev lo`, or move the devices to 127.x addresses (every one is this "
+                   "host's on Linux; `eio import --base-address 127.0.20.1` renumbers an import)", err=True)
+    off = f"; {plural(len(elsewhere), 'address', 'addresses')} not on this host" if elsewhere else ""
+    click.echo(f"{config_path}: {plural(len(config.devices), 'device')}, valid{off}")
 
 
 @click.command()

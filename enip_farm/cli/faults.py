@@ -30,6 +30,14 @@ def _number(text: str) -> int | float | str:
     return text
 
 
+def _flag_number(text: str) -> int | float:
+    """A flag's number as written: 800 an integer (the farm's messages say 800, not 800.0), 2.5 a decimal."""
+    value = _number(text)
+    if isinstance(value, str):
+        raise ValueError(f"{text!r} is not a number")
+    return value
+
+
 def in_flags(detail: str) -> str:
     """A parameter problem (`field: message`, the farm's words) in the CLI's: flags, not field names."""
     field, _, message = detail.partition(": ")
@@ -40,12 +48,14 @@ def in_flags(detail: str) -> str:
     return f"{flag}: {message}{EXAMPLES.get(flag, '')}"
 
 
-def _listing(kinds: list[dict[str, Any]]) -> str:
+def _listing(kinds: list[dict[str, Any]], parameters: bool = True) -> str:
+    """One line per kind (its summary), and one per parameter under it unless `parameters` is False."""
     width = max(len(kind["kind"]) for kind in kinds)
     lines = []
     for kind in kinds:
-        lines.append(f"{kind['kind']:{width}}  {kind['summary']}")
-        for name, schema in kind["parameters"].get("properties", {}).items():
+        lines.append(f"{'  ' if not parameters else ''}{kind['kind']:{width}}  {kind['summary']}")
+        for name in kind["parameters"].get("properties", {}) if parameters else ():
+            schema = kind["parameters"]["properties"][name]
             flag = f" ({FLAGS[name]})" if name in FLAGS else ""
             lines.append(f"{'':{width}}    {name}=VALUE{flag}: {schema.get('description', schema.get('type', ''))}")
     return "\n".join(lines)
@@ -55,17 +65,19 @@ def _listing(kinds: list[dict[str, Any]]) -> str:
 @click.argument("first", required=False, metavar="DEVICE|clear")
 @click.argument("rest", nargs=-1, metavar="KIND [NAME=VALUE...] | DEVICE [KIND]")
 @click.option("--list", "list_kinds", is_flag=True, help="list the farm's fault kinds and their parameters")
-@click.option("--delay-ms", type=float, default=None, help="delay: how long to hold each reply")
-@click.option("--max-delay-ms", type=float, default=None, help="delay: random up to this")
+@click.option("--delay-ms", type=_flag_number, default=None, help="delay: how long to hold each reply")
+@click.option("--max-delay-ms", type=_flag_number, default=None, help="delay: random up to this")
 @click.option("--service", type=lambda v: int(v, 0), default=None, help="status: the CIP service, e.g. 0x0E")
 @click.option("--status", type=lambda v: int(v, 0), default=None, help="status: the general status, e.g. 0x08")
-@click.option("--duration", "duration_s", type=float, default=None, help="seconds until the fault ends by itself")
+@click.option("--duration", "duration_s", type=_flag_number, default=None,
+              help="seconds until the fault ends by itself")
 @api_option
 @token_option
 def fault(first: str | None, rest: tuple[str, ...], list_kinds: bool, api: str, token: str | None,
           **flags: Any) -> None:
-    """Inject a fault: `fault DEVICE KIND [NAME=VALUE...] [options]`, or end them: `fault clear
-    DEVICE [KIND]`. `fault --list` lists the kinds the farm has and their parameters."""
+    """Inject a fault: `fault DEVICE|GROUP KIND [NAME=VALUE...] [options]` (a group: every member at
+    once), or end them: `fault clear DEVICE|GROUP [KIND]`. `fault --list` lists the kinds the farm has
+    and their parameters."""
     from urllib.parse import quote
 
     from enip_farm.cli.api import call
@@ -75,9 +87,10 @@ def fault(first: str | None, rest: tuple[str, ...], list_kinds: bool, api: str, 
         return
     if first == "clear":
         if len(rest) not in (1, 2):
-            raise click.UsageError("fault clear DEVICE [KIND]")
+            raise click.UsageError("fault clear DEVICE|GROUP [KIND]")
         params = {"kind": rest[1]} if len(rest) == 2 else None
-        cleared = call(api, token, "DELETE", f"/devices/{quote(rest[0], safe='')}/faults", params=params)
+        cleared = call(api, token, "DELETE", f"{_where(api, token, rest[0])}/{quote(rest[0], safe='')}/faults",
+                       params=params)
         click.echo(f"{rest[0]}: cleared {', '.join(cleared['cleared']) or 'nothing'}")
         return
     if first is None or not rest:
@@ -92,7 +105,12 @@ def fault(first: str | None, rest: tuple[str, ...], list_kinds: bool, api: str, 
         body[name], said[name] = _number(value), name
     kinds = {item["kind"]: item for item in call(api, token, "GET", "/fault-kinds")}
     if kind not in kinds:
-        click.echo(f"fault {first} {kind}: unknown kind {kind!r}; one of {', '.join(kinds)}", err=True)
+        import difflib
+
+        close = difflib.get_close_matches(kind, kinds, n=1)
+        hint = f" (did you mean {close[0]}?)" if close else ""
+        click.echo(f"fault {first} {kind}: unknown kind {kind!r}{hint}; the farm's kinds (fault --list: their "
+                   f"parameters):\n" + _listing(list(kinds.values()), parameters=False), err=True)
         sys.exit(2)
     known = set(kinds[kind]["parameters"].get("properties", {})) | {"duration_s"}
     for name in body:
@@ -105,7 +123,15 @@ def fault(first: str | None, rest: tuple[str, ...], list_kinds: bool, api: str, 
     click.echo(f"{first}: active faults: " + ", ".join(f["kind"] for f in active))
 
 
+def _where(api: str, token: str | None, name: str) -> str:
+    """/groups for a group of the farm's topology, /devices otherwise."""
+    from enip_farm.cli.api import call
+
+    return "/groups" if any(group["name"] == name for group in call(api, token, "GET", "/groups")) else "/devices"
+
+
 def _inject(api: str, token: str | None, device: str, kind: str, body: dict[str, Any]) -> list[dict[str, Any]]:
+    """A fault on a device (its active faults) or on every device of a group (the first member's)."""
     from urllib.parse import quote
 
     from enip_farm.cli.api import ApiError, call
@@ -115,7 +141,12 @@ def _inject(api: str, token: str | None, device: str, kind: str, body: dict[str,
             click.echo(f"fault {device} {kind}: {in_flags(error.detail)}", err=True)
             sys.exit(2)
 
-    return call(api, token, "POST", f"/devices/{quote(device, safe='')}/faults", refused, json={"kind": kind, **body})
+    where = _where(api, token, device)
+    answer = call(api, token, "POST", f"{where}/{quote(device, safe='')}/faults", refused, json={"kind": kind, **body})
+    if where == "/groups":
+        click.echo(f"{device}: {kind} on {', '.join(answer)}")
+        return next(iter(answer.values()), [])
+    return answer
 
 
 @click.command()

@@ -65,7 +65,9 @@ def io_get(device: str, names: tuple[str, ...], api: str, token: str | None) -> 
 @api_option
 @token_option
 def io_set(device: str, assignments: tuple[str, ...], api: str, token: str | None) -> None:
-    """Set signals, e.g. `enip-farm io set io1 DI3=1 AI1=1200` or `io set cell1 diGripperClosed=1`."""
+    """Set signals of a device, SIGNAL=VALUE each.
+
+    For example `enip-farm io set io1 DI3=1 AI1=1200` or `enip-farm io set cell1 diGripperClosed=1`."""
     signals = dict(parse_value(assignment) for assignment in assignments)
     from enip_farm.cli.api import call
 

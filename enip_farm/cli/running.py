@@ -15,7 +15,7 @@ from enip_farm.cli.options import DEFAULT_API
 from enip_farm.config import FarmConfig
 from enip_farm.farm.console import Console, configure_logging
 from enip_farm.farm.farm import BindError, Farm, freeze_heap, new_event_loop, until_stopped_or_failed
-from enip_farm.farm.table import device_table
+from enip_farm.farm.table import device_rows, device_table
 from enip_farm.protocol.encapsulation import ENIP_PORT
 from enip_farm.words import plural
 
@@ -27,7 +27,8 @@ def banner(devices: int, source: str, http_url: str | None, workers: int = 1) ->
     lines = [f"{plural(devices, 'device')} listening on TCP and UDP {ENIP_PORT}{served}, from {source}. "
              "Ctrl-C to stop."]
     if http_url:
-        lines += [f"HTTP API on {http_url}" + (f" (the devices of all {workers} workers)" if workers > 1 else ""),
+        every = "both" if workers == 2 else f"all {workers}"
+        lines += [f"HTTP API on {http_url}" + (f" (the devices of {every} workers)" if workers > 1 else ""),
                   f"dashboard on {http_url}/ and API docs on {http_url}/docs; `enip-farm io` and `enip-farm fault` "
                   "use this API" + ("" if http_url == DEFAULT_API else f" with --api {http_url}")]
     else:
@@ -77,7 +78,7 @@ async def _serve(farm: Farm, config_path: Path | None) -> None:
     console.start(loop)
     freeze_heap()
     try:
-        click.echo(device_table(farm.devices.values()))
+        click.echo(device_table(device_rows(farm.devices.values())))
         for line in banner(len(farm.devices), source_of(farm.config, config_path),
                            farm.http.url if farm.http is not None else None):
             click.echo(line, err=True)

@@ -5,7 +5,9 @@ GET /devices, GET /devices/{name}, GET and PUT /devices/{name}/io, GET /devices/
 kind and its parameters' JSON Schema, from device/fault_kinds.py), GET /state (what the dashboard
 shows of each device: signals, connections, counters, faults), GET /overview (every device's state
 in one answer, and recent events: control/overview.py), GET /events (server-sent events,
-control/stream.py), GET /metrics (Prometheus), the dashboard at / (control/dashboard.py),
+control/stream.py), GET /metrics (Prometheus), GET /report and GET /devices/{name}/timeline (what the
+farm measured of the controller: control/measured.py),
+the dashboard at / (control/dashboard.py),
 and the OpenAPI schema at /openapi.json with /docs and /redoc served from assets shipped in the
 package (no CDN). Bound to a loopback address (localhost, 127.x.y.z, ::1) the API may run without
 a token; bound to any other address it needs one, and every request then carries `Authorization:
@@ -20,7 +22,6 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import errno
-import math
 import socket
 import time
 from collections.abc import Iterable, Iterator
@@ -28,21 +29,24 @@ from typing import Annotated, Any
 
 import uvicorn
 from fastapi import FastAPI, HTTPException, Query
-from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse, PlainTextResponse
 from fastapi_offline import FastAPIOffline
 from prometheus_client import CollectorRegistry, generate_latest
 from prometheus_client.exposition import CONTENT_TYPE_LATEST
-from pydantic import BaseModel, ConfigDict, Field, field_validator
+from pydantic import BaseModel, Field, field_validator
 
 from enip_farm.control.dashboard import mount_dashboard
+from enip_farm.control.fault_routes import FaultRequest, group_routes, requested_fault
 from enip_farm.control.guard import Guard, needs_token
 from enip_farm.control.handle import FarmControl
+from enip_farm.control.measured import mount_measured
 from enip_farm.control.metrics import FarmCollector
 from enip_farm.control.overview import RECENT, Overview
+from enip_farm.control.scenario_routes import scenario_routes
 from enip_farm.control.stream import EventHub, EventStream
+from enip_farm.control.timeline import Timelines
 from enip_farm.device.device import Device
-from enip_farm.device.faults import Fault, FaultError, FaultKind, fault_kinds
+from enip_farm.device.faults import FaultKind, fault_kinds
 from enip_farm.device.signals import SignalError
 
 
@@ -65,16 +69,6 @@ class IoWrite(BaseModel):
                         isinstance(given, list) and any(isinstance(item, float) for item in items)):
                     raise ValueError(f"{name}: expected a number, or a list of integers for a range, got {given!r}")
         return value
-
-
-class FaultRequest(BaseModel):
-    """A kind and its parameters, side by side, e.g. {"kind": "delay", "delay_ms": 800, "duration_s": 10}:
-    GET /fault-kinds lists each kind's parameters (a JSON Schema); `Fault` checks them."""
-
-    model_config = ConfigDict(extra="allow")
-
-    kind: FaultKind
-    duration_s: float | None = Field(None, description="end the fault by itself after this long (> 0)")
 
 
 class FaultKindInfo(BaseModel):
@@ -128,7 +122,8 @@ def _state(farm: FarmControl, name: str) -> dict[str, Any]:
         "name": name, "monotonic": monotonic, "signals": handle.signal_table(), "status": device.status,
         "owners": sorted({c["originator"] for c in connections if c["kind"] == "exclusive owner"}),
         "connections": connections,
-        "counters": {key: device.counters.get(key, 0) for key in STATE_COUNTERS},
+        "open": {"tcp": device.tcp_open, "sessions": len(device.session_handles.open)},  # now, beside the totals
+        "counters": {key: device.counters.get(key, 0) for key in STATE_COUNTERS},  # since start
         "faults": handle.faults,
     }
 
@@ -153,12 +148,13 @@ def _device(farm: FarmControl, name: str, detail: bool = False) -> dict[str, Any
     return out
 
 
-def create_app(farm: FarmControl, hub: EventHub | None = None, overview: Overview | None = None) -> FastAPI:
+def create_app(farm: FarmControl, hub: EventHub | None = None, overview: Overview | None = None,
+               timelines: Timelines | None = None) -> FastAPI:
     """The API's routes; `HttpApi` serves them behind `Guard` (Host, token, body size)."""
     app = FastAPIOffline(title="enip-farm", description="Drive and observe a farm of virtual EtherNet/IP devices. "
                          "The dashboard is at /.")
     registry = CollectorRegistry()
-    registry.register(FarmCollector(farm.devices.values(), farm.health, farm.cyclic_io_load))
+    registry.register(FarmCollector(farm.devices.values(), farm.health, farm.cyclic_io_load, farm.report))
     hub = hub if hub is not None else EventHub(farm.devices.values())
     overview = overview if overview is not None else Overview(farm.devices.values())
 
@@ -209,12 +205,7 @@ def create_app(farm: FarmControl, hub: EventHub | None = None, overview: Overvie
     @app.post("/devices/{name}/faults", status_code=201)
     async def inject(name: str, body: FaultRequest) -> list[dict]:
         known(name)
-        try:
-            fault = Fault(**body.model_dump())
-        except FaultError as error:
-            raise RequestValidationError([{"type": "value_error", "loc": ("body", error.field), "msg": str(error),
-                                           "input": _json_safe(error.value)}]) from None
-        await farm.inject_fault(name, fault)
+        await farm.inject_fault(name, requested_fault(body))
         return farm[name].faults
 
     @app.delete("/devices/{name}/faults")
@@ -265,16 +256,16 @@ def create_app(farm: FarmControl, hub: EventHub | None = None, overview: Overvie
         answer = farm.health()
         return JSONResponse(answer, status_code=200 if answer["ok"] else 503)
 
+    app.include_router(group_routes(farm))
+    app.include_router(scenario_routes(farm))
+
     @app.get("/metrics", response_class=PlainTextResponse)
     def metrics() -> PlainTextResponse:
         return PlainTextResponse(generate_latest(registry), media_type=CONTENT_TYPE_LATEST)
 
+    mount_measured(app, timelines if timelines is not None else Timelines(farm.devices), known, farm.report)
     mount_dashboard(app)
     return app
-
-
-def _json_safe(value: object) -> object:
-    return repr(value) if isinstance(value, float) and not math.isfinite(value) else value
 
 
 def _hex(field: str, text: str | None) -> bytes | None:
@@ -332,7 +323,8 @@ class HttpApi:
         self._port = port
         self.hub = EventHub(farm.devices.values())
         self.overview = Overview(farm.devices.values())
-        self.app = create_app(farm, self.hub, self.overview)
+        self.timelines = Timelines(farm.devices)
+        self.app = create_app(farm, self.hub, self.overview, self.timelines)
         self.server = _EmbeddedServer(uvicorn.Config(Guard(self.app, host, token), host=host, port=port,
                                                      log_level="warning",
                                                      lifespan="off", access_log=False))
@@ -361,6 +353,7 @@ class HttpApi:
     async def stop(self) -> None:
         self.hub.close()
         self.overview.close()
+        self.timelines.close()
         self.server.should_exit = True
         self.server.force_exit = True
         if self.task is not None:

@@ -1,5 +1,8 @@
-"""Prometheus exposition of the devices' counters and latency histograms, and of the farm's health
-(whether its cyclic I/O runs, the errors its loops met and went on from)."""
+"""Prometheus exposition of the devices' counters and latency histograms, of the farm's health
+(whether its cyclic I/O runs, the errors its loops met and went on from), and of the originators'
+O->T packet intervals as the report measured them (cip/report.py): a histogram per class-1
+connection, labelled with its device, in multiples of the connection's API (the buckets the
+measurement keeps), so that `sum by (device)` gives a device's."""
 
 from __future__ import annotations
 
@@ -39,10 +42,11 @@ class FarmCollector(Collector):
     """Reads the devices' counters at scrape time; nothing is counted twice."""
 
     def __init__(self, devices: Iterable, health: Callable[[], dict[str, Any]] | None = None,
-                 load: Callable[[], dict[str, Any]] | None = None) -> None:
+                 load: Callable[[], dict[str, Any]] | None = None, report: Callable[[], Any] | None = None) -> None:
         self.devices = list(devices)
         self.health = health
         self.load = load
+        self.report = report
 
     def collect(self) -> Iterator:
         requests = CounterMetricFamily("enip_farm_requests", "Explicit requests by CIP service and general status",
@@ -76,6 +80,8 @@ class FarmCollector(Collector):
             io_errors.add_metric([device.name], device.counters["io_errors"])
             kernel_drops.add_metric([device.name], drops.get(device.profile.address, 0))
         yield from (requests, connections, open_io, packets, latency, io_errors, kernel_drops)
+        if self.report is not None:
+            yield intervals(self.report())
         if self.health is not None:
             health = self.health()
             yield GaugeMetricFamily("enip_farm_cyclic_io_running", "1 while the cyclic I/O thread runs",
@@ -96,3 +102,21 @@ class FarmCollector(Collector):
                                     "behind its schedule, worst of the last second", value=load["lag_s"])
             yield CounterMetricFamily("enip_farm_cyclic_io_overloads", "Wake-ups of the cyclic I/O thread more "
                                       "than 5 ms late: the farm overloaded", value=load["overloads"])
+
+
+def intervals(report: Any) -> HistogramMetricFamily:
+    """Each measured connection's O->T intervals (open ones and the last that ended) as a histogram
+    in APIs: `le` the bucket bounds, `_sum` the intervals' total in APIs."""
+    family = HistogramMetricFamily("enip_farm_o_t_interval_apis", "O->T packet interval of each class-1 "
+                                   "connection, in multiples of its API (kernel receive times)",
+                                   labels=["device", "connection", "originator"])
+    for device in report.devices:
+        for connection in device.connections:
+            figures = connection.intervals
+            histogram, seen, buckets = figures.histogram, 0, []
+            for bound, count in zip((*histogram.bounds_api, float("inf")), histogram.counts, strict=True):
+                seen += count
+                buckets.append(("+Inf" if bound == float("inf") else repr(bound), seen))
+            total = (figures.mean_ns or 0) * figures.count / figures.api_ns
+            family.add_metric([device.device, f"0x{connection.o_t_id:08X}", connection.originator], buckets, total)
+    return family

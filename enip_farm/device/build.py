@@ -10,11 +10,14 @@ field, like the schema's own errors.
 from __future__ import annotations
 
 from collections.abc import Collection, Mapping
+from dataclasses import replace
+from pathlib import Path
 
 import yaml
 from pydantic import ValidationError
 
 from enip_farm.config import ConfigError, DeviceConfig, FarmConfig, device_location, is_profile_path
+from enip_farm.config_errors import did_you_mean
 from enip_farm.device.catalogue import Catalogue
 from enip_farm.device.named_signals import NamedSignal, named_signal
 from enip_farm.device.profile import DeviceProfile, resolve
@@ -38,8 +41,9 @@ def build_profiles(config: FarmConfig, catalogue: Catalogue) -> list[DeviceProfi
                 seen.add((device.entry, field, message))
                 where = device_location(device.entry, device.name)
                 problems.append(f"{config.source}: {where}" + (f", {field}: " if field else ": ") + message)
-    profiles = [resolve(device.model_copy(update={"model": models[device.model]}) if device.model in models
-                        else device, catalogue) for device in config.devices if device.name not in failed]
+    profiles = [replace(resolve(device.model_copy(update={"model": models[device.model]}), catalogue),
+                        model_file=Path(device.model).name) if device.model in models
+                else resolve(device, catalogue) for device in config.devices if device.name not in failed]
     problems += list(dict.fromkeys(  # a `count` entry's devices share their problems
         f"{config.source}: {device_location(device.entry)}, {field}: {message}"
         for device, profile in zip([d for d in config.devices if d.name not in failed], profiles, strict=True)
@@ -82,12 +86,14 @@ def _device_problems(device: DeviceConfig, model_name: str, catalogue: Catalogue
     problems = []
     model = catalogue.models.get(model_name)
     if model is None or model.kind != "base":
-        problems.append(("model", f"unknown base model {model_name!r}; known: {', '.join(catalogue.bases())}"))
+        problems.append(("model", f"unknown base model {model_name!r}{did_you_mean(model_name, catalogue.bases())}; "
+                                  f"known: {', '.join(catalogue.bases())}"))
     elif model.identity is None:
         problems.append(("model", f"base model {model_name!r} has no identity"))
     for addon in device.addons:
         if addon not in catalogue.addons():
-            problems.append(("addons", f"unknown add-on {addon!r}; known: {', '.join(catalogue.addons())}"))
+            problems.append(("addons", f"unknown add-on {addon!r}{did_you_mean(addon, catalogue.addons())}; "
+                                       f"known: {', '.join(catalogue.addons())}"))
     for signal in device.signals:
         try:
             named_signal(signal)

@@ -22,9 +22,10 @@ from enip_farm.cip.ethernet_link import InterfaceCounters
 from enip_farm.cip.identity import STATE_OPERATIONAL, STATE_SELF_TESTING
 from enip_farm.cip.object import ReplyItems
 from enip_farm.device.cyclic import CyclicIo, SendDatagram
-from enip_farm.device.events import DeviceEvent
+from enip_farm.device.events import DeviceEvent, Event, FaultCleared, ResetDone
 from enip_farm.device.faults import DeviceFaults
-from enip_farm.device.guard import Clock, DeviceGuard, Observer, describe, replace_image
+from enip_farm.device.guard import NO_IMAGES, Clock, DeviceGuard, Observer, describe, replace_image
+from enip_farm.device.hardware import ModuleHardware
 from enip_farm.device.latency import LatencyHistogram
 from enip_farm.device.objects import build_objects
 from enip_farm.device.profile import DeviceProfile
@@ -56,8 +57,10 @@ class Device:
         self.faults = DeviceFaults()
         self.recorder: TrafficTap | None = None  # serve --record
         self.counters: Counter[str] = Counter(dict.fromkeys(COUNTERS, 0))
+        self.tcp_open = 0  # TCP connections open now (server/tcp.py counts them in and out; counters: since start)
         self.latency = LatencyHistogram()
         objects = build_objects(profile, self.counters, budget, product_code=lambda: self.product_code,
+                                revision=lambda: self.revision,
                                 identity_state=lambda: self.identity_state, resetting=lambda: self.resetting,
                                 forced_status=self.faults.forced_status)
         self.assemblies, self.table, self.router, self.link = (objects.assemblies, objects.table, objects.router,
@@ -69,12 +72,23 @@ class Device:
         self.resets = Resets(objects, guard, self.session_handles, profile.reset_time_s)
         self.reset_window = self.resets.window
         self.target = EncapsulationTarget(profile, guard, objects.router, self.resets,
-                                          lambda: self.product_code, lambda: self.identity_state)
+                                          lambda: self.product_code, lambda: self.identity_state,
+                                          lambda: self.revision)
         self.cyclic = CyclicIo(guard, self.faults, self.reset_window, self.counters)
+        #: What faults do to the module itself: its power, its address (device/hardware.py).
+        self.hardware = ModuleHardware(objects, guard, self.session_handles, self.reset_window, profile.address,
+                                       profile.mac)
         #: Interface counters (Ethernet Link attribute 4): the event loop's sockets (TCP and UDP
         #: 44818) count into `traffic`, the cyclic I/O thread's (UDP 2222) into `io_traffic`.
         self.traffic: InterfaceCounters = self.link.new_counters()
         self.io_traffic: InterfaceCounters = self.link.new_counters()
+        guard.observe(self._came_back, FaultCleared, ResetDone)
+
+    def _came_back(self, event: Event) -> None:
+        """A fault cleared or a reset done: the table expects its originators back (the report's
+        reconnections, which name what the device came back after by the event's kind)."""
+        with self.guard.transaction(event.monotonic_ns, NO_IMAGES):
+            self.table.device_back(event.detail.kind, event.monotonic_ns)
 
     @property
     def name(self) -> str:
@@ -137,6 +151,11 @@ class Device:
     def product_code(self) -> int:
         """The product code the device shows; an `identity` fault changes it so keys stop matching."""
         return self.faults.product_code(self.profile.product_code)
+
+    @property
+    def revision(self) -> tuple[int, int]:
+        """The revision the device shows; a `wrong-module` fault changes it."""
+        return self.faults.revision(self.profile.revision)
 
     @property
     def status(self) -> int:
@@ -214,9 +233,11 @@ class Device:
 
     # -- class-1 I/O (device/cyclic.py, the cyclic I/O thread) -------------------------------------
 
-    def receive_io(self, data: bytes, source: tuple[str, int], now: int, send: SendDatagram) -> bool:
-        """An O->T datagram from `source` (host, port), received at `now`: True if a connection took it."""
-        return self.cyclic.receive_io(data, source, now, send)
+    def receive_io(self, data: bytes, source: tuple[str, int], now: int, send: SendDatagram,
+                   received_at: int | None = None) -> bool:
+        """An O->T datagram from `source` (host, port), taken at `now` (`received_at`: the kernel's
+        receive time, which the report measures by): True if a connection took it."""
+        return self.cyclic.receive_io(data, source, now, send, received_at)
 
     def service_io(self, now: int, send: SendDatagram, horizon: int | None = None) -> int | None:
         """Supervise the connections at `now` and send the T->O packets due by `now` (or `horizon`);

@@ -177,6 +177,77 @@ class EncapsulationRefused(Happened, kind="encapsulation refused"):
 
 
 @dataclass(frozen=True, slots=True)
+class EncapsulationIgnored(Happened, kind="encapsulation ignored"):
+    """A request that carried a non-zero status: not answered (Vol. 2, 2-3.5)."""
+
+    command: int
+    peer: str
+    status: int
+
+    @property
+    def text(self) -> str:
+        return (f"{command_name(self.command)} from {self.peer} carried status 0x{self.status:08X}; "
+                "a request's status must be 0 (Vol. 2, 2-3.5): no reply")
+
+
+@dataclass(frozen=True, slots=True)
+class PowerLost(Happened, kind="power lost"):
+    """The module's supply is gone (device/hardware.py): its volatile state with it."""
+
+    @property
+    def text(self) -> str:
+        return "no answer on TCP, UDP or class 1; connections end without a close"
+
+
+@dataclass(frozen=True, slots=True)
+class PowerReturned(Happened, kind="power returned"):
+    boot_s: float  # how long it boots, not answering
+
+    @property
+    def text(self) -> str:
+        return f"booting: not answering for {self.boot_s:g} s"
+
+
+@dataclass(frozen=True, slots=True)
+class AddressConflict(Happened, kind="address conflict"):
+    """Another host claims the module's address (RFC 826; TCP/IP attribute 11 keeps its ARP PDU)."""
+
+    remote_mac: bytes
+    detected: bool  # False: SelectAcd (TCP/IP attribute 10) is 0
+    silent: bool  # the module gives the address up
+
+    @property
+    def text(self) -> str:
+        outcome = (("address given up" if self.silent else "address defended") if self.detected
+                   else "not detected (SelectAcd, TCP/IP attribute 10, is 0)")
+        return f"with {self.remote_mac.hex(':')}: {outcome}"
+
+
+@dataclass(frozen=True, slots=True)
+class LinkDown(Happened, kind="link down"):
+    """A flapping fault's down phase: its effects on for `for_s`."""
+
+    fault: str
+    for_s: float
+
+    @property
+    def text(self) -> str:
+        return f"{self.fault}: for {self.for_s:.3f} s"
+
+
+@dataclass(frozen=True, slots=True)
+class LinkUp(Happened, kind="link up"):
+    """A flapping fault's up phase: its effects off for `for_s`."""
+
+    fault: str
+    for_s: float
+
+    @property
+    def text(self) -> str:
+        return f"{self.fault}: for {self.for_s:.3f} s"
+
+
+@dataclass(frozen=True, slots=True)
 class Wired(Happened, kind="wired"):
     """A wire or a rule set a signal (control/wiring.py): both ends by their signal names."""
 

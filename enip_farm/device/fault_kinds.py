@@ -1,7 +1,8 @@
 """The fault kinds: what a misbehaving module does, one class each (device/fault_type.py says
 what a kind is and which hooks it may override).
 
-To add a kind, write one class here (its `name`, a one-line `summary`, its parameters as pydantic
+To add a kind, write one class here (or beside it: device/cell_fault_kinds.py holds the cell's hardware
+faults) (its `name`, a one-line `summary`, its parameters as pydantic
 fields with `before` validators raising `FaultError`, the hooks it needs) and list it in `KINDS`:
 the Python API, the HTTP API (POST /devices/{name}/faults, GET /fault-kinds), the CLI and the
 dashboard take it from there.
@@ -14,6 +15,17 @@ from typing import Any
 
 from pydantic import ConfigDict, Field, field_validator, model_validator
 
+from enip_farm.device.cell_fault_kinds import (
+    AddressConflict,
+    DegradedLink,
+    FlappingLink,
+    LinkDown,
+    PowerLoss,
+    SafetyCrc,
+    SafetyStale,
+    SafetyTimeCoordination,
+    WrongModule,
+)
 from enip_farm.device.fault_type import DROP, MAX_DELAY_MS, Disconnect, FaultError, FaultType, byte, delay_ms
 
 
@@ -126,4 +138,6 @@ class Identity(FaultType):
 
 
 #: Every fault kind, in the order the API, the CLI and the dashboard list them.
-KINDS: tuple[type[FaultType], ...] = (Delay, Drop, Close, Reset, Offline, Status, StopIo, Identity)
+KINDS: tuple[type[FaultType], ...] = (Delay, Drop, Close, Reset, Offline, Status, StopIo, Identity, PowerLoss,
+                                      LinkDown, FlappingLink, DegradedLink, AddressConflict, WrongModule,
+                                      SafetyCrc, SafetyStale, SafetyTimeCoordination)

@@ -14,6 +14,15 @@ keeps their answers for the fast paths), so their answer depends on the paramete
 | `on_io_datagram()` | the device's class-1 paths (O->T taken, T->O produced) | False: I/O stops both ways |
 | `listens()` | the farm: TCP 44818 listens while every active fault says so | False: no listener |
 | `on_product_code(code)` | the Identity object's product code (electronic keys) | the code shown |
+| `on_revision(revision)` | the Identity object's revision (electronic keys) | the revision shown |
+| `hears()` | server/tcp.py, per read | False: requests are not received (no power, no link) |
+| `phases()` | the farm, on inject | (down s, up s) pairs: the effects come and go (a flapping link) |
+| `impairment()` | device/faults.py, when set | a DegradedPath the class-1 datagrams go through |
+| `safety_tamper()` | device/faults.py, when set | a SafetyTamper the CIP Safety datagrams go through |
+| `on_set(device, now)` / `on_clear(device, now)` | the farm, as the fault is set and cleared | None |
+
+`on_set` and `on_clear` act on the device itself (`FaultedDevice`: a power loss loses its state, an
+address conflict fills in the TCP/IP object's attribute 11); they run on the farm's loop.
 
 Parameter problems are `FaultError`s (a ValueError naming the field), raised by the model's own
 validators; `Fault(kind, **params)` (device/faults.py) hands them on unwrapped.
@@ -22,8 +31,9 @@ validators; `Fault(kind, **params)` (device/faults.py) hands them on unwrapped.
 from __future__ import annotations
 
 import math
+from collections.abc import Iterator
 from enum import Enum
-from typing import Any, ClassVar
+from typing import Any, ClassVar, Protocol
 
 from pydantic import BaseModel, ConfigDict, Field, field_validator
 
@@ -69,6 +79,18 @@ def byte(field: str, value: object, what: str) -> int:
     if isinstance(value, bool) or not isinstance(value, int) or not 0 <= value <= 0xFF:
         raise FaultError(field, f"must be {what} 0..255 (0x00..0xFF), got {value!r}", value)
     return value
+
+
+class FaultedDevice(Protocol):
+    """What `on_set` and `on_clear` may touch of a device (device/device.py's Device)."""
+
+    def lose_power(self, now: int) -> None: ...
+
+    def restore_power(self, boot_ns: int, now: int) -> None: ...
+
+    def address_conflict(self, activity: int, remote_mac: bytes, silent: bool) -> None: ...
+
+    def conflict_resolved(self) -> None: ...
 
 
 class FaultType(BaseModel):
@@ -129,3 +151,26 @@ class FaultType(BaseModel):
 
     def on_product_code(self, code: int) -> int:
         return code
+
+    def on_revision(self, revision: tuple[int, int]) -> tuple[int, int]:
+        return revision
+
+    def hears(self) -> bool:
+        return True
+
+    def phases(self) -> Iterator[tuple[float, float]] | None:
+        return None
+
+    def safety_tamper(self) -> Any:
+        """A new SafetyTamper (device/safety_faults.py) for a safety target's class-0 datagrams, or None."""
+        return None
+
+    def impairment(self) -> Any:
+        """A new degraded path (device/impairment.py's DegradedPath) for the class-1 datagrams, or None."""
+        return None
+
+    def on_set(self, device: FaultedDevice, now: int) -> None:
+        return None
+
+    def on_clear(self, device: FaultedDevice, now: int) -> None:
+        return None

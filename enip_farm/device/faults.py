@@ -69,6 +69,14 @@ class DeviceFaults:
         self.io_stopped = False
         self.answers_udp = True
         self.listens = True
+        self.hears = True
+        self.suspended: set[str] = set()  # kinds whose effects are off for now (a flapping link's up phases)
+        #: The class-1 datagrams' degraded path (a degraded-link fault), read by the cyclic I/O thread.
+        self.impairment: Any = None
+        self._impaired_by: FaultType | None = None
+        #: A safety fault's SafetyTamper of the class-0 datagrams, read by the cyclic I/O thread.
+        self.safety_tamper: Any = None
+        self._tampered_by: FaultType | None = None
         self._replies: tuple[FaultType, ...] = ()  # the faults that change how TCP replies go out
         self._disconnect: Disconnect | None = None
 
@@ -84,21 +92,38 @@ class DeviceFaults:
         for name in cleared:
             del self.active[name]
             self.started_ns.pop(name, None)
+            self.suspended.discard(name)
         self._update()
         return cleared
 
+    def suspend(self, kind: str, suspended: bool) -> None:
+        """Switch the effects of active fault `kind` off (True) or on again (False), the fault kept."""
+        if kind in self.active:
+            (self.suspended.add if suspended else self.suspended.discard)(kind)
+            self._update()
+
     def listens_without(self, kind: str | None) -> bool:
         """Whether TCP would listen once `kind` (None: every kind) is cleared."""
-        return kind is None or all(fault.listens() for name, fault in self.active.items() if name != kind)
+        return kind is None or all(fault.listens() for name, fault in self.active.items()
+                                   if name != kind and name not in self.suspended)
 
     def _update(self) -> None:
-        faults = list(self.active.values())
+        faults = [fault for name, fault in self.active.items() if name not in self.suspended]
         self.forced_status.clear()
         for fault in faults:
             self.forced_status.update(fault.on_request_statuses())
         self.io_stopped = not all(fault.on_io_datagram() for fault in faults)
         self.answers_udp = all(fault.on_udp_datagram() for fault in faults)
         self.listens = all(fault.listens() for fault in faults)
+        self.hears = all(fault.hears() for fault in faults)
+        impairing = next((f for f in faults if type(f).impairment is not FaultType.impairment), None)
+        if impairing is not self._impaired_by:  # a new one starts afresh; the same one keeps what it holds
+            self._impaired_by = impairing
+            self.impairment = impairing.impairment() if impairing is not None else None
+        tampering = next((f for f in faults if type(f).safety_tamper is not FaultType.safety_tamper), None)
+        if tampering is not self._tampered_by:
+            self._tampered_by = tampering
+            self.safety_tamper = tampering.safety_tamper() if tampering is not None else None
         self._replies = tuple(f for f in faults if type(f).on_reply is not FaultType.on_reply)
         ends = {fault.on_tcp_connection() for fault in faults} - {None}
         self._disconnect = Disconnect.RESET if Disconnect.RESET in ends else ends.pop() if ends else None
@@ -117,9 +142,17 @@ class DeviceFaults:
 
     def product_code(self, code: int) -> int:
         """The product code the Identity object shows."""
-        for fault in list(self.active.values()):
-            code = fault.on_product_code(code)
+        for name, fault in list(self.active.items()):
+            if name not in self.suspended:
+                code = fault.on_product_code(code)
         return code
+
+    def revision(self, revision: tuple[int, int]) -> tuple[int, int]:
+        """The revision the Identity object shows."""
+        for name, fault in list(self.active.items()):
+            if name not in self.suspended:
+                revision = fault.on_revision(revision)
+        return revision
 
     def describe(self, now: int) -> list[dict[str, Any]]:
         """Each active fault's `parameters` and how long it has been on at `now` (`age_s`)."""

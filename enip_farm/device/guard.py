@@ -4,10 +4,10 @@ Every change of the I/O image or of the connection table (explicit requests, O->
 T->O production, supervision, resets, the Python and HTTP APIs) is one `transaction(now)`: it takes
 the device lock, lets the work run, collects what happened as typed events (the requests answered,
 the table's connection events, the image changes, the events the work emits) and, once the lock is
-released, sends what the work left to send and then publishes the events once, in that order, to
-the device's observers and its event log (device/events.py). So no reader sees half a write, no
-writer loses one, nothing is sent on a socket under the lock, and an observer sees a transaction's
-events together, after it. Readers take the same lock (`read`, `image`).
+released, publishes them once, in order, to the device's observers and its event log
+(device/events.py). So no reader sees half a write, no writer loses one, and an observer sees a
+transaction's events together, after it; what the work has to send (T->O, replies) its caller
+sends after the with statement, never under the lock. Readers take the same lock (`read`, `image`).
 
 An exception in the work: the lock is released and what the transaction collected by then is
 published, once (an image or a connection that changed before the error stays changed, and
@@ -34,8 +34,6 @@ __all__ = ["BOTH_IMAGES", "INPUT_IMAGE", "NO_IMAGES", "OUTPUT_IMAGE", "Clock", "
 
 #: The clock a device is given: monotonic time in integer ns (time.monotonic_ns unless a test drives it).
 Clock = Callable[[], int]
-#: Sends one datagram (a server's socket): data, destination.
-SendDatagram = Callable[[bytes, tuple[str, int]], None]
 #: Which images a transaction compares, before and after (bit flags).
 NO_IMAGES, OUTPUT_IMAGE, INPUT_IMAGE, BOTH_IMAGES = 0, 1, 2, 3
 
@@ -44,9 +42,10 @@ T = TypeVar("T")
 
 class Transaction:
     """One locked step of a device (`DeviceGuard.transaction`). The work sets `requests` (the
-    router's answered requests), `emit`s its own events and leaves datagrams to `send_after`."""
+    router's answered requests) and `emit`s its own events; what it has to send, it returns, and
+    its caller sends after the with statement."""
 
-    __slots__ = ("guard", "now", "images", "before_output", "before_input", "requests", "emitted", "sends")
+    __slots__ = ("guard", "now", "images", "before_output", "before_input", "requests", "emitted")
 
     def __init__(self, guard: DeviceGuard) -> None:
         self.guard = guard
@@ -56,7 +55,6 @@ class Transaction:
         self.before_input: bytes = b""
         self.requests: list[Handled] | tuple[()] = ()
         self.emitted: list[DeviceEvent] = []
-        self.sends: list[tuple[Iterable[tuple[bytes, tuple[str, int]]], SendDatagram]] = []
 
     def watch(self, images: int) -> None:
         """Compare these images too, from now on (their copies before are taken now). Image changes
@@ -75,10 +73,6 @@ class Transaction:
         """Publish `event` with this transaction's, after its image changes (logged, at its `now`)."""
         self.emitted.append(event)
 
-    def send_after(self, datagrams: Iterable[tuple[bytes, tuple[str, int]]], send: SendDatagram) -> None:
-        """Hand `send` these (data, destination) once the lock is released, before the events are published."""
-        self.sends.append((datagrams, send))
-
     def __enter__(self) -> Transaction:
         return self
 
@@ -86,35 +80,28 @@ class Transaction:
         guard = self.guard
         table = guard.table
         pending, images = table.has_events, self.images
-        if not (pending or images or self.sends or self.requests or self.emitted):
-            guard.lock.release()  # the per-packet path, mostly: nothing to send or to tell
+        if not (pending or images or self.requests or self.emitted):
+            guard.lock.release()  # the per-packet path, mostly: nothing to tell
             return
-        now, requests, emitted, sends = self.now, self.requests, self.emitted, self.sends
+        now, requests, emitted = self.now, self.requests, self.emitted
         try:
             connections = table.pop_events() if pending else ()
             changes = []
-            if images:  # the watched images that changed
+            if images:  # the watched images (`watch`: they exist) that changed
                 output, inputs = guard.output, guard.input
-                if images & OUTPUT_IMAGE and output.data != self.before_output:  # type: ignore[union-attr]
-                    changes.append(ImageChanged("output", self.before_output, bytes(output.data)))  # type: ignore[union-attr]
-                if images & INPUT_IMAGE and inputs.data != self.before_input:  # type: ignore[union-attr]
-                    changes.append(ImageChanged("input", self.before_input, bytes(inputs.data)))  # type: ignore[union-attr]
+                if output is not None and images & OUTPUT_IMAGE and output.data != self.before_output:
+                    changes.append(ImageChanged("output", self.before_output, bytes(output.data)))
+                if inputs is not None and images & INPUT_IMAGE and inputs.data != self.before_input:
+                    changes.append(ImageChanged("input", self.before_input, bytes(inputs.data)))
                 self.images = NO_IMAGES
             if requests:
                 self.requests = ()
             if emitted:
                 self.emitted = []
-            if sends:
-                self.sends = []
         finally:
             guard.lock.release()
-        try:
-            for datagrams, send in sends:
-                for data, destination in datagrams:
-                    send(data, destination)
-        finally:
-            if requests or connections or changes or emitted:
-                guard.publish(now, requests, connections, changes, emitted)
+        if requests or connections or changes or emitted:
+            guard.publish(now, requests, connections, changes, emitted)
 
 
 class DeviceGuard:

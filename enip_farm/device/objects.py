@@ -46,12 +46,14 @@ class ObjectModel:
 
 def build_objects(profile: DeviceProfile, counters: Counter[str], budget: CyclicBudget | None, *,
                   product_code: Callable[[], int], identity_state: Callable[[], int],
+                  revision: Callable[[], tuple[int, int]] | None = None,
                   resetting: Callable[[], bool], forced_status: dict[int, int]) -> ObjectModel:
     """The objects of the device `profile` describes. `counters`: the device's (the connection table
     counts into them); `budget`: the cyclic I/O budget its connections share (None: no limit);
     `product_code`, `identity_state`, `resetting`: what the Identity object and the Safety Supervisor
     read as they answer; `forced_status`: the router's injected statuses (a `status` fault)."""
     writable = profile.implicit.explicit_output_writes_while_owned
+    shown_revision = revision or (lambda: profile.revision)
     assemblies = {spec.role: AssemblyInstance(spec.instance_id, spec.size, spec.settable, writable)
                   for spec in profile.assemblies}
     configuration = assemblies.get("configuration")
@@ -59,7 +61,7 @@ def build_objects(profile: DeviceProfile, counters: Counter[str], budget: Cyclic
         configuration.data[:] = profile.configuration_data
 
     def key_identity() -> KeyIdentity:
-        return KeyIdentity(profile.vendor_id, profile.device_type, product_code(), profile.revision)
+        return KeyIdentity(profile.vendor_id, profile.device_type, product_code(), shown_revision())
 
     table = ConnectionTable(assemblies, _policy(profile), key_identity, counters, budget=budget)
     tcpip = TcpIpInterfaceObject(address=profile.address, netmask=profile.netmask, gateway=profile.gateway,
@@ -79,7 +81,7 @@ def build_objects(profile: DeviceProfile, counters: Counter[str], budget: Cyclic
     router.replay = {(service, path, data): reply for service, path, data, reply in profile.replay}
     for obj in (
         IdentityObject(vendor_id=profile.vendor_id, device_type=profile.device_type, product_code=product_code,
-                       revision=profile.revision, serial_number=profile.serial_number,
+                       revision=shown_revision, serial_number=profile.serial_number,
                        product_name=profile.product_name, status=lambda: table.status, state=identity_state),
         AssemblyObject(list(assemblies.values())),
         *([ParameterObject([ParameterSpec(p.instance, p.name, p.descriptor, p.data_type, p.size, p.minimum,

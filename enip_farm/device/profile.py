@@ -80,6 +80,7 @@ class DeviceProfile:
     connections: tuple[ConnectionEntry, ...] = ()  # an EDS's class-1 connections: only these are admitted
     configuration_data: bytes = b""  # the configuration assembly's default bytes (an EDS's)
     parameters: tuple[ParameterEntry, ...] = ()  # an EDS's [Params]: the Parameter Object's instances
+    model_file: str = ""  # the profile file (a learned profile, an EDS) the configuration names as the model
 
     def assembly(self, role: str) -> AssemblySpec | None:
         return next((a for a in self.assemblies if a.role == role), None)

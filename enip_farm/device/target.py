@@ -35,7 +35,8 @@ class EncapsulationTarget:
     """The encapsulation-level identity and the explicit messaging of one device."""
 
     def __init__(self, profile: DeviceProfile, guard: DeviceGuard, router: MessageRouter, resets: Resets,
-                 product_code: Callable[[], int], identity_state: Callable[[], int]) -> None:
+                 product_code: Callable[[], int], identity_state: Callable[[], int],
+                 revision: Callable[[], tuple[int, int]] | None = None) -> None:
         self.profile = profile
         self.guard = guard
         self.router = router
@@ -43,14 +44,16 @@ class EncapsulationTarget:
         self.resets = resets
         self.product_code = product_code
         self.identity_state = identity_state
+        self.revision = revision or (lambda: profile.revision)
         service = ServiceItem(PROTOCOL_VERSION, CAPABILITY_TCP | CAPABILITY_UDP_CLASS_0_1, "Communications")
         self._list_services = encode_items([(ItemType.LIST_SERVICES, encode_service_item(service))])
 
     def identity_item(self) -> IdentityItem:
         p = self.profile
         status = self.guard.read(lambda: self.table.status)
+        major, minor = self.revision()
         return IdentityItem(PROTOCOL_VERSION, SocketAddress(p.address, ENIP_PORT), p.vendor_id, p.device_type,
-                            self.product_code(), p.revision[0], p.revision[1], status, p.serial_number,
+                            self.product_code(), major, minor, status, p.serial_number,
                             p.product_name, self.identity_state())
 
     def list_identity_data(self) -> bytes:

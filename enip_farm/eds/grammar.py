@@ -3,13 +3,15 @@
 (numbers, dates, times, identifiers, an unquoted EPATH's bytes), brace lists `{a, {b, c}}`, or
 nothing; `$` comments anywhere outside a string (also between a value and its comma); any line
 ending; Latin-1 text. Parsed with a lark grammar (LALR, contextual lexer); every syntax error of a
-file is reported, each with its line, and parsing goes on after it.
+file is reported, each with its line, and parsing goes on after it. A line holding only a bare word
+(no `=`, no `;`) before an entry or a section, as some vendors' files have, is skipped with a warning.
 
 The syntax only: what the sections and entries mean is read by enip_farm/eds/reader.py (and sections.py).
 """
 
 from __future__ import annotations
 
+import re
 from dataclasses import dataclass, field
 
 from lark import Lark, Token, Transformer, UnexpectedCharacters, UnexpectedEOF, UnexpectedInput, UnexpectedToken
@@ -65,11 +67,13 @@ class Section:
 
 @dataclass
 class EdsText:
-    """A file's sections in order; `errors`: (line, reason) of every syntax error."""
+    """A file's sections in order; `errors`: (line, reason) of every syntax error; `warnings`:
+    (line, reason) of what was skipped (a stray word on a line of its own)."""
 
     sections: dict[str, Section]
     errors: list[tuple[int, str]]
     duplicate_sections: list[Section] = field(default_factory=list)
+    warnings: list[tuple[int, str]] = field(default_factory=list)
 
     def entry(self, section: str, keyword: str) -> Entry | None:
         found = self.sections.get(section)
@@ -205,15 +209,48 @@ def _repair(text: str, error: UnexpectedInput) -> str | None:
     return text[:position] + " " * len(str(token)) + text[position + len(str(token)):]
 
 
+#: A line with a bare word and nothing else (a comment may follow).
+_LONE_WORD = re.compile(r"[ \t]*([A-Za-z0-9_][A-Za-z0-9_.\-]*)[ \t]*(?:\$[^\r\n]*)?")
+_BLANK = re.compile(r"[ \t\f\x1a]*(?:\$[^\r\n]*)?")
+
+
+def _stray_word(text: str, error: UnexpectedInput) -> tuple[int, str, str] | None:
+    """(line, word, text without it) when the parser took a stray word, alone on its line, for an
+    entry's keyword and then met the next entry, a section or the end of the file instead of '='."""
+    if not isinstance(error, UnexpectedToken) or "EQUAL" not in (error.accepts or error.expected):
+        return None
+    token = error.token
+    if token.type not in ("KEYWORD", "LSQB", "$END"):
+        return None
+    lines = text.splitlines(keepends=True)
+    index = (token.line if token.type != "$END" and isinstance(token.line, int) else len(lines) + 1) - 2
+    while index >= 0 and _BLANK.fullmatch(lines[index].rstrip("\r\n")):
+        index -= 1
+    if index < 0:
+        return None
+    body = lines[index].rstrip("\r\n")
+    found = _LONE_WORD.fullmatch(body)
+    if found is None:
+        return None
+    lines[index] = " " * len(body) + lines[index][len(body):]
+    return index + 1, found.group(1), "".join(lines)
+
+
 def parse_eds_text(text: str) -> EdsText:
     """The sections and entries of an EDS's text, and every syntax error with its line: after an
     error the text is repaired as little as it takes (`_repair`) and parsed again."""
     errors: list[tuple[int, str]] = []
+    warnings: list[tuple[int, str]] = []
     last_line = text.count("\n") + 1
     for _ in range(_MAX_REPAIRS):
         try:
             result: EdsText = _PARSER.parse(text)  # type: ignore[assignment]
         except UnexpectedInput as error:
+            stray = _stray_word(text, error)
+            if stray is not None:
+                line, word, text = stray
+                warnings.append((line, f"{word!r} alone on its line (no '=', no ';'): skipped"))
+                continue
             line = getattr(error, "line", None)
             if not isinstance(line, int) or line < 1 or isinstance(error, UnexpectedEOF) or (
                     isinstance(error, UnexpectedToken) and error.token.type == "$END"):
@@ -225,9 +262,9 @@ def parse_eds_text(text: str) -> EdsText:
                 break
             text = repaired
             continue
-        result.errors = errors
+        result.errors, result.warnings = errors, warnings
         return result
-    return EdsText({}, errors or [(last_line, "too many errors")])
+    return EdsText({}, errors or [(last_line, "too many errors")], warnings=warnings)
 
 
 def decode_eds_bytes(data: bytes) -> str:

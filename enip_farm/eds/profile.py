@@ -11,6 +11,7 @@ from __future__ import annotations
 import re
 from typing import Any
 
+from enip_farm import words
 from enip_farm.cip.data_types import ELEMENTARY
 from enip_farm.device.catalogue import MAX_ASSEMBLY_SIZE, Catalogue, shipped_catalogue
 from enip_farm.eds.entries import FORMATS, EdsConnection, EdsDevice, EdsError, EdsParam
@@ -20,8 +21,9 @@ def _describe(connection: EdsConnection) -> str:
     return f"{connection.keyword} {connection.name!r} ({connection.kind}, path {connection.path})"
 
 
-def _served(connection: EdsConnection, notes: list[str]) -> dict[str, Any] | None:
-    """The profile's entry of a class-1 connection the farm serves, or None (with a note)."""
+def _served(connection: EdsConnection, notes: list[str], assembly_sizes: dict[int, int]) -> dict[str, Any] | None:
+    """The profile's entry of a class-1 connection the farm serves, or None (with a note). A
+    configuration size the entry leaves empty is its configuration point's [Assembly] size."""
     if connection.transport_class != 1:
         notes.append(f"{_describe(connection)}: transport class {connection.transport_class}; only class-1 "
                      "entries are served")
@@ -59,7 +61,8 @@ def _served(connection: EdsConnection, notes: list[str]) -> dict[str, Any] | Non
         "o_t_variable": connection.o_t_variable, "t_o_variable": connection.t_o_variable,
         "t_o_multicast": connection.t_o_multicast or not connection.t_o_point_to_point,
         "t_o_point_to_point": connection.t_o_point_to_point or not connection.t_o_multicast,
-        "configuration_size": connection.configuration_size or 0,
+        "configuration_size": (connection.configuration_size if connection.configuration_size is not None
+                               else assembly_sizes.get(configuration, 0) if configuration is not None else 0),
     }
     if connection.rpi is not None:
         entry["rpi_us"] = list(connection.rpi)
@@ -102,7 +105,9 @@ def eds_profile(device: EdsDevice, source: str, name: str | None = None,
     if name is not None and name in catalogue.models:
         raise EdsError(f"{name!r} is a model of the catalogue: a profile never replaces one, choose another name")
     notes = list(device.notes)
-    served = [(c, e) for c in device.connections if (e := _served(c, notes)) is not None]
+    assembly_sizes = {a.instance: a.size for a in device.assemblies.values()
+                      if a.instance is not None and a.size is not None and a.size <= MAX_ASSEMBLY_SIZE}
+    served = [(c, e) for c in device.connections if (e := _served(c, notes, assembly_sizes)) is not None]
     owners = [(c, e) for c, e in served if c.kind == "exclusive owner"]
     # the main connection: the first exclusive owner with data both ways, else with any data, else any
     main = next((p for p in owners if p[1]["o_t_size"] and p[1]["t_o_size"]), None) \
@@ -178,7 +183,7 @@ def eds_profile(device: EdsDevice, source: str, name: str | None = None,
     model["connections"] = [e for _, e in served]
     model["points"] = dict(sorted(points.items()))
     model["unverified"] = list(dict.fromkeys(["io layout", *device.unverified]))
-    model_name = name or product_name.replace(" ", "_") or "eds"
+    model_name = name or words.model_name(device.product_name) or "eds"  # the whole name, not the 32 served
     while model_name in catalogue.models:
         model_name += "_eds"
     return model_name, {"models": {model_name: model}}, notes

@@ -72,6 +72,8 @@ def read_eds(text: str, source: str) -> EdsDevice:
             connection = reader.connection(entry)
             if connection is not None:
                 connections.append(connection)
+    for line, reason in parsed.warnings:
+        reader.notes.append(f"line {line}: {reason}")
     for duplicate in [e for s in parsed.sections.values() for e in s.duplicates]:
         reader.notes.append(f"line {duplicate.line}: {duplicate.keyword} given again; the first is used")
     for extra in parsed.duplicate_sections:

@@ -4,7 +4,8 @@ instance from its path, size, members) and every ConnectionN of [Connection Mana
 application type, transport class and trigger, connection parameters, RPI and sizes as numbers or
 a ParamN's default within its limits, an empty size being its [Assembly] format's size,
 configuration #1 and #2 sizes, its path with `[ParamN]` references resolved, 7-3.6.11.9). Real
-defects are collected as (line, reason) errors, what the farm cannot serve as notes.
+defects are collected as (line, reason) errors, what the farm cannot serve as notes: e.g. a path
+`SYMBOL_ANSI` (a produced or consumed tag whose name the user chooses, not an assembly).
 """
 
 from __future__ import annotations
@@ -34,6 +35,12 @@ from enip_farm.protocol.epath import (
 #: Application types of a connection entry's trigger and transport word, bits 24-27 (7-3.6.11.1).
 _KINDS = ((26, "exclusive owner"), (25, "input only"), (24, "listen only"), (27, "redundant owner"))
 _REFERENCE = re.compile(r"^\[?((?:Proxy)?Param|Assem|ProxyAssem)(\d+)\]?$")
+#: The EDS path keyword of a symbolic (ANSI extended symbol) segment the user fills in.
+SYMBOL_ANSI = "SYMBOL_ANSI"
+
+
+def _symbolic(path: str) -> bool:
+    return SYMBOL_ANSI in path.replace(",", " ").split()
 
 
 class SectionReader:
@@ -98,7 +105,10 @@ class SectionReader:
                 continue
             path = self.field(entry, 1).text
             instance = None
-            if path:
+            if path and _symbolic(path):
+                self.notes.append(f"line {self.line(entry, 1)}: [Assembly] {keyword}: path {path!r}: a tag the user "
+                                  "names, not an assembly instance; not served")
+            elif path:
                 resolved = self.resolve_path(path, entry.line, f"[Assembly] {keyword}")
                 if resolved is not None:
                     try:
@@ -220,7 +230,11 @@ class SectionReader:
         if _REFERENCE.match(t_o_rpi.text or "-") and t_o_rpi.text.strip("[]") not in self.params:
             self.error(self.line(entry, 5), f"{where}: T->O RPI {t_o_rpi.text} is not in [Params]")
         path = self.field(entry, 14).text
-        path_bytes = self.resolve_path(path, self.line(entry, 14), where) if path else b""
+        symbolic = _symbolic(path)
+        if symbolic:
+            self.notes.append(f"line {self.line(entry, 14)}: {where} {self.field(entry, 12).text!r}: path {path!r}: "
+                              "a tag the user names (ANSI extended symbol segment), not assembly points; not served")
+        path_bytes = self.resolve_path(path, self.line(entry, 14), where) if path and not symbolic else b""
         points, key = None, None
         if path_bytes:
             points, key = self.points(path_bytes, self.line(entry, 14), where, path)

@@ -10,6 +10,12 @@ Entries are usually separated by blank lines; text after `#` on a `#` line is a 
 
 Parsing keeps every section and attribute it does not know (the importer decides what they mean);
 only lines that fit none of the shapes above are errors, each naming the file and the line.
+
+A file cut short is refused (`cut_short`): the files RobotWare and its tools write end with their
+last entry's last line and a line break (every public EIO.cfg, and tests/data/EIO.cfg), so a file
+that ends inside a line (no final line break), on a continuation (`\\`), or after a blank line, a
+`#` line or a section line (the separators that come before an entry) was cut. A file cut exactly
+after an entry's line break looks whole: nothing in the format tells it apart.
 """
 
 from __future__ import annotations
@@ -113,7 +119,9 @@ def parse_cfg(text: str, source: str = "<cfg>") -> CfgFile:
             continue
         parts = [(number, stripped)]
         while parts[-1][1].endswith("\\"):
-            if index >= len(lines) or not lines[index].strip() or lines[index].strip().startswith("#"):
+            if index >= len(lines):
+                break  # the file ends on a continuation: cut_short says so
+            if not lines[index].strip() or lines[index].strip().startswith("#"):
                 errors.append(f"{source}:{parts[-1][0]}: the line ends in a continuation (\\) but no indented "
                               "line of the entry follows")
                 break
@@ -124,10 +132,34 @@ def parse_cfg(text: str, source: str = "<cfg>") -> CfgFile:
             errors.append(f"{source}:{number}: an entry before any section line (such as EIO_SIGNAL:)")
         elif attributes is not None:
             entries.append(Entry(section, attributes, number))
+    cut = cut_short(text, lines, source)
+    if cut:
+        errors.append(cut)
     if errors:
         raise CfgError("\n".join(errors))
     return CfgFile(source, lines[first].strip(), header["domain"], tuple(entries), sections,  # type: ignore[index]
                    tuple(warnings))
+
+
+def cut_short(text: str, lines: list[str], source: str) -> str | None:
+    """Why the file looks cut short, naming its last line, or None: see the module's docstring."""
+    if not lines:
+        return None
+    advice = "it looks cut short (a copy that stopped?): take the whole file again"
+    if not text.endswith(("\n", "\r")):
+        return (f"{source}:{len(lines)}: the file ends inside this line (no line break after it): {advice}; "
+                "if it is whole, end its last line with a line break")
+    last = max((i for i, line in enumerate(lines) if line.strip()), default=0)
+    stripped = lines[last].strip()
+    if stripped.endswith("\\"):
+        what = "a line that continues (\\) on a line that is not there"
+    elif stripped == "#" or _SECTION.match(stripped):
+        what = f"{'a # line' if stripped == '#' else 'the section line ' + stripped} and no entry after it"
+    elif last < len(lines) - 1 and _HEADER.match(stripped) is None:
+        last, what = len(lines) - 1, "a blank line, which comes before an entry"
+    else:
+        return None
+    return f"{source}:{last + 1}: the file ends with {what}, where RobotWare ends with an entry's line: {advice}"
 
 
 def _attributes(parts: list[tuple[int, str]], source: str, errors: list[str],

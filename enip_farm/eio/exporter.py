@@ -1,7 +1,8 @@
 """The EIO.cfg entries a controller needs to scan the farm's devices: one `ETHERNETIP_DEVICE` per
 device (address, identity as the device answers it, assembly instances and sizes, connection
 priority, and the attributes the device's `extra` kept) and one `EIO_SIGNAL` per named signal,
-in RobotWare's format (`eio/cfg.py`). `eio import` of the output gives back the same devices and
+in RobotWare's format (`eio/cfg.py`); a group of kind network is an `INDUSTRIAL_NETWORK` entry.
+`eio import` of the output gives back the same devices and
 signals (add-on modules aside: EIO.cfg has no place for them, only for the sizes they make)."""
 
 from __future__ import annotations
@@ -35,7 +36,9 @@ def export_eio(config: FarmConfig, catalogue: Catalogue) -> str:
     for device, profile in zip(config.devices, profiles, strict=True):
         devices.append(device_entry(device, profile))
         signals += [signal_entry(device.name, signal) for signal in device.signals]
-    sections = [("ETHERNETIP_DEVICE", devices)] + ([("EIO_SIGNAL", signals)] if signals else [])
+    networks = [[("Name", group.name)] for group in config.groups if group.kind == "network"]
+    sections = ([("INDUSTRIAL_NETWORK", networks)] if networks else []) + [("ETHERNETIP_DEVICE", devices)] + (
+        [("EIO_SIGNAL", signals)] if signals else [])
     try:
         return write_cfg(HEADER, sections)
     except ValueError as error:

@@ -15,6 +15,7 @@ every such decision is reported as a warning naming the file and line.
 
 from __future__ import annotations
 
+import re
 from dataclasses import dataclass
 from ipaddress import IPv4Address
 from typing import Any
@@ -111,9 +112,36 @@ def _run(cell: CellImport) -> ImportResult:
     if not cell.devices:
         raise EioError(f"{cell.cfg.source}: no EtherNet/IP device (ETHERNETIP_DEVICE entry) the farm can "
                        "serve: nothing to import", warnings)
-    document = {"devices": [device.config for device in cell.devices.values()]}
+    document: dict[str, Any] = {"devices": [device.config for device in cell.devices.values()]}
+    groups = network_groups(cell, others.get("INDUSTRIAL_NETWORK", []))
+    if groups:
+        document["groups"] = groups
     parse_config(document, cell.cfg.source)  # the pieces were checked one by one; this cannot fail
     return ImportResult(document, warnings, _yaml(cell, document, warnings))
+
+
+def network_groups(cell: CellImport, networks: list[Entry]) -> list[dict[str, Any]]:
+    """A group (kind network) per network the devices are on: a device's -Network, else the file's one
+    EtherNet/IP network (INDUSTRIAL_NETWORK; its only network), else none. Named as the network,
+    made a valid group name."""
+    named = [str(n.get("Name")) for n in networks if isinstance(n.get("Name"), str)]
+    ethernetip = [name for name in named if "ethernetip" in name.casefold()] or named
+    default = ethernetip[0] if len(ethernetip) == 1 else None
+    taken = {device.config["name"] for device in cell.devices.values()}
+    members: dict[str, list[str]] = {}
+    for device in cell.devices.values():
+        network = device.entry.get("Network")
+        network = str(network) if isinstance(network, str) and network.strip() else default
+        if network is not None:
+            members.setdefault(network, []).append(device.config["name"])
+    groups = []
+    for network, names in members.items():
+        name = re.sub(r"[^A-Za-z0-9_.-]", "_", network)[:56] or "network"
+        while name in taken:
+            name += "-net"
+        taken.add(name)
+        groups.append({"name": name, "kind": "network", "members": names})
+    return groups
 
 
 def _yaml(cell: CellImport, document: dict[str, Any], warnings: list[str]) -> str:
@@ -142,4 +170,9 @@ def _yaml(cell: CellImport, document: dict[str, Any], warnings: list[str]) -> st
         dumped = yaml.dump([config], Dumper=_DUMPER, sort_keys=False, default_flow_style=None, width=110,
                            allow_unicode=True)
         out += ["  " + line for line in dumped.splitlines()]
+    if "groups" in document:
+        out.append("# The networks the devices are on (a fault or a scenario names a group to hit them all):")
+        dumped = yaml.dump({"groups": document["groups"]}, Dumper=_DUMPER, sort_keys=False,
+                           default_flow_style=None, width=110)
+        out += dumped.splitlines()
     return "\n".join(out) + "\n"

@@ -12,34 +12,43 @@ from __future__ import annotations
 import asyncio
 import logging
 import time
-from collections.abc import Coroutine, Iterator, Mapping
+from collections import deque
+from collections.abc import Callable, Coroutine, Iterator, Mapping
 from contextlib import contextmanager
 from pathlib import Path
 from typing import Any, TypeVar
 
 from enip_farm.capture.recorder import Recorder
 from enip_farm.cip.budget import CyclicBudget
-from enip_farm.config import ConfigError, FarmConfig, as_config
+from enip_farm.cip.report import ReactionFigures
+from enip_farm.cip.verdicts import judge_reaction
+from enip_farm.config import ConfigError, FarmConfig, as_config, load_config
 from enip_farm.control.handle import DeviceHandle
 from enip_farm.control.http import HttpApi, bind_problem
+from enip_farm.control.reaction import SignalValue, measure_reaction
 from enip_farm.control.wiring import Wiring
 from enip_farm.device.build import build_profiles
 from enip_farm.device.catalogue import Catalogue
-from enip_farm.device.device import Device
-from enip_farm.device.faults import Disconnect, FaultType
+from enip_farm.device.device import Clock, Device
+from enip_farm.device.faults import Disconnect, Fault, FaultType
 from enip_farm.device.nonvolatile import load_state, save_state
+from enip_farm.device.report import FarmReport, TestBounds, device_bounds, farm_report
 from enip_farm.eds.reader import eds_catalogue
+from enip_farm.farm.faulting import FarmFaults
 from enip_farm.farm.listeners import SOCKETS_PER_DEVICE, BindError, Listeners, bind_message, raise_open_file_limit
 from enip_farm.farm.loop import FarmThread, freeze_heap, new_event_loop, until_stopped_or_failed
 from enip_farm.farm.resets import FarmResets
 from enip_farm.farm.supervision import SUPERVISE_S, Supervision
 from enip_farm.protocol.connection import IO_PORT
 from enip_farm.protocol.encapsulation import ENIP_PORT
+from enip_farm.scenario.model import Scenario
+from enip_farm.scenario.parse import load_scenario, signal_check
+from enip_farm.scenario.run import run_scenario
+from enip_farm.scenario.verdict import ScenarioResult
 from enip_farm.server.calibrate import DEFAULT_DATAGRAMS_PER_S, measure_budget
 from enip_farm.server.implicit import ImplicitIo
 from enip_farm.server.limits import TcpLimits
 from enip_farm.server.udp import DeviceDatagramProtocol, DiscoveryResponder, udp_socket
-from enip_farm.server.waits import os_wait_s
 
 #: What callers import from here (the serve command, the workers, the tests).
 __all__ = ["SOCKETS_PER_DEVICE", "SUPERVISE_S", "BindError", "Farm", "FarmThread", "freeze_heap", "new_event_loop",
@@ -55,17 +64,20 @@ class Farm:
     def __init__(self, config: FarmConfig | Mapping[str, Any] | str | Path, http: tuple[str, int] | None = None,
                  token: str | None = None, record: str | Path | None = None,
                  catalogue: Catalogue | None = None, heartbeat: str | Path | None = None,
-                 state: str | Path | None = None) -> None:
+                 state: str | Path | None = None, clock: Clock = time.monotonic_ns) -> None:
         """`config`: a FarmConfig, a dict as a YAML file holds it, or a file's path; `http`: serve
         the HTTP API on (host, port), port 0 picks a free one (see `http.port`); `record`: write the
         farm's traffic to this pcap file; `catalogue`: the models the devices name (default: the
         shipped catalogue); `heartbeat`: a file whose time the farm sets every second while its
         cyclic I/O runs (docker/healthcheck.sh reads it); `state`: a JSON file of the devices'
         non-volatile state (a safety target's TUNID, configuration and owner), restored now if it
-        exists and written at `stop` (device/nonvolatile.py). Raises ConfigError if the configuration
-        is invalid or its devices cannot be built, or the state file is not one."""
-        self.config = config = as_config(config)
-        profiles = build_profiles(config, eds_catalogue(catalogue))
+        exists and written at `stop` (device/nonvolatile.py); `clock`: the monotonic time (int ns) the
+        devices' API edge takes when not given a time (a test's, to drive it). Raises ConfigError if
+        the configuration is invalid or its devices cannot be built, or the state file is not one."""
+        models = eds_catalogue(catalogue)
+        known = (models.bases(), models.addons())  # a file's unknown models are told with its other problems
+        self.config = config = load_config(config, known) if isinstance(config, (str, Path)) else as_config(config)
+        profiles = build_profiles(config, models)
         self.recorder = Recorder(record) if record else None
         self._http_address = http
         self._http_token = token
@@ -73,10 +85,13 @@ class Farm:
         self._profiles = profiles
         #: What this farm's cyclic I/O thread admits connections for (set at start: measured or configured).
         self.budget = CyclicBudget(DEFAULT_DATAGRAMS_PER_S, "not started")
-        self.devices: dict[str, Device] = {p.name: Device(p, self.budget) for p in profiles}
+        self.devices: dict[str, Device] = {p.name: Device(p, self.budget, clock) for p in profiles}
         self.handles: dict[str, DeviceHandle] = {name: DeviceHandle(self, d) for name, d in self.devices.items()}
         for device in self.devices.values():
             device.recorder = self.recorder
+            device.table.measuring = config.cyclic_io.measure
+        #: The last reactions measured, each with the bounds its test gave, for the report.
+        self.reactions: deque[tuple[ReactionFigures, TestBounds]] = deque(maxlen=32)
         self.state_file = Path(state) if state is not None else None
         if self.state_file is not None:
             try:
@@ -89,11 +104,11 @@ class Farm:
         self._datagram_transports: list[asyncio.DatagramTransport] = []
         self._discovery: DiscoveryResponder | None = None
         self._implicit: ImplicitIo | None = None
-        self._fault_timers: dict[tuple[str, str], asyncio.TimerHandle] = {}
         self._tasks: set[asyncio.Task] = set()
         self.resets = FarmResets(self.listeners, self._spawn)
+        self.faults = FarmFaults(self.devices, self.listeners, self.resets, self._spawn, lambda: self.running)
         for device in self.devices.values():
-            device.observe(lambda event, d=device: self.resets.on_event(d, event))
+            self.resets.observe(device)
         self.loop: asyncio.AbstractEventLoop | None = None
         self.running = False
         self.supervision = Supervision(Path(heartbeat) if heartbeat is not None else None, lambda: self.running,
@@ -159,7 +174,7 @@ class Farm:
                 self.budget.set(measured.datagrams_per_s, measured.source)
             else:
                 self.budget.set(budget, "configured")
-            self._implicit = ImplicitIo()
+            self._implicit = ImplicitIo(self.budget if budget == "auto" else None)
             for device in self.devices.values():
                 try:
                     self._implicit.add(device)
@@ -203,9 +218,7 @@ class Farm:
         for transport in self._datagram_transports:
             transport.close()
         self._datagram_transports.clear()
-        for timer in self._fault_timers.values():
-            timer.cancel()
-        self._fault_timers.clear()
+        self.faults.stop()
         await self.listeners.close()
         if self.recorder is not None:
             self.recorder.close()
@@ -225,33 +238,63 @@ class Farm:
         want of it, and how late the I/O thread runs (worst of the last second, overloads)."""
         return self.supervision.cyclic_io_load(self.budget)
 
-    # -- faults (device/faults.py) ---------------------------------------------------------------
+    def report(self, bounds: TestBounds = None) -> FarmReport:
+        """The report on the controller under test (cip/report.py: `as_dict()` for JSON): every
+        device's class-1 connections as measured, its reconnections and the reactions measured,
+        judged against the bounds (the configuration's, then `bounds`, a test's own)."""
+        return farm_report(self.config, self.devices.values(), time.monotonic_ns(), list(self.reactions), bounds)
 
-    async def inject_fault(self, name: str, fault: FaultType) -> None:
-        """Switch a fault on for one device, on the farm's loop; `fault.duration_s` ends it by itself.
-        Its hooks (device/fault_type.py) say whether open connections end and TCP stops listening."""
-        device = self.devices[name]
-        self._cancel_timer(name, fault.name)
-        device.faults.set(fault, time.monotonic_ns())
-        device.record("fault injected", fault.parameters())
-        end = fault.on_tcp_connection()
-        if end is not None or not fault.listens():
-            self._close_connections(device, end or Disconnect.CLOSE)
-        if not fault.listens() and name in self._servers:
-            server = self._servers.pop(name)
-            server.close()
-        if fault.duration_ns is not None:
-            self._arm_fault_end(name, fault.name, asyncio.get_running_loop().time() + fault.duration_ns / 1e9)
+    def reaction(self, set: SignalValue, expect: SignalValue, timeout: float = 1.0, repeat: int = 1,
+                 reset: int | float | None = None, bounds: TestBounds = None, name: str | None = None
+                 ) -> ReactionFigures:
+        """The controller's reaction time (action latency), `repeat` times, judged against the bounds
+        (the stimulus device's, then `bounds`): farm.reaction(set=("io1", "DI3", 1), expect=("io2",
+        "DO5", 1), timeout=1, repeat=20). Blocks (not on the farm's loop); control/reaction.py."""
+        implicit = self._implicit
+        figures = measure_reaction(self.handles, set, expect, timeout, repeat, reset, name,
+                                   implicit.thread.watch_flush if implicit is not None else None)
+        self.reactions.append((figures, bounds))
+        return judge_reaction(figures, device_bounds(self.config, set[0], bounds))
 
-    def _arm_fault_end(self, name: str, kind: str, end: float) -> None:
-        """Clear the fault at `end` (loop time), in bounded steps (server/waits.py)."""
-        loop = asyncio.get_running_loop()
-        delay = end - loop.time()
-        if delay > 0 and os_wait_s(delay) < delay:
-            self._fault_timers[name, kind] = loop.call_later(os_wait_s(delay), self._arm_fault_end, name, kind, end)
-            return
-        self._fault_timers[name, kind] = loop.call_later(
-            os_wait_s(delay), lambda: self._spawn(self.clear_faults(name, kind)))
+    # -- faults (device/faults.py; farm/faulting.py) ---------------------------------------------
+
+    async def inject_fault(self, name: str, fault: FaultType) -> tuple[str, ...]:
+        """Switch a fault on for a device, or for every device of a group at once, on the farm's loop;
+        `fault.duration_s` ends it by itself. The devices it was set on."""
+        names = self.config.topology.targets(name)
+        await self.faults.inject(names, fault)
+        return names
+
+    async def clear_faults(self, name: str, kind: str | None = None) -> list[str]:
+        """Switch one fault kind (or all) off for a device or a group's devices: the kinds cleared."""
+        cleared: list[str] = []
+        for device in self.config.topology.targets(name):
+            cleared += [k for k in await self.faults.clear(device, kind) if k not in cleared]
+        return cleared
+
+    def inject(self, target: str, kind: str, duration_s: float | None = None, **params: Any) -> tuple[str, ...]:
+        """A fault on a device or a group (every member at once), from another thread:
+        farm.inject("rack2", "power-loss", duration_s=4, boot_time_s=2). KeyError for an unknown
+        target, `FaultError` (a ValueError naming the field) for a bad parameter: nothing is set."""
+        self.config.topology.targets(target)  # KeyError before anything runs
+        return self.run(self.inject_fault(target, Fault(kind, duration_s=duration_s, **params)))
+
+    def clear(self, target: str, kind: str | None = None) -> list[str]:
+        """End one fault kind (or all) on a device or a group, from another thread."""
+        return self.run(self.clear_faults(target, kind))
+
+    # -- scenarios (enip_farm/scenario/) --------------------------------------------------------------
+
+    def load_scenario(self, path: str | Path) -> Scenario:
+        """A scenario file parsed and checked against this farm's cell (ScenarioError: every defect)."""
+        return load_scenario(str(path), self.config, signal_check({n: h.signals for n, h in self.handles.items()}))
+
+    def run_scenario(self, scenario: str | Path | Scenario, progress: Callable[[str], None] | None = None,
+                     timeout: float = 3600.0) -> ScenarioResult:
+        """Run a scenario (a file or a parsed one) on the running farm, from another thread, and return
+        its result (`passed`, `verdicts`, `table()`); whatever it set is undone when it ends."""
+        parsed = scenario if isinstance(scenario, Scenario) else self.load_scenario(scenario)
+        return self.run(run_scenario(self, parsed, progress), timeout)
 
     def _spawn(self, coroutine: Coroutine[Any, Any, Any]) -> None:
         """A task of the farm, kept until it ends; its exception reaches the loop's handler."""
@@ -264,24 +307,6 @@ class Farm:
         if not task.cancelled() and task.exception() is not None and self.loop is not None:
             self.loop.call_exception_handler({"message": "a farm task failed", "exception": task.exception(),
                                               "task": task})
-
-    async def clear_faults(self, name: str, kind: str | None = None) -> list[str]:
-        """Switch one fault (or all) off; normal behaviour returns without a restart."""
-        device = self.devices[name]
-        listens_again = not device.faults.listens and device.faults.listens_without(kind)
-        if listens_again and self.running and name not in self._servers and not device.resetting:
-            await self._listen(device)  # listening again before the fault is seen gone (a reset's end listens)
-        cleared = device.faults.clear(kind)
-        for k in cleared:
-            self._cancel_timer(name, k)
-        if cleared:
-            device.record("fault cleared", {"kind": ", ".join(cleared)})
-        return cleared
-
-    def _cancel_timer(self, name: str, kind: str) -> None:
-        timer = self._fault_timers.pop((name, kind), None)
-        if timer is not None:
-            timer.cancel()
 
     def run(self, coroutine: Coroutine[Any, Any, T], timeout: float = 30.0) -> T:
         """Run a farm coroutine from another thread (e.g. a synchronous test while the farm runs in

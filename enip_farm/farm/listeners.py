@@ -8,6 +8,7 @@ from __future__ import annotations
 import asyncio
 import errno
 import resource
+import socket
 
 from enip_farm.device.device import Device
 from enip_farm.device.fault_type import Disconnect
@@ -35,6 +36,17 @@ def raise_open_file_limit() -> int:
     return soft
 
 
+def is_host_address(address: str) -> bool:
+    """Whether this host can bind `address` (one of its interfaces', or any 127.x.y.z on Linux):
+    a UDP socket bound to its port 0 for a moment, which takes no port anyone uses."""
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as probe:
+        try:
+            probe.bind((address, 0))
+        except OSError as error:
+            return error.errno != errno.EADDRNOTAVAIL
+    return True
+
+
 def bind_message(device: Device, transport: str, error: OSError, port: int = ENIP_PORT) -> str:
     """Why `device` cannot bind `transport` on `port`, and what to do about it."""
     where = f"device {device.name!r}: cannot bind {transport} {device.profile.address}:{port}"
@@ -43,7 +55,9 @@ def bind_message(device: Device, transport: str, error: OSError, port: int = ENI
                 f"e.g. `sudo ip addr add {device.profile.address}/32 dev lo` (every 127.x.y.z address "
                 "works on Linux without this).")
     if error.errno == errno.EADDRINUSE:
-        return f"{where}: the port is already in use there (another farm or EtherNet/IP stack?)."
+        return (f"{where}: the port is already in use there (another farm or EtherNet/IP stack?). Stop it "
+                f"(`ss -ltunp 'sport = :{port}'` names the process), or give the device an address nothing "
+                "serves (on Linux any 127.x.y.z is this host's).")
     if error.errno == errno.EMFILE:
         return (f"{where}: out of file descriptors (limit {resource.getrlimit(resource.RLIMIT_NOFILE)[0]}); "
                 f"each device needs {SOCKETS_PER_DEVICE} plus one per client connection. Raise `ulimit -n`.")

@@ -49,6 +49,9 @@ def split(config: FarmConfig, count: int) -> list[FarmConfig]:
         parts.append(FarmConfig.model_validate({
             "devices": [d for d in config.devices if d.name in members],
             "discovery": config.discovery,
+            # each worker's I/O thread: the budget configured and whether it measures (per worker)
+            "cyclic_io": config.cyclic_io.model_dump(mode="json"),
+            "bounds": config.bounds.model_dump(mode="json"),
             "wires": [w for w in config.wires if w.source.rpartition(".")[0] in members],
             "rules": [r for r in config.rules if r.when.rpartition(".")[0] in members],
         }) if names else None)

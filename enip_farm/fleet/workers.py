@@ -6,7 +6,7 @@ With --http [HOST:]PORT the parent serves one HTTP API for the whole fleet there
 serves its slice's API on a port of 127.0.0.1 it picks (with the same token), and the parent
 routes a request for a device to the worker that serves it; GET /devices, /events and /metrics
 merge every worker's answer. The token is checked by the parent (with the farm API's Host and
-body-size guard) and again by the workers (enip_farm/fleet/api.py).
+body-size guard) and again by the workers (fleet/api.py, over the routes of fleet/router.py).
 """
 
 from __future__ import annotations
@@ -27,8 +27,8 @@ from enip_farm.config import FarmConfig, parse_config
 from enip_farm.control.guard import needs_token
 from enip_farm.farm.console import Console, configure_logging
 from enip_farm.farm.farm import BindError, Farm, freeze_heap, new_event_loop, until_stopped_or_failed
-from enip_farm.farm.table import TABLE_HEADER, device_table
-from enip_farm.fleet.api import START_TIMEOUT, create_router, router_port, serving_router
+from enip_farm.farm.table import Row, device_rows, device_table
+from enip_farm.fleet.api import START_TIMEOUT, create_worker_router, router_port, serving_router
 from enip_farm.fleet.slices import split
 
 
@@ -53,7 +53,7 @@ def _worker(index: int, config_data: dict[str, Any], http: bool, token: str | No
         console = Console(farm.devices.values(), also_flush=[farm.tcp_limits.log] if farm.tcp_limits else [])
         console.start(loop)
         freeze_heap()
-        reports.put((index, "ready", (device_table(farm.devices.values(), header=False),
+        reports.put((index, "ready", (device_rows(farm.devices.values()),
                                       farm.http.port if farm.http is not None else 0, farm.budget.describe())))
         try:
             await until_stopped_or_failed(stop, farm)
@@ -89,8 +89,6 @@ def serve_workers(config: FarmConfig, count: int, http: tuple[str, int] | None, 
                                         str(heartbeat) if heartbeat else None))
         process.start()
         processes.append(process)
-    owners = {device.name: index for index, part in enumerate(parts) for device in part.devices}
-    owners = {device.name: owners[device.name] for device in config.devices}  # configuration order
 
     stopping = False
 
@@ -101,7 +99,7 @@ def serve_workers(config: FarmConfig, count: int, http: tuple[str, int] | None, 
     previous = {sig: signal.signal(sig, stop) for sig in (signal.SIGINT, signal.SIGTERM)}
     status = 0
     try:
-        tables: dict[int, str] = {}
+        tables: dict[int, list[Row]] = {}
         ports: dict[int, int] = {}
         budgets: dict[int, str] = {}
         while len(tables) < len(processes) and not stopping:
@@ -122,22 +120,26 @@ def serve_workers(config: FarmConfig, count: int, http: tuple[str, int] | None, 
                 router = None
                 if http:
                     try:
-                        router = stack.enter_context(serving_router(create_router(owners, apis), *http, token))
+                        router = stack.enter_context(serving_router(create_worker_router(config, parts, apis, token),
+                                                                 *http, token))
                     except OSError as error:
                         click.echo(error.strerror or str(error), err=True)
                         status = 1
                 if status == 0:
                     url = f"http://{http[0]}:{router_port(router)}" if http and router is not None else None
-                    status = _run(processes, tables, banner(url), lambda: stopping, budgets)
+                    rows = {row[0]: row for part in tables.values() for row in part}
+                    status = _run(processes, [rows[device.name] for device in config.devices], banner(url),
+                                  lambda: stopping, budgets)
     finally:
         status = _stop(processes, previous, status)
     return status
 
 
-def _run(processes: list, tables: dict[int, str], banner: list[str], stopping: Callable[[], bool],
+def _run(processes: list, rows: list[Row], banner: list[str], stopping: Callable[[], bool],
          budgets: dict[int, str]) -> int:
-    """Every worker listens: print the table and the banner, wait for a signal or a worker's end."""
-    click.echo("\n".join([TABLE_HEADER, *(tables[i] for i in sorted(tables))]))
+    """Every worker listens: print the table (in the configuration's order) and the banner, wait
+    for a signal or a worker's end."""
+    click.echo(device_table(rows))
     for line in banner:
         click.echo(line, err=True)
     for index in sorted(budgets):

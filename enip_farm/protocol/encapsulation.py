@@ -3,6 +3,10 @@
 CIP Networks Library Vol. 2 (EtherNet/IP adaptation), section 2-3: a 24-byte little-endian header
 (command, length, session handle, status, sender context, options) followed by `length` bytes of
 command-specific data.
+
+A request whose Status field is not zero is ignored, with no reply (2-3.5). The whole message is
+read from the stream even when its length exceeds what the farm takes (2-3.3): the framer skips
+the rest of an oversize message without buffering it, so the stream keeps its framing.
 """
 
 from __future__ import annotations
@@ -18,7 +22,8 @@ ENIP_PORT = 44818
 HEADER = struct.Struct("<HHII8sI")
 HEADER_SIZE = HEADER.size  # 24
 
-#: Largest command-specific data length the farm accepts; longer frames get status 0x0065.
+#: Largest command-specific data length the farm takes; the data of a longer message is read and
+#: discarded, and the request gets status 0x0065 (a NOP gets nothing: it may carry 0-65511 bytes).
 MAX_DATA_LENGTH = 4096
 
 
@@ -81,7 +86,8 @@ class Frame(NamedTuple):
 
 
 class OversizeFrame(NamedTuple):
-    """A header whose length field exceeds what the framer accepts; the stream cannot continue."""
+    """A whole message whose length field exceeds what the framer takes: its header, its data read
+    and discarded (Vol. 2, 2-3.3). The stream goes on after it."""
 
     header: EncapsulationHeader
 
@@ -115,52 +121,66 @@ def decode_frame(data: bytes) -> Frame:
 class StreamFramer:
     """Cuts a TCP byte stream into encapsulation frames.
 
-    Handles a frame split over any number of reads and several frames in one read. A length field
-    over `max_length` yields an OversizeFrame, after which the framer accepts nothing more.
+    Handles a frame split over any number of reads and several frames in one read. A message whose
+    length field exceeds `max_length` is read whole and discarded as it arrives (at most
+    `max_length` + 24 bytes are ever buffered for a message); once its last byte is in, it yields an
+    OversizeFrame, in its place among the frames.
     """
 
-    __slots__ = ("_buffer", "max_length", "broken")
+    __slots__ = ("_buffer", "max_length", "_skipping", "_skip_left")
 
     def __init__(self, max_length: int = MAX_DATA_LENGTH) -> None:
         self._buffer = b""
         self.max_length = max_length
-        self.broken = False
+        self._skipping: EncapsulationHeader | None = None  # the oversize message being read and discarded
+        self._skip_left = 0  # its bytes still to come
 
     @property
     def pending(self) -> int:
-        """Bytes received that do not yet form a whole frame."""
-        return len(self._buffer)
+        """Bytes received that do not yet form a whole frame (an oversize message's still to come
+        count too)."""
+        return len(self._buffer) + self._skip_left
 
     def feed(self, data: bytes, limit: int | None = None) -> list[Frame | OversizeFrame]:
         """Append `data` and cut at most `limit` frames (all by default); the rest stays buffered
         for the next call (`feed(b"", limit)`)."""
-        if self.broken:
-            return []
-        buffer = self._buffer + data if self._buffer else data
         frames: list[Frame | OversizeFrame] = []
+        if self._skip_left:
+            if len(data) < self._skip_left:
+                self._skip_left -= len(data)
+                return frames
+            data = data[self._skip_left :]
+            self._skip_left = 0
+            frames.append(OversizeFrame(self._skipping))  # type: ignore[arg-type]
+            self._skipping = None
+        buffer = self._buffer + data if self._buffer else data
         offset = 0
         end = len(buffer)
         unpack_from = HEADER.unpack_from
+        max_length = self.max_length
         while end - offset >= HEADER_SIZE and (limit is None or len(frames) < limit):
             header = EncapsulationHeader._make(unpack_from(buffer, offset))
-            if header.length > self.max_length:
-                frames.append(OversizeFrame(header))
-                self.broken = True
-                self._buffer = b""
-                return frames
             stop = offset + HEADER_SIZE + header.length
-            if stop > end:
+            if header.length > max_length:
+                if stop > end:  # read the rest as it comes, and drop it
+                    self._skipping, self._skip_left = header, stop - end
+                    offset = end
+                    break
+                frames.append(OversizeFrame(header))
+            elif stop > end:
                 break
-            frames.append(Frame(header, buffer[offset + HEADER_SIZE : stop]))
+            else:
+                frames.append(Frame(header, buffer[offset + HEADER_SIZE : stop]))
             offset = stop
         self._buffer = buffer[offset:] if offset < end else b""
         return frames
 
     @property
     def has_frame(self) -> bool:
-        """Whether a whole frame (or an oversize header) is buffered, waiting to be cut."""
+        """Whether a whole frame (or an oversize header, which can be taken) is buffered, waiting to
+        be cut."""
         buffer = self._buffer
-        if self.broken or len(buffer) < HEADER_SIZE:
+        if self._skip_left or len(buffer) < HEADER_SIZE:
             return False
         length = buffer[2] | buffer[3] << 8
         return length > self.max_length or len(buffer) >= HEADER_SIZE + length

@@ -4,7 +4,10 @@ Logical segments (class, instance, member, connection point, attribute; 8, 16 an
 the electronic key), port segments (with extended link addresses and extended port numbers),
 network segments (the safety network segment 0x50 kept whole, Vol. 5, 3-5.3) and simple data
 segments. Decoding errors carry the CIP general status that the
-message router returns for them: 0x04 (path segment error) or 0x26 (path size invalid).
+message router returns for them: 0x26 (path size invalid: a segment cut short by the end of the
+path, or no path at all, i.e. a path size "not large enough to allow the request to be routed to an
+object", Vol. 1, appendix B, as OpENer answers `0E 01 21 00`) or 0x04 (path segment error: a
+segment of a type or format the farm does not take, or in a place it does not belong).
 """
 
 from __future__ import annotations
@@ -79,6 +82,11 @@ def _segment_error(reason: str) -> PathError:
     return PathError(GeneralStatus.PATH_SEGMENT_ERROR, reason)
 
 
+def _size_error(reason: str) -> PathError:
+    """A segment that runs past the end of the path: the path size is too small for it."""
+    return PathError(GeneralStatus.PATH_SIZE_INVALID, reason)
+
+
 def decode_epath(path: bytes) -> list[Segment]:
     """Decode a padded EPATH whose length is already known (the request's path size in words)."""
     segments: list[Segment] = []
@@ -92,21 +100,21 @@ def decode_epath(path: bytes) -> list[Segment]:
             segment, offset = _decode_logical(path, offset)
         elif kind < 0x50:
             if offset + 2 > end:
-                raise _segment_error("truncated network segment")
+                raise _size_error("truncated network segment")
             segment = NetworkSegment(kind, path[offset + 1])
             offset += 2
         elif kind == 0x50:
             if offset + 2 > end or offset + 2 + 2 * path[offset + 1] > end:
-                raise _segment_error("truncated safety network segment")
+                raise _size_error("truncated safety network segment")
             stop = offset + 2 + 2 * path[offset + 1]
             segment = SafetyNetworkSegment(path[offset:stop])
             offset = stop
         elif kind == 0x80:
             if offset + 2 > end:
-                raise _segment_error("truncated data segment")
+                raise _size_error("truncated data segment")
             stop = offset + 2 + 2 * path[offset + 1]
             if stop > end:
-                raise _segment_error("truncated data segment")
+                raise _size_error("truncated data segment")
             segment = DataSegment(path[offset + 2 : stop])
             offset = stop
         else:
@@ -121,23 +129,25 @@ def _decode_logical(path: bytes, offset: int) -> tuple[Segment, int]:
     fmt = kind & 0x03
     end = len(path)
     if logical_type == LogicalType.SPECIAL:
-        if fmt != 0 or offset + 10 > end or path[offset + 1] != 4:
+        if fmt != 0 or (offset + 1 < end and path[offset + 1] != 4):
             raise _segment_error("unsupported electronic key")
+        if offset + 10 > end:
+            raise _size_error("truncated electronic key")
         vendor, device_type, product, major, minor = _KEY.unpack_from(path, offset + 2)
         return ElectronicKey(vendor, device_type, product, major & 0x7F, minor, bool(major & 0x80)), offset + 10
     if logical_type > LogicalType.SERVICE_ID:
         raise _segment_error("reserved logical type")
     if fmt == 0:
         if offset + 2 > end:
-            raise _segment_error("truncated 8-bit logical segment")
+            raise _size_error("truncated 8-bit logical segment")
         return LogicalSegment(LogicalType(logical_type), path[offset + 1]), offset + 2
     if fmt == 1:
         if offset + 4 > end:
-            raise _segment_error("truncated 16-bit logical segment")
+            raise _size_error("truncated 16-bit logical segment")
         return LogicalSegment(LogicalType(logical_type), _UINT.unpack_from(path, offset + 2)[0]), offset + 4
     if fmt == 2:
         if offset + 6 > end:
-            raise _segment_error("truncated 32-bit logical segment")
+            raise _size_error("truncated 32-bit logical segment")
         return LogicalSegment(LogicalType(logical_type), _UDINT.unpack_from(path, offset + 2)[0]), offset + 6
     raise _segment_error("reserved logical format")
 
@@ -152,22 +162,22 @@ def _decode_port(path: bytes, offset: int) -> tuple[PortSegment, int]:
     link_size = 1
     if extended_link:
         if offset >= end:
-            raise _segment_error("truncated port segment")
+            raise _size_error("truncated port segment")
         link_size = path[offset]
         offset += 1
     if port == 0x0F:
         if offset + 2 > end:
-            raise _segment_error("truncated extended port")
+            raise _size_error("truncated extended port")
         port = _UINT.unpack_from(path, offset)[0]
         offset += 2
     if offset + link_size > end:
-        raise _segment_error("truncated link address")
+        raise _size_error("truncated link address")
     link = path[offset : offset + link_size]
     offset += link_size
     if (offset - start) % 2:
         offset += 1  # pad byte
     if offset > end:
-        raise _segment_error("missing pad byte")
+        raise _size_error("missing pad byte")
     return PortSegment(port, link), offset
 
 
@@ -219,8 +229,10 @@ class RequestPath(NamedTuple):
 
 def decode_request_path(path: bytes) -> RequestPath:
     """Class, then optional instance (or connection point), then optional attribute and member."""
+    if not path:
+        raise _size_error("no request path")
     segments = decode_epath(path)
-    if not segments or not isinstance(segments[0], LogicalSegment) or segments[0].type != LogicalType.CLASS_ID:
+    if not isinstance(segments[0], LogicalSegment) or segments[0].type != LogicalType.CLASS_ID:
         raise _segment_error("request path does not start with a class segment")
     class_id = segments[0].value
     instance_id = 0

@@ -5,6 +5,10 @@ The device behind the connection is reached through the `Target` protocol; this 
 sessions, commands and their status codes, and nothing of CIP objects. A target that restarts
 (Identity Reset) ends its sessions: the request that restarted it is answered, then the session
 closes, and a session of the target's earlier life answers nothing more (`Target.restarts`).
+
+Requests that get no reply (and change nothing): a NOP (2-4.1, whatever its length); a frame whose
+options (2-3.7) or status (2-3.5) is not zero. A message longer than the farm takes is read whole
+and discarded, then answered 0x0065 (2-3.3); the connection stays usable.
 """
 
 from __future__ import annotations
@@ -113,20 +117,23 @@ class EncapsulationSession:
     """One TCP connection: frames in, replies out; `closing` says the connection must end."""
 
     __slots__ = ("target", "framer", "session_handle", "closing", "discarded", "peer_host", "last_frame_at", "_now",
-                 "refusals", "_life")
+                 "refusals", "ignored", "_life")
 
     def __init__(self, target: Target, peer_host: str = "0.0.0.0", max_length: int = MAX_DATA_LENGTH) -> None:
         self.target = target
         self.framer = StreamFramer(max_length)
         self.session_handle = 0  # 0: no session registered on this connection
         self.closing = False
-        self.discarded = 0  # frames with non-zero options, discarded as the spec requires
+        self.discarded = 0  # frames with non-zero options or status, discarded as the spec requires
         self.peer_host = peer_host
         self.last_frame_at = 0  # ns: when the last whole frame arrived (encapsulation inactivity)
         self._now = 0
         #: (command, encapsulation status) of every request answered with an error status since the
         #: caller last emptied it (the server reports them as events)
         self.refusals: list[tuple[int, int]] = []
+        #: (command, status field) of every request ignored for its non-zero status (Vol. 2, 2-3.5)
+        #: since the caller last emptied it, bounded like `refusals`
+        self.ignored: list[tuple[int, int]] = []
         self._life = target.restarts  # the target's restart count when this connection began
 
     def receive(self, data: bytes, now: int, limit: int | None = None) -> list[bytes]:
@@ -139,16 +146,11 @@ class EncapsulationSession:
         if frames:
             self.last_frame_at = now
         for frame in frames:
-            if type(frame) is not Frame:  # OversizeFrame
-                replies.append(_reply(frame.header, status=EncapsulationStatus.INVALID_LENGTH))
-                self.refusals.append((frame.header.command, EncapsulationStatus.INVALID_LENGTH))
-                self.closing = True
-            else:
-                reply = self.handle_frame(frame)
-                if reply is not None:
-                    replies.append(reply)
-                    if (reply[8] or reply[9]) and len(self.refusals) < _MAX_REFUSALS:  # a non-zero status
-                        self.refusals.append((frame.header.command, reply[8] | reply[9] << 8))
+            reply = self.handle_frame(frame) if type(frame) is Frame else self._oversize(frame.header)
+            if reply is not None:
+                replies.append(reply)
+                if (reply[8] or reply[9]) and len(self.refusals) < _MAX_REFUSALS:  # a non-zero status
+                    self.refusals.append((frame.header.command, reply[8] | reply[9] << 8))
             if self.closing:
                 break
         return replies
@@ -165,13 +167,29 @@ class EncapsulationSession:
             self.session_handle = 0
             self.target.session_closed(self, now)
 
-    def handle_frame(self, frame: Frame) -> bytes | None:
-        header, data = frame
+    def _ignores(self, header: EncapsulationHeader) -> bool:
+        """Whether a request gets no reply and does nothing: the target restarted since the
+        connection began (which ends it), or the options (2-3.7) or the status (2-3.5) is not zero."""
         if self.target.restarts != self._life:  # a connection of the target's earlier life
             self.closing = True
-            return None
-        if header.options:
+            return True
+        if header.options or header.status:
             self.discarded += 1
+            if header.status and len(self.ignored) < _MAX_REFUSALS:
+                self.ignored.append((header.command, header.status))
+            return True
+        return False
+
+    def _oversize(self, header: EncapsulationHeader) -> bytes | None:
+        """A message longer than the farm takes, read whole and discarded (2-3.3): 0x0065, but a NOP
+        (which may carry 0-65511 bytes) gets nothing."""
+        if self._ignores(header) or header.command == Command.NOP:
+            return None
+        return _reply(header, status=EncapsulationStatus.INVALID_LENGTH)
+
+    def handle_frame(self, frame: Frame) -> bytes | None:
+        header, data = frame
+        if (header.options or header.status or self.target.restarts != self._life) and self._ignores(header):
             return None
         command = header.command
         if command == _SEND_RR_DATA:  # the hot path first
@@ -249,15 +267,19 @@ class EncapsulationSession:
 
 
 def handle_datagram(target: Target, datagram: bytes) -> bytes | None:
-    """UDP 44818: ListIdentity and ListServices are answered; anything else gets no reply."""
+    """UDP 44818: ListIdentity, ListServices and ListInterfaces are answered (Table 2-3.2 allows
+    each over UDP); anything else gets no reply, and so does a request whose options (2-3.7) or
+    status (2-3.5) is not zero."""
     try:
         header, _ = decode_frame(datagram)
     except ValueError:
         return None
-    if header.options:
+    if header.options or header.status:
         return None
     if header.command == Command.LIST_IDENTITY:
         return _reply(header, target.list_identity_data(), 0)
     if header.command == Command.LIST_SERVICES:
         return _reply(header, target.list_services_data(), 0)
+    if header.command == Command.LIST_INTERFACES:
+        return _reply(header, target.list_interfaces_data(), 0)
     return None

@@ -1,8 +1,11 @@
 /* Batched UDP for the cyclic I/O thread (server/batch.py): recvmmsg(2) over the device sockets that
- * epoll reported ready, and sendmmsg(2) of every T->O packet due in one tick from one socket, each
- * with its device's source address (IP_PKTINFO, ipi_spec_dst). One system call per socket read and
- * one per tick sent, instead of one per datagram. Linux only; server/batch.py falls back to
- * recvfrom/sendto when this module is not built. */
+ * epoll reported ready, each datagram with the kernel's receive time (SO_TIMESTAMPNS, CLOCK_REALTIME,
+ * turned into CLOCK_MONOTONIC ns by the offset between the two clocks read once per call: the wall clock
+ * between two monotonic reads, against their midpoint), and
+ * sendmmsg(2) of every T->O packet due in one tick from one socket, each with its device's source
+ * address (IP_PKTINFO, ipi_spec_dst). One system call per socket read and one per tick sent, instead
+ * of one per datagram. Linux only; server/batch.py falls back to recvmsg/sendto when this module is
+ * not built. */
 #define _GNU_SOURCE
 #define PY_SSIZE_T_CLEAN
 #include <Python.h>
@@ -12,6 +15,7 @@
 #include <netinet/in.h>
 #include <string.h>
 #include <sys/socket.h>
+#include <time.h>
 
 #define MAX_BATCH 256
 #define MAX_RECEIVE 32 /* datagrams per socket and call: 64 KiB of buffers, below malloc's mmap threshold */
@@ -108,8 +112,27 @@ static PyObject *send_batch(PyObject *self, PyObject *args) {
     return failures;
 }
 
-/* recv_batch(fds, limit) -> list of (fd, payload, host, port): up to `limit` datagrams from each
- * socket that has some, without blocking (one recvmmsg per socket). */
+static long long ns_of(const struct timespec *t) { return (long long)t->tv_sec * 1000000000LL + t->tv_nsec; }
+
+/* The kernel's receive time of a datagram (SCM_TIMESTAMPNS) on the monotonic clock; 0 if it has none.
+ * `offset` is CLOCK_REALTIME - CLOCK_MONOTONIC now; a stamp is never later than `now` (a clock step). */
+static long long received_at(struct msghdr *header, long long offset, long long now) {
+    if (header->msg_flags & MSG_CTRUNC)
+        return 0;
+    for (struct cmsghdr *c = CMSG_FIRSTHDR(header); c != NULL; c = CMSG_NXTHDR(header, c)) {
+        if (c->cmsg_level == SOL_SOCKET && c->cmsg_type == SCM_TIMESTAMPNS) {
+            struct timespec stamp;
+            memcpy(&stamp, CMSG_DATA(c), sizeof(stamp));
+            long long at = ns_of(&stamp) - offset;
+            return at > now ? now : at;
+        }
+    }
+    return 0;
+}
+
+/* recv_batch(fds, limit) -> list of (fd, payload, host, port, received_at): up to `limit` datagrams
+ * from each socket that has some, without blocking (one recvmmsg per socket); received_at is the
+ * kernel's receive time in CLOCK_MONOTONIC ns (time.monotonic_ns), 0 where the socket gave none. */
 static PyObject *recv_batch(PyObject *self, PyObject *args) {
     PyObject *fds;
     int limit;
@@ -128,6 +151,10 @@ static PyObject *recv_batch(PyObject *self, PyObject *args) {
     struct mmsghdr headers[MAX_RECEIVE];
     struct iovec vectors[MAX_RECEIVE];
     struct sockaddr_in sources[MAX_RECEIVE];
+    union {
+        char buffer[CMSG_SPACE(sizeof(struct timespec)) + CMSG_SPACE(sizeof(struct in_pktinfo))];
+        struct cmsghdr align;
+    } controls[MAX_RECEIVE];
     Py_ssize_t count = PyList_GET_SIZE(fds);
     for (Py_ssize_t f = 0; f < count; f++) {
         int fd = (int)PyLong_AsLong(PyList_GET_ITEM(fds, f));
@@ -144,8 +171,19 @@ static PyObject *recv_batch(PyObject *self, PyObject *args) {
             headers[i].msg_hdr.msg_namelen = sizeof(sources[i]);
             headers[i].msg_hdr.msg_iov = &vectors[i];
             headers[i].msg_hdr.msg_iovlen = 1;
+            headers[i].msg_hdr.msg_control = controls[i].buffer;
+            headers[i].msg_hdr.msg_controllen = sizeof(controls[i].buffer);
         }
         int received = recvmmsg(fd, headers, (unsigned int)limit, MSG_DONTWAIT, NULL); /* never waits: GIL held */
+        long long offset = 0, now = 0;
+        if (received > 0) { /* the wall clock between two monotonic reads, against their midpoint */
+            struct timespec before, real, after;
+            clock_gettime(CLOCK_MONOTONIC, &before);
+            clock_gettime(CLOCK_REALTIME, &real);
+            clock_gettime(CLOCK_MONOTONIC, &after);
+            now = ns_of(&after);
+            offset = ns_of(&real) - (ns_of(&before) + now) / 2;
+        }
         for (int i = 0; i < received; i++) {
             char host[INET_ADDRSTRLEN];
             if (inet_ntop(AF_INET, &sources[i].sin_addr, host, sizeof(host)) == NULL)
@@ -153,8 +191,9 @@ static PyObject *recv_batch(PyObject *self, PyObject *args) {
             size_t length = headers[i].msg_len;
             if (headers[i].msg_hdr.msg_flags & MSG_TRUNC)
                 length = MAX_DATAGRAM; /* longer than any class-1 packet: the table refuses it by size */
-            PyObject *item = Py_BuildValue("(iy#si)", fd, buffers[i], (Py_ssize_t)length, host,
-                                           (int)ntohs(sources[i].sin_port));
+            PyObject *item = Py_BuildValue("(iy#siL)", fd, buffers[i], (Py_ssize_t)length, host,
+                                           (int)ntohs(sources[i].sin_port),
+                                           received_at(&headers[i].msg_hdr, offset, now));
             if (item == NULL || PyList_Append(out, item) < 0) {
                 Py_XDECREF(item);
                 PyMem_RawFree(buffers);

@@ -1,8 +1,13 @@
 """The farm's cyclic I/O budget measured at start (config `cyclic_io.budget_datagrams_per_s: auto`):
 the CPU time one consumed O->T and one produced T->O packet cost on this machine, through the same
-code the I/O thread runs (a scratch device's `receive_io` and `service_io`, and a batch sent and
-read over loopback through server/batch.py). CPU time of this thread, not wall time, and the best
-of several rounds, so that a busy moment at start does not halve the budget. Loopback only."""
+code and the same system calls the I/O thread runs, over as many scratch devices as the worker has (up to
+SCRATCH_DEVICES): each one's UDP socket on loopback with its O->T datagram waiting, read as the
+thread reads them in a turn (epoll, then recvmmsg through server/batch.py), taken and serviced
+through their DeviceIo (server/implicit.py), their T->O sent in one batch (sendmmsg) to a socket
+of this module. CPU time of this thread, not wall time,
+and the best of several rounds, so that a busy moment at start does not halve the budget; the
+running check (cip/budget.py) lowers it to what the thread really spends. Loopback only: the
+scratch device's originator and T->O destination are this module's own sockets on 127.0.0.1."""
 
 from __future__ import annotations
 
@@ -10,11 +15,12 @@ import socket
 import time
 
 from enip_farm.cip.budget import CyclicBudget
+from enip_farm.config import BUDGET_UTILISATION
 from enip_farm.device.device import Device
 from enip_farm.device.profile import DeviceProfile
 from enip_farm.protocol.cip import ClassCode, Service, decode_reply, encode_request
+from enip_farm.protocol.commands import SocketAddress, encode_sockaddr
 from enip_farm.protocol.connection import (
-    IO_PORT,
     ConnectionTriad,
     ConnectionType,
     ForwardOpenRequest,
@@ -23,22 +29,26 @@ from enip_farm.protocol.connection import (
     encode_forward_open,
     encode_io_packet,
 )
+from enip_farm.protocol.cpf import CpfItem, ItemType
 from enip_farm.protocol.epath import LogicalType, encode_logical, encode_request_path
 from enip_farm.protocol.session import MessageContext
-from enip_farm.server.batch import Datagrams, sockaddr
+from enip_farm.server.batch import Datagrams
+from enip_farm.server.implicit import CyclicIoThread, DeviceIo
 
-#: The share of one core the budget is for: the rest is the I/O thread's own turns, the event
-#: loop (explicit requests, the API) and headroom for bursts.
-UTILISATION = 0.5
 #: Used when no device of the farm can carry an exclusive-owner connection to measure with.
 DEFAULT_DATAGRAMS_PER_S = 60_000
-_ROUNDS, _PACKETS = 5, 200
+#: Scratch devices at most: a worker's working set up to this many devices (each costs what a device
+#: of the farm costs to build, a few ms).
+SCRATCH_DEVICES = 128
+_ROUNDS, _PAIRS = 5, 96  # rounds, and pairs at least in each
 _RPI_NS = 10_000_000
+_HOST = "127.0.0.1"
 
 
-def _scratch_connection(profile: DeviceProfile) -> tuple[Device, int] | None:
-    """A device of this profile (no sockets) with one exclusive-owner connection, opened by a
-    Forward Open through the device's own explicit messaging: its O->T id."""
+def _scratch_connection(profile: DeviceProfile, port: int) -> tuple[Device, int] | None:
+    """A device of this profile (no sockets of its own) with one exclusive-owner connection whose
+    originator is 127.0.0.1 and whose T->O goes to 127.0.0.1:`port`, opened by a Forward Open
+    through the device's own explicit messaging: its O->T id."""
     output, inputs = profile.assembly("output"), profile.assembly("input")
     if output is None or inputs is None or profile.safety is not None:
         return None
@@ -55,68 +65,91 @@ def _scratch_connection(profile: DeviceProfile) -> tuple[Device, int] | None:
                                  0x01, path)
     message = encode_request(Service.FORWARD_OPEN, encode_request_path(ClassCode.CONNECTION_MANAGER, 1),
                              encode_forward_open(request))
-    reply, _ = device.handle_unconnected(message, MessageContext("127.0.0.1", None, (), 0))
+    t_o = CpfItem(ItemType.SOCKADDR_T_O, encode_sockaddr(SocketAddress("0.0.0.0", port)))
+    reply, _ = device.handle_unconnected(message, MessageContext(_HOST, None, (t_o,), 0))
     answer = decode_reply(reply)
     if answer.general_status != 0:
         return None
     return device, decode_forward_open_reply(answer.data).o_t_connection_id
 
 
-def _device_cost_ns(device: Device, connection_id: int, size: int) -> float:
-    """One O->T taken and one T->O produced, through the device's `receive_io` and `service_io`
-    (the sequence counts go on from round to round, so every packet is new data)."""
-    source = ("127.0.0.1", IO_PORT)
-    sent: list[bytes] = []
-
-    def send(packet: bytes, _: tuple[str, int]) -> None:
-        sent.append(packet)
-
-    best = float("inf")
-    now = 0
-    for round_ in range(_ROUNDS):
-        first = round_ * _PACKETS + 1
-        packets = [encode_io_packet(connection_id, n, n, b"\x01\x00\x00\x00" + bytes(size))
-                   for n in range(first, first + _PACKETS)]
-        started = time.thread_time_ns()
-        for packet in packets:
-            now += _RPI_NS
-            device.receive_io(packet, source, now, send)
-            device.service_io(now, send)
-        best = min(best, (time.thread_time_ns() - started) / _PACKETS)
-        sent.clear()
-    return best
-
-
-def _loopback_cost_ns() -> float:
-    """One datagram sent (in a batch) and one read, through server/batch.py, over loopback."""
-    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as a, socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as b:
-        a.bind(("127.0.0.1", 0))
-        b.bind(("127.0.0.1", 0))
-        b.setblocking(False)
-        datagrams = Datagrams()
-        datagrams.add(a)
-        destination, source = sockaddr(*b.getsockname()), socket.inet_aton("127.0.0.1")
-        batch = [(bytes(24), destination, source)] * 16
-        best = float("inf")
+def _pair_cost_ns(profiles: list[DeviceProfile]) -> float | None:
+    """CPU ns of one O->T taken and one T->O made and sent, as the I/O thread does them, over as many
+    scratch devices as the worker has (at most SCRATCH_DEVICES; profiles in turn): each turn reads
+    one O->T on every device's socket and sends their T->O in one batch, so the working set and the
+    turn are the worker's, not one device's kept warm. None: no profile carries an exclusive owner."""
+    usable = [p for p in profiles if p.assembly("output") is not None and p.assembly("input") is not None
+              and p.safety is None]
+    if not usable:
+        return None
+    count = min(len(profiles), SCRATCH_DEVICES)
+    thread = CyclicIoThread(Datagrams())  # not started: its epoll, its outbox and its batched send
+    sockets: list[socket.socket] = []
+    endpoints: list[tuple[DeviceIo, int, tuple[str, int], bytes]] = []
+    try:
+        originator, sink = _socket(sockets), _socket(sockets)
+        for index in range(count):
+            profile = usable[index % len(usable)]
+            scratch = _scratch_connection(profile, sink.getsockname()[1])
+            if scratch is None:
+                continue
+            device, connection_id = scratch
+            sock = _socket(sockets)
+            endpoint = DeviceIo(device, sock, thread)
+            endpoint.source = socket.inet_aton(_HOST)  # T->O leave from the scratch socket's own address
+            thread.register(endpoint)
+            output = profile.assembly("output")
+            endpoints.append((endpoint, connection_id, sock.getsockname(),
+                              b"\x01\x00\x00\x00" + bytes(output.size if output is not None else 0)))
+        if not endpoints:
+            return None
+        readers = {endpoint.sock.fileno(): endpoint for endpoint, _, _, _ in endpoints}
+        poll, receive = thread._epoll.poll, thread.datagrams.receive
+        turns = max(1, -(-_PAIRS // len(endpoints)))
+        best, sequence, now = float("inf"), 0, 0
         for _ in range(_ROUNDS):
-            started = time.thread_time_ns()
-            for _ in range(_PACKETS // 16):
-                datagrams.send(batch)
-                for _ in range(16):
-                    datagrams.receive([b.fileno()])
-            best = min(best, (time.thread_time_ns() - started) / (_PACKETS // 16 * 16))
+            spent = 0
+            for _ in range(turns):
+                sequence += 1
+                for _, connection_id, target, image in endpoints:  # the originator's datagrams, not timed
+                    originator.sendto(encode_io_packet(connection_id, sequence, sequence, image), target)
+                started = time.thread_time_ns()
+                now += _RPI_NS
+                for fd, data, host, port, received_at in receive([fd for fd, _ in poll(0)]):
+                    readers[fd].take(data, host, port, now, received_at or now)
+                for endpoint, _, _, _ in endpoints:
+                    endpoint.service(now, now)
+                thread._flush()
+                spent += time.thread_time_ns() - started
+                while True:  # the T->O, read back untimed
+                    try:
+                        sink.recv(2048)
+                    except BlockingIOError:
+                        break
+            best = min(best, spent / (turns * len(endpoints)))
         return best
+    finally:
+        for endpoint, _, _, _ in endpoints:
+            endpoint.close()
+        thread.stop()  # never started: its epoll and wake-up pipe closed
+        for sock in sockets:
+            sock.close()
+
+
+def _socket(opened: list[socket.socket]) -> socket.socket:
+    sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    opened.append(sock)
+    sock.bind((_HOST, 0))
+    sock.setblocking(False)
+    return sock
 
 
 def measure_budget(profiles: list[DeviceProfile]) -> CyclicBudget:
-    """The budget of one I/O thread on this machine: UTILISATION of a core over the cost of a
-    consumed plus a produced packet (a pair), counted as two datagrams."""
-    scratch = next((s for s in map(_scratch_connection, profiles) if s is not None), None)
-    if scratch is None:
+    """The budget of one I/O thread on this machine: BUDGET_UTILISATION of a core over the cost of
+    a consumed plus a produced packet (a pair), counted as two datagrams."""
+    pair_ns = _pair_cost_ns(profiles)
+    if pair_ns is None:
         return CyclicBudget(DEFAULT_DATAGRAMS_PER_S, "no device to measure with: the default")
-    device, connection_id = scratch
-    output = device.profile.assembly("output")
-    pair_ns = _device_cost_ns(device, connection_id, output.size if output else 0) + 2 * _loopback_cost_ns()
-    datagrams_per_s = UTILISATION * 2e9 / pair_ns
+    datagrams_per_s = BUDGET_UTILISATION * 2e9 / pair_ns
     return CyclicBudget(round(datagrams_per_s, -2), f"measured at start: {pair_ns / 1000:.1f} us of CPU per "
-                        f"O->T/T->O pair, for {UTILISATION:.0%} of a core")
+                        f"O->T/T->O pair, for {BUDGET_UTILISATION:.0%} of a core")

@@ -20,7 +20,9 @@ per device:
   attribute 4), by this thread alone (`Device.io_traffic`);
 - how late it runs is watched (`lag`): a wake-up later than `OVERLOAD_LAG_NS` is an overload of
   the farm (the CPU, or more connections than its budget), counted, shown in /metrics and as a
-  console warning with the lag, never blamed on an originator;
+  console warning with the lag, never blamed on an originator; once a second, what the thread
+  really spent (its CPU, system calls included), the datagrams it moved and its late turns go to
+  a measured budget's running check (server/running_budget.py, cip/budget.py);
 - one device's bug does not stop the others: an exception while it takes a datagram or services
   its connections is counted (`io_errors`) and logged with its traceback (rate-limited per device,
   `RateLimitedLog`), and its timer is tried again `_RETRY_NS` later;
@@ -43,11 +45,14 @@ import socket
 import sys
 import threading
 import time
+from collections.abc import Callable
 
+from enip_farm.cip.budget import CyclicBudget
 from enip_farm.device.device import Device
 from enip_farm.protocol.connection import IO_PORT
-from enip_farm.server.batch import Datagrams, Message, sockaddr
+from enip_farm.server.batch import SO_TIMESTAMPNS, Datagrams, Message, sockaddr
 from enip_farm.server.limits import RateLimitedLog
+from enip_farm.server.running_budget import RunningBudget
 from enip_farm.server.udp import udp_socket
 from enip_farm.server.waits import os_wait_ns
 
@@ -58,8 +63,11 @@ OVERLOAD_LAG_NS = 5_000_000
 
 
 def io_socket(host: str, port: int = IO_PORT) -> socket.socket:
-    """UDP 2222 of one device: SO_REUSEADDR, and multicast sent from the device's own address."""
+    """UDP 2222 of one device: SO_REUSEADDR, multicast sent from the device's own address, and each
+    datagram stamped with the kernel's receive time (SO_TIMESTAMPNS: the report measures the
+    originator by it, so the farm's own scheduling never counts against the controller)."""
     sock = udp_socket(host, port)
+    sock.setsockopt(socket.SOL_SOCKET, SO_TIMESTAMPNS, 1)
     sock.setsockopt(socket.IPPROTO_IP, socket.IP_MULTICAST_IF, socket.inet_aton(host))
     sock.setsockopt(socket.IPPROTO_IP, socket.IP_MULTICAST_LOOP, 1)
     sock.setsockopt(socket.IPPROTO_IP, socket.IP_MULTICAST_TTL, 1)
@@ -101,8 +109,9 @@ class CyclicIoThread(threading.Thread):
     #: wake-ups is what makes the cost per packet rather than per wake-up.
     TURN_NS = 1_000_000
 
-    def __init__(self, datagrams: Datagrams | None = None) -> None:
+    def __init__(self, datagrams: Datagrams | None = None, budget: CyclicBudget | None = None) -> None:
         super().__init__(name="enip-farm-cyclic-io", daemon=True)
+        self.running_budget = RunningBudget(budget)  # budget: a measured one, checked while it runs
         self.datagrams = datagrams if datagrams is not None else Datagrams()
         self._heap: list[tuple[int, int, DeviceIo]] = []
         self._order = itertools.count()
@@ -120,7 +129,18 @@ class CyclicIoThread(threading.Thread):
         self.overload_log = RateLimitedLog(log)
         self.loop_errors = 0  # unexpected exceptions of the loop itself (it goes on)
         self.lag = Lag()
+        #: Called with the time each turn's T->O are handed to the kernel (copy on write; `watch_flush`).
+        self.flush_watchers: tuple[Callable[[int], None], ...] = ()
         self.turned_at = time.monotonic_ns()  # when the loop last went round
+
+    def watch_flush(self, watcher: Callable[[int], None]) -> Callable[[], None]:
+        """From any thread: `watcher(at)` with the time each turn's T->O packets go to the kernel,
+        just before the send call; returns the unsubscribe."""
+        self.flush_watchers = (*self.flush_watchers, watcher)
+
+        def unsubscribe() -> None:
+            self.flush_watchers = tuple(w for w in self.flush_watchers if w is not watcher)
+        return unsubscribe
 
     def register(self, endpoint: DeviceIo) -> None:
         self._readers[endpoint.sock.fileno()] = endpoint
@@ -176,6 +196,7 @@ class CyclicIoThread(threading.Thread):
         monotonic_ns, sleep, poll = time.monotonic_ns, time.sleep, self._epoll.poll
         receive, wake_read, outbox, lag = self.datagrams.receive, self._wake_read, self.outbox, self.lag
         turn_ns, margin_ns = self.TURN_NS, self._EPOLL_MARGIN_NS
+        running = self.running_budget
         last = 0
         while not self._stopping:
             while requests:
@@ -206,12 +227,15 @@ class CyclicIoThread(threading.Thread):
                     else:
                         fds.append(fd)
                 if fds:
-                    for fd, data, host, port in receive(fds):
+                    received = receive(fds)
+                    running.datagrams += len(received)
+                    for fd, data, host, port, received_at in received:
                         endpoint = readers.get(fd)
                         if endpoint is not None:
-                            endpoint.take(data, host, port, now)
+                            endpoint.take(data, host, port, now, received_at or now)
             horizon = now + turn_ns  # what falls due before the next turn is served in this one
             if heap and heap[0][0] <= horizon:
+                running.turn(now - heap[0][0])
                 if heap[0][0] < now and lag.observe(now - heap[0][0], now):
                     self._overloaded(now - heap[0][0], now)
                 due = []
@@ -223,13 +247,20 @@ class CyclicIoThread(threading.Thread):
                 for endpoint in due:  # a timer they ask for within this turn (a deadline after now) is the next turn's
                     self._schedule(endpoint, endpoint.service(now, horizon))
             if outbox:
+                running.datagrams += len(outbox)
                 self._flush()
+            running.tick(now)
 
     def _flush(self) -> None:
         """Send every T->O of this turn in one call; a packet that could not be sent is counted as
         an error of its device (each was counted as sent when queued, as ifOutUcastPkts counts what
         was requested to be sent)."""
         outbox, senders = self.outbox, self.outbox_from
+        watchers = self.flush_watchers
+        if watchers:  # a reaction being measured: when this turn's T->O leave (device/reaction.py)
+            at = time.monotonic_ns()
+            for watcher in watchers:
+                watcher(at)
         try:
             for index, _ in self.datagrams.send(outbox):
                 senders[index].send_failed()
@@ -260,8 +291,9 @@ class DeviceIo:
         """A connection opened (a new stream and a new watchdog): the device's timer may be earlier."""
         self.thread.reschedule(self)
 
-    def take(self, data: bytes, host: str, port: int, now: int) -> None:
-        """In the I/O thread: one O->T datagram from host:port, read at `now`, to the device."""
+    def take(self, data: bytes, host: str, port: int, now: int, received_at: int | None = None) -> None:
+        """In the I/O thread: one O->T datagram from host:port, read at `now` (`received_at`: the
+        kernel's receive time), to the device."""
         device = self.device
         traffic = device.io_traffic
         traffic.received(len(data))
@@ -269,7 +301,7 @@ class DeviceIo:
         if recorder is not None:
             recorder.udp((host, port), self._address, data)
         try:
-            taken = device.receive_io(data, (host, port), now, self.send)
+            taken = device.receive_io(data, (host, port), now, self.send, received_at)
         except Exception:  # last resort: the other devices' cyclic I/O goes on
             self._failed("taking an O->T datagram", now)
             taken = False
@@ -326,8 +358,8 @@ class DeviceIo:
 class ImplicitIo:
     """UDP 2222 of every device of a farm, and the cyclic I/O thread."""
 
-    def __init__(self) -> None:
-        self.thread = CyclicIoThread()
+    def __init__(self, budget: CyclicBudget | None = None) -> None:
+        self.thread = CyclicIoThread(budget=budget)  # a measured budget: checked while the thread runs
         self.endpoints: list[DeviceIo] = []
         self._sockets: list[socket.socket] = []
         if sys.getswitchinterval() > 0.0005:

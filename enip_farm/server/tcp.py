@@ -6,13 +6,15 @@ the sans-IO encapsulation session and writing each batch of whole replies with o
 - Backpressure: while the replies not yet sent exceed `WRITE_HIGH_WATER` (the peer does not
   read), the connection is not read; it is read again below `WRITE_LOW_WATER`. Memory per
   connection is bounded: one read (at most 256 KiB with uvloop) plus one partial frame (at most
-  64 KiB + 24) waiting, and at most the high-water mark plus one batch of replies unsent.
+  4096 + 24 bytes: the data of a longer message is dropped as it arrives, Vol. 2, 2-3.3) waiting,
+  and at most the high-water mark plus one batch of replies unsent.
 - Limits (server/limits.py): caps on TCP connections per device and for the farm; a connection
   over a cap is closed at once.
 - Encapsulation inactivity timeout (TCP/IP Interface attribute 13): a connection with no whole
   request for that long is closed, whether it sent nothing or half a header.
 Injected faults act through their hooks (device/fault_type.py): `on_reply` holds replies back or
-drops them, `on_tcp_connection` closes or resets a new connection. A device
+drops them, `on_tcp_connection` closes or resets a new connection, `hears` (False: no power, no link)
+discards what arrives unread. A device
 in its reset window (Identity Reset) takes no connection. Every read and write is counted in the
 device's interface counters (Ethernet Link attribute 4)."""
 
@@ -25,8 +27,8 @@ import struct
 import time
 
 from enip_farm.device.device import Device
+from enip_farm.device.events import EncapsulationIgnored, EncapsulationRefused, TcpClosed, TcpConnected, TcpInactive
 from enip_farm.device.faults import DROP, Disconnect
-from enip_farm.protocol.encapsulation import command_name, describe_encapsulation_status
 from enip_farm.protocol.session import EncapsulationSession
 from enip_farm.server.limits import TcpLimits
 from enip_farm.server.waits import os_wait_s
@@ -82,7 +84,8 @@ class EncapsulationProtocol(asyncio.Protocol):
             recorder.tcp_opened(self, peer[:2], transport.get_extra_info("sockname")[:2])
         self.connections.add(self)
         device.counters["tcp_connections"] += 1
-        device.record("tcp connected", f"{peer[0]}:{peer[1]}" if peer else "")
+        device.tcp_open += 1
+        device.record(TcpConnected(f"{peer[0]}:{peer[1]}" if peer else ""))
         self._arm_inactivity(device.encapsulation_inactivity_timeout_s or _RECHECK_S)
         end = device.faults.on_tcp_connection()
         if end is not None:
@@ -108,6 +111,9 @@ class EncapsulationProtocol(asyncio.Protocol):
         if self.session is None:  # refused at connection_made
             return
         device = self.device
+        if not device.faults.hears:  # no power or no link: nothing arrives
+            device.traffic.discarded()
+            return
         device.traffic.received(len(data))
         recorder = device.recorder
         if recorder is not None:
@@ -131,7 +137,7 @@ class EncapsulationProtocol(asyncio.Protocol):
             transport.close()  # type: ignore[union-attr]
             return
         closing = session.closing  # type: ignore[union-attr]
-        if session.refusals:  # type: ignore[union-attr]
+        if session.refusals or session.ignored:  # type: ignore[union-attr]
             self._report_refusals()
         if replies:
             out = replies[0] if len(replies) == 1 else b"".join(replies)
@@ -163,13 +169,16 @@ class EncapsulationProtocol(asyncio.Protocol):
         self._set_reading(paused=backlog or self._write_paused)
 
     def _report_refusals(self) -> None:
-        """An event per request answered with an encapsulation error status."""
+        """An event per request answered with an encapsulation error status, and per request
+        ignored for the non-zero status it carried (Vol. 2, 2-3.5)."""
         session = self.session
         peer = self._peer_text()
         for command, status in session.refusals:  # type: ignore[union-attr]
-            self.device.record("encapsulation refused", f"{command_name(command)} from {peer}: encapsulation status "
-                               f"{describe_encapsulation_status(status)}")
+            self.device.record(EncapsulationRefused(command, peer, status))
         session.refusals.clear()  # type: ignore[union-attr]
+        for command, status in session.ignored:  # type: ignore[union-attr]
+            self.device.record(EncapsulationIgnored(command, peer, status))
+        session.ignored.clear()  # type: ignore[union-attr]
 
     def _peer_text(self) -> str:
         return f"{self._peer[0]}:{self._peer[1]}" if self._peer else "?"
@@ -229,8 +238,7 @@ class EncapsulationProtocol(asyncio.Protocol):
             self._arm_inactivity(timeout_s - idle_s)
             return
         self.device.counters["tcp_inactivity_closed"] += 1
-        self.device.record("tcp inactive", f"{self._peer[0]}:{self._peer[1]}: no whole request for {timeout_s} s, "
-                           "closed (TCP/IP attribute 13)" if self._peer else "")
+        self.device.record(TcpInactive(f"{self._peer[0]}:{self._peer[1]}" if self._peer else "", timeout_s))
         self._closed_by_us = True
         self.transport.close()
 
@@ -244,15 +252,15 @@ class EncapsulationProtocol(asyncio.Protocol):
             self.transport = None
             return
         self.limits.release(self.device.name)
+        self.device.tcp_open -= 1
         if self._inactivity is not None:
             self._inactivity.cancel()
             self._inactivity = None
         if self.session is not None:
             self.session.connection_lost(time.monotonic_ns())
         self.connections.discard(self)
-        who = "the farm" if self._closed_by_us else "the client"
-        self.device.record("tcp closed", f"{self._peer_text()} closed by {who} after "
-                           f"{(time.monotonic_ns() - self._opened_at) / 1e9:.1f} s")
+        self.device.record(TcpClosed(self._peer_text(), not self._closed_by_us,
+                                     (time.monotonic_ns() - self._opened_at) / 1e9))
         if self.device.recorder is not None:
             self.device.recorder.tcp_closed(self, by_client=not self._closed_by_us)
         self.transport = None

@@ -8,6 +8,8 @@
 //   faults-panel.js  a card's faults: kinds from GET fault-kinds, inject, clear, power cycle
 //   event-log.js     the events panel
 //   overview.js      the plant's overview: tiles by state, counts, the I/O thread's health
+//   inspect.js       a device's inspector: its signal timeline (timeline.js) and its connections'
+//                    measured O->T intervals (histogram.js, from GET report); svg.js draws
 //   frame.js, dom.js one animation frame for all DOM work; DOM helpers and the message line
 // This module starts them and hands the stream's events to each.
 
@@ -16,6 +18,7 @@ import { allStale, applyEvent, byName, loadDevices, poll, requestState } from '.
 import * as eventLog from './event-log.js';
 import { follow } from './events.js';
 import { attach as attachFaults, loadKinds } from './faults-panel.js';
+import * as inspect from './inspect.js';
 import { clicked } from './io-panel.js';
 import * as overview from './overview.js';
 import * as table from './table.js';
@@ -43,9 +46,11 @@ async function start() {
   attachFaults(sizer, byName, device => requestState([device]));
   sizer.addEventListener('click', event => {
     const card = event.target.closest('.card');
-    if (card) clicked(byName.get(card.dataset.device), event.target);
+    if (card && event.target.closest('.inspect')) inspect.open(card.dataset.device);
+    else if (card) clicked(byName.get(card.dataset.device), event.target);
   });
   overview.start();
+  inspect.start();
   await Promise.all([loadKinds(), loadDevices()]);
   table.refilter();
   document.body.dataset.ready = 'true';

@@ -44,7 +44,8 @@ function buildCard(device) {
   $('.name', card).textContent = device.name;
   $('.address', card).textContent = info.address;
   $('.model', card).textContent = [info.model, ...info.addons].join(' + ')
-    + (info.shard_up === false ? ` \u00b7 shard ${info.shard} down` : '');  // the fleet API over shards
+    + (info.shard_up === false ? ` \u00b7 shard ${info.shard} down` : '')  // the fleet's router over shards
+    + (info.worker_up === false ? ` \u00b7 worker ${info.worker} down` : '');  // or over workers
   fillIdentity($('.identity', card), info);
   fillForm(card);
   device.card = card;
@@ -63,21 +64,24 @@ function drawState(device) {
   const led = $('.state-led', card);
   led.className = 'state-led' + (mode === 0x60 ? ' run' : mode === 0x70 ? ' idle' : '');
   led.title = `Identity status 0x${status.toString(16).padStart(4, '0')}`;
-  const counters = state.counters;
-  const connKey = JSON.stringify([state.connections, state.owners, counters]);
+  const counters = state.counters, open = state.open;
+  const connKey = JSON.stringify([state.connections, state.owners, counters, open]);
   if (connKey !== device.connKey) {  // the DOM changes only when what it shows does
     device.connKey = connKey;
     const conn = $('.conn', card);
     conn.textContent = '';
     const head = el('div');
-    head.append(`${state.connections.length} connection${state.connections.length === 1 ? '' : 's'}`);
+    // what is open now, then the running totals, labelled as such (they read as open beside "0 connections")
+    head.append(`${plural(state.connections.length, 'connection')} · TCP ${open.tcp} open · ` +
+      `${plural(open.sessions, 'session')} open`);
     if (state.owners.length) {
       head.append(' · owner ');
       head.appendChild(el('span', 'owner', state.owners.join(', ')));
     }
-    head.append(` · O→T ${counters.o_t_packets} T→O ${counters.t_o_packets} · timeouts ` +
-      `${counters.connection_timeouts} · TCP ${counters.tcp_connections} · sessions ${counters.sessions}`);
+    const totals = el('div', 'totals', `since start: TCP ${counters.tcp_connections}, sessions ${counters.sessions}, ` +
+      `O→T ${counters.o_t_packets}, T→O ${counters.t_o_packets}, timeouts ${counters.connection_timeouts}`);
     conn.appendChild(head);
+    conn.appendChild(totals);
     for (const c of state.connections) {
       conn.appendChild(el('div', '', `${c.kind} from ${c.originator}, RPI ${c.o_t_rpi_us / 1000}/` +
         `${c.t_o_rpi_us / 1000} ms, ${c.received} received` + (c.multicast ? ', multicast' : '')));

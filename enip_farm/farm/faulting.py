@@ -1,0 +1,122 @@
+"""Faults switched on and off on the farm's loop, for one device or a group at once (the kinds:
+device/fault_kinds.py and device/cell_fault_kinds.py; a group: enip_farm/topology.py).
+
+A fault is set on every member in one turn of the loop, at one `now`: its hooks say whether open TCP
+connections end (`on_tcp_connection`), whether TCP listens (`listens`) and whether what is open goes
+silent (`hears`); `on_set` and `on_clear` act on the module itself (its power, its address); a kind
+with `phases` (a flapping link) has its effects switched off and on by a task; `duration_s` ends it
+by a timer. A device that restarts as its fault clears (power back) has its open TCP connections
+reset, as a rebooted stack answers their next segment, and listens again when it has booted
+(farm/resets.py)."""
+
+from __future__ import annotations
+
+import asyncio
+import time
+from collections.abc import Callable, Coroutine, Iterable, Iterator, Mapping
+from typing import Any
+
+from enip_farm.device.device import Device
+from enip_farm.device.events import FaultCleared, FaultInjected, LinkDown, LinkUp
+from enip_farm.device.faults import Disconnect, FaultType
+from enip_farm.farm.listeners import Listeners
+from enip_farm.farm.resets import FarmResets
+from enip_farm.server.waits import os_wait_s
+
+
+class FarmFaults:
+    """The faults of the farm's devices: set, timed, flapped and cleared on the farm's loop."""
+
+    def __init__(self, devices: Mapping[str, Device], listeners: Listeners, resets: FarmResets,
+                 spawn: Callable[[Coroutine[Any, Any, Any]], None], running: Callable[[], bool]) -> None:
+        self.devices = devices
+        self.listeners = listeners
+        self.resets = resets
+        self.spawn = spawn
+        self.running = running
+        self.timers: dict[tuple[str, str], asyncio.TimerHandle] = {}
+        self.flaps: dict[tuple[str, str], asyncio.Task] = {}
+
+    def stop(self) -> None:
+        for timer in self.timers.values():
+            timer.cancel()
+        self.timers.clear()
+        for task in self.flaps.values():
+            task.cancel()
+        self.flaps.clear()
+
+    async def inject(self, names: Iterable[str], fault: FaultType) -> None:
+        """Switch `fault` on for every device of `names` at once (one `now`, one turn of the loop)."""
+        loop = asyncio.get_running_loop()
+        now = time.monotonic_ns()
+        end = None if fault.duration_ns is None else loop.time() + fault.duration_ns / 1e9
+        for name in names:
+            device = self.devices[name]
+            self._forget(name, fault.name)
+            previous = device.faults.active.get(fault.name)
+            if previous is not None:
+                previous.on_clear(device.hardware, now)
+            device.faults.set(fault, now)
+            device.record(FaultInjected(fault.parameters()), now)
+            fault.on_set(device.hardware, now)
+            ends = fault.on_tcp_connection()
+            if ends is not None or (not fault.listens() and fault.hears()):
+                self.listeners.close_connections(device, ends or Disconnect.CLOSE)
+            if not fault.listens():
+                self.listeners.stop_listening(name)
+            phases = fault.phases()
+            if phases is not None:
+                task = loop.create_task(self._flap(device, fault.name, phases))
+                self.flaps[name, fault.name] = task
+            if end is not None:
+                self._arm_end(name, fault.name, end)
+
+    async def _flap(self, device: Device, kind: str, phases: Iterator[tuple[float, float]]) -> None:
+        """Down (the fault's effects on) and up (off) by `phases`, then up until the fault is cleared."""
+        for down_s, up_s in phases:
+            device.faults.suspend(kind, False)
+            device.record(LinkDown(kind, down_s))
+            await asyncio.sleep(os_wait_s(down_s))
+            device.faults.suspend(kind, True)
+            device.record(LinkUp(kind, up_s))
+            await asyncio.sleep(os_wait_s(up_s))
+        device.faults.suspend(kind, True)
+
+    def _arm_end(self, name: str, kind: str, end: float) -> None:
+        """Clear the fault at `end` (loop time), in bounded steps (server/waits.py)."""
+        loop = asyncio.get_running_loop()
+        delay = end - loop.time()
+        if delay > 0 and os_wait_s(delay) < delay:
+            self.timers[name, kind] = loop.call_later(os_wait_s(delay), self._arm_end, name, kind, end)
+            return
+        self.timers[name, kind] = loop.call_later(os_wait_s(delay), lambda: self.spawn(self.clear(name, kind)))
+
+    def _forget(self, name: str, kind: str) -> None:
+        timer = self.timers.pop((name, kind), None)
+        if timer is not None:
+            timer.cancel()
+        task = self.flaps.pop((name, kind), None)
+        if task is not None:
+            task.cancel()
+
+    async def clear(self, name: str, kind: str | None = None) -> list[str]:
+        """Switch one fault (or all) of one device off; normal behaviour returns (after a boot, where
+        the fault took the power)."""
+        device = self.devices[name]
+        faults = device.faults
+        listens_again = not faults.listens and faults.listens_without(kind)
+        now = time.monotonic_ns()
+        ending = [fault for k, fault in faults.active.items() if kind is None or k == kind]
+        booting = device.resetting
+        for fault in ending:
+            fault.on_clear(device.hardware, now)
+        if device.resetting and not booting:  # the module restarts (power back): its TCP peers are stale
+            self.resets.power_returned(device)
+        if listens_again and self.running() and not self.listeners.listening(name) and not device.resetting:
+            await self.listeners.listen(device)  # listening again before the fault is seen gone
+        cleared = faults.clear(kind)
+        for k in cleared:
+            self._forget(name, k)
+        if cleared:
+            device.record(FaultCleared(tuple(cleared)), now)
+        return cleared

@@ -1,0 +1,152 @@
+"""A scenario run on a running farm, on the farm's event loop: the schedule (schedule.py) given the
+time by `clock`, each due step carried out (a fault on a device or a group, a clear, a stimulus, a
+wait for a condition), every device's events recorded while it runs, the expectations judged at the
+end (verdict.py). However it ends (its steps done, a wait timed out, cancelled), every fault it set
+is cleared and every signal it set is put back: nothing a scenario does outlives it."""
+
+from __future__ import annotations
+
+import asyncio
+import time
+from collections.abc import Callable, Mapping
+from typing import Any, Protocol
+
+from enip_farm.config import FarmConfig
+from enip_farm.device.device import Device
+from enip_farm.device.faults import Fault, FaultType
+from enip_farm.device.signals import SignalMap
+from enip_farm.scenario.model import ClearAction, FaultAction, Scenario, SetAction, Step, WaitAction
+from enip_farm.scenario.schedule import Schedule, StepState
+from enip_farm.scenario.verdict import Recording, ScenarioResult, StepOutcome, judge
+
+TICK_S = 0.002  # how often waits are looked at (and the longest a due step waits for its turn)
+
+
+class SignalHandle(Protocol):
+    """What the runner needs of a device's Python API (control/handle.py's DeviceHandle)."""
+
+    signals: SignalMap
+
+    def get(self, name: str) -> Any: ...
+
+    def set(self, values: Mapping[str, Any] | None = None, **signals: Any) -> None: ...
+
+
+class ScenarioFarm(Protocol):
+    """What the runner needs of a farm (farm/farm.py's Farm)."""
+
+    @property
+    def config(self) -> FarmConfig: ...
+
+    @property
+    def devices(self) -> Mapping[str, Device]: ...
+
+    def __getitem__(self, name: str) -> SignalHandle: ...
+
+    async def inject_fault(self, name: str, fault: FaultType) -> Any: ...
+
+    async def clear_faults(self, name: str, kind: str | None = None) -> list[str]: ...
+
+
+async def run_scenario(farm: ScenarioFarm, scenario: Scenario, progress: Callable[[str], None] | None = None,
+                       clock: Callable[[], int] = time.monotonic_ns) -> ScenarioResult:
+    """Run `scenario` to its end (or its cancellation) and judge it; `progress` gets a line per step."""
+    say = progress or (lambda line: None)
+    start = clock()
+    recording = Recording(start, {name: {"input": farm.devices[name].inputs, "output": farm.devices[name].outputs}
+                                  for name in scenario.devices})
+    unsubscribe = [farm.devices[name].observe(recording.events.append) for name in scenario.devices]
+    schedule = Schedule(scenario.steps)
+    schedule.start(start)
+    run = _Run(farm, schedule, say, start)
+    status = "passed"
+    try:
+        while not schedule.done or clock() < start + scenario.duration_ns:
+            now = clock()
+            for step in schedule.due(now):
+                await run.carry_out(step, clock())
+            for step in schedule.running:
+                run.look(step, clock())
+            await asyncio.sleep(TICK_S)
+    except asyncio.CancelledError:
+        status = "cancelled"
+        schedule.cancel()
+        say(f"{(clock() - start) / 1e9:8.3f} s  cancelled")
+    finally:
+        await run.undo()
+        for stop in unsubscribe:
+            stop()
+    recording.started, recording.ended = dict(schedule.started), dict(schedule.ended)
+    for number, step in schedule.steps.items():  # a fault's step ends when its duration does
+        if isinstance(step.action, FaultAction) and step.action.duration_ns and number in schedule.started:
+            recording.ended[number] = schedule.started[number] + step.action.duration_ns
+    verdicts = judge(scenario, recording, {name: farm[name].signals for name in scenario.devices})
+    if status == "passed" and (any(not v.passed for v in verdicts) or any(
+            state is not StepState.DONE for state in schedule.state.values())):
+        status = "failed"
+    steps = [StepOutcome(n, step.name, str(step.action), schedule.state[n].value,
+                         _seconds(schedule.started.get(n), start), _seconds(schedule.ended.get(n), start),
+                         run.details.get(n, "")) for n, step in schedule.steps.items()]
+    return ScenarioResult(scenario.name, status, steps, verdicts, round((clock() - start) / 1e9, 3))
+
+
+def _seconds(when: int | None, start: int) -> float | None:
+    return None if when is None else round((when - start) / 1e9, 6)
+
+
+class _Run:
+    """One run's doings: the faults and signals it set (to undo), the deadlines of its waits."""
+
+    def __init__(self, farm: ScenarioFarm, schedule: Schedule, say: Callable[[str], None], start: int) -> None:
+        self.farm = farm
+        self.schedule = schedule
+        self.say = say
+        self.start = start
+        self.faults: list[tuple[str, str]] = []
+        self.signals: dict[tuple[str, str], Any] = {}  # (device, signal) -> its value before the scenario
+        self.deadlines: dict[int, int] = {}
+        self.details: dict[int, str] = {}
+
+    def _line(self, step: Step, now: int, text: str) -> None:
+        self.say(f"{(now - self.start) / 1e9:8.3f} s  {step.label}: {text}")
+
+    async def carry_out(self, step: Step, now: int) -> None:
+        action = step.action
+        if isinstance(action, WaitAction):
+            self.deadlines[step.number] = self.schedule.started[step.number] + action.timeout_ns
+            self._line(step, now, str(action))
+            self.look(step, now)
+            return
+        if isinstance(action, FaultAction):
+            fault = Fault(action.kind, duration_s=None if action.duration_ns is None else action.duration_ns / 1e9,
+                          **action.params)
+            self.faults.append((action.target, action.kind))
+            await self.farm.inject_fault(action.target, fault)
+        elif isinstance(action, ClearAction):
+            await self.farm.clear_faults(action.target, action.kind)
+        elif isinstance(action, SetAction):
+            for device, signal, value in action.values:
+                self.signals.setdefault((device, signal), self.farm[device].get(signal))
+                self.farm[device].set({signal: value})
+        self.schedule.end(step.number, now)
+        self._line(step, now, str(action))
+
+    def look(self, step: Step, now: int) -> None:
+        """A running wait: ended when its condition holds, failed at its deadline."""
+        action = step.action
+        assert isinstance(action, WaitAction)
+        condition = action.condition
+        if condition.holds(self.farm[condition.device].get(condition.signal)):
+            self.schedule.end(step.number, now)
+            self._line(step, now, f"{condition}: met")
+        elif now >= self.deadlines[step.number]:
+            self.schedule.fail(step.number, now)
+            self.details[step.number] = f"{condition} not met within {action.timeout_ns / 1e9:g} s"
+            self._line(step, now, f"FAILED: {self.details[step.number]}")
+
+    async def undo(self) -> None:
+        """Clear every fault the run set and put back every signal it set, whatever happened."""
+        for target, kind in reversed(self.faults):
+            await self.farm.clear_faults(target, kind)
+        for (device, signal), value in self.signals.items():
+            self.farm[device].set({signal: value})

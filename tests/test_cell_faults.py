@@ -1,0 +1,259 @@
+"""Issue 28, items 2 and 4: the cell's hardware faults (device/cell_fault_kinds.py) on a device or a
+group at once, as real originators see them: the `ethernetip` scanner (PyPI) for class 1 and its
+Forward Open, raw encapsulation clients and UDP ListIdentity for what answers and what does not.
+The kinds differ where hardware differs: after a power loss the Forward Open is answered only after
+the boot time and the old TCP connections are reset; a link down keeps the module's state and TCP
+connections, and its own watchdog times its connection out."""
+
+from __future__ import annotations
+
+import socket
+import time
+
+import ethernetip
+import httpx
+import pytest
+
+from enip_farm.device.cell_fault_kinds import FlappingLink
+from enip_farm.device.faults import Fault, FaultError
+from enip_farm.protocol.encapsulation import Command, encode_frame
+from enip_farm.protocol.epath import ElectronicKey
+from tests.helpers import ENIP_PORT, RawClient, wait_for
+from tests.test_implicit import forward_close, forward_open
+
+pytestmark = pytest.mark.integration
+RPI_MS = 10
+BOOT_S = 1.5
+
+
+def rack(enip_farm, http: bool = False, **device):
+    return enip_farm({"devices": [{"name": "r{n}", "count": 2, "model": "DSQC1030", "address": "127.0.0.1",
+                                   "implicit": {"first_watchdog_s": 0}, **device}],
+                      "groups": [{"name": "rack2", "kind": "rack", "members": ["r*"]}]}, http=http)
+
+
+def scanner(address: str):
+    """The ethernetip scanner with a class-1 connection open (RPI 10 ms, timeout x16: 160 ms)."""
+    enip = ethernetip.EtherNetIP(address)
+    conn = enip.explicit_conn(address)
+    assert conn.registerSession() == 0
+    enip.registerAssembly(ethernetip.EtherNetIP.ENIP_IO_TYPE_INPUT, 2, 101, conn)
+    enip.registerAssembly(ethernetip.EtherNetIP.ENIP_IO_TYPE_OUTPUT, 2, 100, conn)
+    enip.startIO(udp_port=0)
+    status = conn.sendFwdOpenReq(101, 100, 1, torpi=RPI_MS, otrpi=RPI_MS, multiplier=2,
+                                 originator_udp_port=enip.originator_udp_port)
+    if status != 0:
+        enip.stopIO()
+    return enip, conn, status
+
+
+def list_identity_answered(address: str, timeout: float = 0.3) -> bool:
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as sock:
+        sock.settimeout(timeout)
+        sock.sendto(encode_frame(Command.LIST_IDENTITY), (address, ENIP_PORT))
+        try:
+            sock.recvfrom(2048)
+        except TimeoutError:
+            return False
+        return True
+
+
+def unanswered(client: RawClient, timeout: float = 0.3) -> bool:
+    """A Get Attribute Single of Identity's vendor gets no reply within `timeout` (the link is silent)."""
+    client.sock.settimeout(timeout)
+    try:
+        client.get(1, 1, 1)
+    except TimeoutError:
+        return True
+    finally:
+        client.sock.settimeout(10)
+    return False
+
+
+def test_a_power_loss_of_a_rack_silences_every_member_and_the_forward_open_waits_for_the_boot(enip_farm) -> None:
+    farm = rack(enip_farm)
+    r1, r2 = farm["r1"], farm["r2"]
+    enip, conn, status = scanner(r1.address)
+    assert status == 0
+    client = RawClient(r2.address, timeout=10)
+    client.register()
+    try:
+        r1.set(DI3=1)
+        r2.device.write_image("output", lambda image: image.__setitem__(0, 0xFF))
+        assert wait_for(lambda: r1.device.connections)
+        assert farm.inject("rack2", "power-loss", boot_time_s=BOOT_S) == ("r1", "r2")
+        for handle in (r1, r2):  # every member at once, its state gone
+            assert handle.device.connections == {} and handle.outputs == bytes(len(handle.outputs))
+            assert [e.kind for e in handle.events("power lost")] == ["power lost"]
+            assert not list_identity_answered(handle.address)
+            with pytest.raises(ConnectionRefusedError):
+                socket.create_connection((handle.address, ENIP_PORT), timeout=2).close()
+        assert r1.get("DI3") == 1  # the field's inputs are the field's
+        assert unanswered(client)  # the open TCP connection: silent, not closed
+        enip.stopIO()
+        cleared_at = time.monotonic()
+        assert farm.clear("rack2", "power-loss") == ["power-loss"]
+        assert client.is_closed(timeout=5)  # the rebooted stack resets what it does not know
+        while True:  # the scanner tries again and again, as a controller does
+            try:
+                enip, conn, status = scanner(r1.address)
+                break
+            except ConnectionRefusedError:
+                assert time.monotonic() - cleared_at < BOOT_S + 10
+                time.sleep(0.02)
+        answered_after = time.monotonic() - cleared_at
+        assert status == 0 and BOOT_S <= answered_after <= BOOT_S + 10
+        assert [e.kind for e in r1.events() if e.kind in ("power returned", "reset done")] == [
+            "power returned", "reset done"]
+        assert wait_for(lambda: list_identity_answered(r2.address))
+    finally:
+        enip.stopIO()
+        client.close()
+
+
+def test_a_link_down_keeps_the_module_and_its_own_watchdog_times_the_connection_out(enip_farm) -> None:
+    farm = rack(enip_farm)
+    r1 = farm["r1"]
+    enip, conn, status = scanner(r1.address)
+    assert status == 0
+    client = RawClient(r1.address, timeout=10)
+    session = client.register()
+    try:
+        r1.set(DI5=1)
+        assert wait_for(lambda: r1.device.connections)
+        injected_ns = time.monotonic_ns()
+        farm.inject("r1", "link-down")
+        assert not list_identity_answered(r1.address)
+        assert unanswered(client)
+        assert wait_for(lambda: r1.counters["connection_timeouts"] == 1, timeout=5)
+        (ended,) = r1.events("connection timed out")
+        assert ended.monotonic_ns > injected_ns  # its own watchdog, after the link went
+        assert r1.get("DI5") == 1 and r1.device.restarts == 0  # nothing else lost
+        assert farm["r2"].device.connections == {} or farm["r2"].counters["connection_timeouts"] == 0
+        farm.clear("r1")
+        assert client.get(1, 1, 1).general_status == 0  # the same TCP connection, the same session
+        assert client.session_handle == session and list_identity_answered(r1.address)
+        enip.stopIO()
+        enip, conn, status = scanner(r1.address)  # answered at once: no boot
+        assert status == 0
+    finally:
+        enip.stopIO()
+        client.close()
+
+
+def test_a_flapping_link_goes_down_and_up_as_its_pattern_says(enip_farm) -> None:
+    farm = rack(enip_farm)
+    farm.inject("rack2", "flapping-link", period_s=0.2, duty=0.5, count=2)
+    for name in ("r1", "r2"):
+        handle = farm[name]
+        assert wait_for(lambda h=handle: len(h.events("link up")) == 2, timeout=5)
+        kinds = [e.kind for e in handle.events() if e.kind in ("link down", "link up")]
+        assert kinds == ["link down", "link up", "link down", "link up"]
+        times = [e.monotonic_ns for e in handle.events() if e.kind in ("link down", "link up")]
+        gaps = [b - a for a, b in zip(times, times[1:], strict=False)]
+        assert all(gap >= 95_000_000 for gap in gaps)  # each phase 100 ms, never shorter
+    assert list_identity_answered(farm["r1"].address)  # up after the count, the fault still set
+    assert [f["kind"] for f in farm["r1"].faults] == ["flapping-link"]
+    farm.clear("rack2")
+    assert farm["r1"].faults == []
+
+
+def test_random_flapping_is_repeatable_by_its_seed() -> None:
+    first = list(FlappingLink(random=True, seed=7, count=5, min_s=0.1, max_s=0.5).phases())
+    assert first == list(FlappingLink(random=True, seed=7, count=5, min_s=0.1, max_s=0.5).phases())
+    assert first != list(FlappingLink(random=True, seed=8, count=5, min_s=0.1, max_s=0.5).phases())
+    assert all(0.1 <= s <= 0.5 for phase in first for s in phase) and len(first) == 5
+    assert list(FlappingLink(period_s=2, duty=0.25, count=2).phases()) == [(0.5, 1.5), (0.5, 1.5)]
+    with pytest.raises(FaultError, match=r"^max_s: must not be below min_s \(1\), got 0.5$"):
+        Fault("flapping-link", random=True, min_s=1, max_s=0.5)
+    with pytest.raises(FaultError, match="^remote_mac: must look like"):
+        Fault("address-conflict", remote_mac="nope")
+
+
+def test_an_address_conflict_fills_in_the_tcpip_objects_attributes_when_acd_is_selected(enip_farm) -> None:
+    farm = rack(enip_farm)
+    r1 = farm["r1"]
+    with RawClient(r1.address) as client:
+        client.register()
+        farm.inject("r1", "address-conflict", remote_mac="02:00:00:00:00:fe")
+        assert client.get(0xF5, 1, 11).data == bytes(35)  # SelectAcd 0: nothing detected
+        farm.clear("r1")
+        assert client.set(0xF5, 1, 10, b"\x01").general_status == 0
+        farm.inject("r1", "address-conflict", remote_mac="02:00:00:00:00:fe")  # ongoing: defended
+        assert client.get(0xF5, 1, 1).data == (0x01 | 0x40).to_bytes(4, "little")  # AcdStatus
+        mac = bytes.fromhex("0200000000fe")
+        ip = socket.inet_aton(r1.address)
+        own = r1.device.profile.mac
+        arp = bytes.fromhex("0001 0800 06 04 0002") + mac + ip + own + ip
+        assert client.get(0xF5, 1, 11).data == b"\x02" + mac + arp
+        farm.clear("r1")
+        assert client.get(0xF5, 1, 1).data == (0x01).to_bytes(4, "little")
+        farm.inject("r1", "address-conflict", phase="probe")  # the address given up: silent
+        assert unanswered(client) and not list_identity_answered(r1.address)
+        farm.clear("r1")
+        assert client.get(0xF5, 1, 11).data[0] == 1  # the last conflict kept: found while probing
+
+
+def test_a_wrong_module_shows_another_identity_until_put_back(enip_farm) -> None:
+    farm = rack(enip_farm)
+    r1 = farm["r1"]
+    code = r1.device.profile.product_code
+    with RawClient(r1.address) as client:
+        client.register()
+        farm.inject("r1", "wrong-module", product_code=4711, major_revision=9, minor_revision=3)
+        assert client.get(1, 1, 3).data == (4711).to_bytes(2, "little")
+        assert client.get(1, 1, 4).data == bytes([9, 3])
+        assert r1.device.identity_item().product_code == 4711
+        key = ElectronicKey(75, 7, code, *r1.device.profile.revision, False)  # the module the controller expects
+        refused = client.request(forward_open(key=key)[0])
+        assert (refused.general_status, refused.additional_status) == (0x01, (0x0114,))  # vendor or product code
+        farm.clear("r1")
+        message, triad = forward_open(key=key)
+        assert client.request(message).general_status == 0  # put back: the key matches again
+        assert client.request(forward_close(triad)).general_status == 0
+        assert client.get(1, 1, 3).data == code.to_bytes(2, "little")
+        assert client.get(1, 1, 4).data == bytes(r1.device.profile.revision)
+
+
+def test_a_group_fault_over_http_sets_every_member_and_clears_them(enip_farm) -> None:
+    farm = rack(enip_farm, http=True)
+    base = f"http://127.0.0.1:{farm.http.port}"
+    assert httpx.get(f"{base}/groups").json() == [{"name": "rack2", "kind": "rack", "members": ["r1", "r2"]}]
+    answer = httpx.post(f"{base}/groups/rack2/faults", json={"kind": "link-down", "duration_s": 30})
+    assert answer.status_code == 201
+    assert {name: [f["kind"] for f in faults] for name, faults in answer.json().items()} == {
+        "r1": ["link-down"], "r2": ["link-down"]}
+    refused = httpx.post(f"{base}/groups/rack2/faults", json={"kind": "power-loss", "boot_time_s": -1})
+    assert refused.status_code == 422 and "boot_time_s: must be 0..3600 s, got -1" in refused.text
+    assert httpx.post(f"{base}/groups/rack9/faults", json={"kind": "link-down"}).status_code == 404
+    assert httpx.delete(f"{base}/groups/rack2/faults").json() == {"cleared": ["link-down"]}
+    assert farm["r1"].faults == [] and farm["r2"].faults == []
+
+
+def test_a_degraded_link_delays_what_the_scanner_sees_and_loss_times_the_connection_out(enip_farm) -> None:
+    farm = rack(enip_farm)
+    r1 = farm["r1"]
+    enip = ethernetip.EtherNetIP(r1.address)
+    conn = enip.explicit_conn(r1.address)
+    assert conn.registerSession() == 0
+    inputs = enip.registerAssembly(ethernetip.EtherNetIP.ENIP_IO_TYPE_INPUT, 2, 101, conn)
+    enip.registerAssembly(ethernetip.EtherNetIP.ENIP_IO_TYPE_OUTPUT, 2, 100, conn)
+    enip.startIO(udp_port=0)
+    try:
+        assert conn.sendFwdOpenReq(101, 100, 1, torpi=RPI_MS, otrpi=RPI_MS, multiplier=2,
+                                   originator_udp_port=enip.originator_udp_port) == 0
+        conn.produce()
+        farm.inject("r1", "degraded-link", delay_ms=80, direction="from-device")
+        set_at = time.monotonic()
+        r1.set(DI1=1)
+        assert wait_for(lambda: inputs[0], timeout=5)
+        assert time.monotonic() - set_at >= 0.08  # the T->O that carried it was held 80 ms
+        assert r1.device.connections  # O->T untouched: the connection lives
+        path = r1.device.faults.impairment
+        assert path.to_device is None and path.from_device.delayed > 0 and path.from_device.lost == 0
+        farm.inject("r1", "degraded-link", loss=1, direction="to-device")  # every O->T lost
+        assert wait_for(lambda: r1.counters["connection_timeouts"] == 1, timeout=5)
+        assert r1.device.faults.impairment.to_device.lost > 0
+    finally:
+        enip.stopIO()
+        farm.clear("r1")

@@ -1,0 +1,231 @@
+"""Details no test pinned until mutation testing (bench/mutation.py, issue 32) changed them and every
+test still passed: codes checked against a real peer's (pycomm3) rather than against themselves,
+fields at offsets other than 0, bytes the spec fixes (an interface handle of 0). Each test says
+which mutant it kills; bench/mutation-equivalents.md lists those no test can tell apart."""
+
+from __future__ import annotations
+
+import pytest
+from pycomm3 import ClassCode as PeerClassCode
+from pycomm3 import Services as PeerServices
+from pycomm3.cip import ConnectionManagerServices, EncapsulationCommands
+from pycomm3.cip.data_types import DataTypes
+
+from enip_farm.cip.connection_path import KeyIdentity, key_mismatch
+from enip_farm.cip.connection_policy import Refusal
+from enip_farm.cip.connection_table import Opened
+from enip_farm.cip.data_types import ELEMENTARY
+from enip_farm.cip.reconnection import ORIGINATORS, Reconnections
+from enip_farm.config import parse_config
+from enip_farm.device.build import build_profiles
+from enip_farm.device.catalogue import shipped_catalogue
+from enip_farm.device.device import Device
+from enip_farm.device.faults import DeviceFaults, Disconnect, Fault, FaultError
+from enip_farm.protocol.cip import ClassCode, MessageRouterReply, Service, decode_reply, encode_request
+from enip_farm.protocol.commands import (
+    ServiceItem,
+    decode_service_item,
+    encode_service_item,
+    encode_unconnected_payload,
+)
+from enip_farm.protocol.encapsulation import Command
+from enip_farm.protocol.epath import ElectronicKey, LogicalSegment, LogicalType, decode_epath, encode_request_path
+from enip_farm.protocol.session import MessageContext
+from enip_farm.protocol.status import ExtendedStatus as X
+from tests.test_safety import ORIGINATOR as SAFETY_ORIGINATOR
+from tests.test_safety import make_table as safety_make_table
+from tests.test_safety import safety_open
+
+T0 = 5_000_000_000  # ns: the faults never read a clock
+
+# -- protocol/: codes as a peer has them --------------------------------------------------------------
+
+
+def _code(peer: bytes) -> int:
+    return int.from_bytes(peer, "little")
+
+
+def test_service_codes_are_pycomm3s() -> None:
+    """Vol. 1, appendix A and 3-5.5: e.g. Unconnected Send 0x52 (a mutant made it 0x53)."""
+    peer = {**{k: v for k, v in vars(PeerServices).items() if isinstance(v, bytes)},
+            **{k: v for k, v in vars(ConnectionManagerServices).items() if isinstance(v, bytes)}}
+    names = {Service.GET_ATTRIBUTES_ALL: "get_attributes_all", Service.SET_ATTRIBUTES_ALL: "set_attributes_all",
+             Service.GET_ATTRIBUTE_LIST: "get_attribute_list", Service.SET_ATTRIBUTE_LIST: "set_attribute_list",
+             Service.RESET: "reset", Service.MULTIPLE_SERVICE_PACKET: "multiple_service_request",
+             Service.GET_ATTRIBUTE_SINGLE: "get_attribute_single", Service.SET_ATTRIBUTE_SINGLE: "set_attribute_single",
+             Service.FORWARD_CLOSE: "forward_close", Service.UNCONNECTED_SEND: "unconnected_send",
+             Service.FORWARD_OPEN: "forward_open", Service.LARGE_FORWARD_OPEN: "large_forward_open"}
+    assert set(names) == set(Service) - {Service.GET_AND_CLEAR}  # Get_and_Clear (0x4C, Ethernet Link): not in pycomm3
+    assert {service.name: int(service) for service in names} == {s.name: _code(peer[n]) for s, n in names.items()}
+    assert Service.GET_AND_CLEAR == 0x4C
+
+
+def test_class_codes_are_pycomm3s() -> None:
+    """Vol. 1, table 5-1.1: e.g. Parameter 0x0F (a mutant made it 0x10)."""
+    names = {ClassCode.IDENTITY: "identity_object", ClassCode.MESSAGE_ROUTER: "message_router",
+             ClassCode.ASSEMBLY: "assembly", ClassCode.CONNECTION_MANAGER: "connection_manager",
+             ClassCode.PARAMETER: "parameter", ClassCode.SAFETY_SUPERVISOR: "safety_supervisor",
+             ClassCode.SAFETY_VALIDATOR: "safety_validator", ClassCode.TCP_IP_INTERFACE: "tcp_ip_interface",
+             ClassCode.ETHERNET_LINK: "ethernet_link"}
+    assert set(names) == set(ClassCode)
+    assert {c.name: int(c) for c in names} == {c.name: _code(getattr(PeerClassCode, n)) for c, n in names.items()}
+
+
+def test_encapsulation_commands_are_pycomm3s() -> None:
+    """Vol. 2, table 2-3.2: e.g. ListServices 0x0004."""
+    assert {c.name: int(c) for c in Command} == {
+        c.name: _code(getattr(EncapsulationCommands, c.name.lower())) for c in Command}
+
+
+# -- protocol/: fields at their offsets -----------------------------------------------------------------
+
+
+def test_a_32_bit_logical_segment_after_an_8_bit_one() -> None:
+    """Vol. 1, C-1.4.2: the 32-bit format has a pad byte, its value at offset + 2 of the segment
+    (a mutant read `offset | 2`, the same at offset 0 and 4, not at 2)."""
+    assert decode_epath(bytes.fromhex("20 04 26 00 78 56 34 12 30 03")) == [
+        LogicalSegment(LogicalType.CLASS_ID, 4), LogicalSegment(LogicalType.INSTANCE_ID, 0x12345678),
+        LogicalSegment(LogicalType.ATTRIBUTE_ID, 3)]
+    assert decode_epath(bytes.fromhex("21 00 F5 00 26 00 01 00 00 80")) == [
+        LogicalSegment(LogicalType.CLASS_ID, 0xF5), LogicalSegment(LogicalType.INSTANCE_ID, 0x80000001)]
+
+
+def test_the_list_services_item() -> None:
+    """Vol. 2, 2-4.6.3: version 1, flags (bit 5: CIP over TCP, bit 8: class 0/1 over UDP), a
+    16-byte name; decoded from its first byte (a mutant read from the second)."""
+    item = bytes.fromhex("0100 2001") + b"Communications\x00\x00"
+    assert encode_service_item(ServiceItem(1, 0x0120, "Communications")) == item
+    assert decode_service_item(item) == ServiceItem(1, 0x0120, "Communications")
+
+
+def test_an_unconnected_payload_has_interface_handle_0() -> None:
+    """Vol. 2, 2-4.7: interface handle 0 (CIP), then the timeout, the null address item and the
+    unconnected data item (a mutant wrote handle 1)."""
+    assert encode_unconnected_payload(b"\x0e\x02\x20\x01\x24\x01", timeout=5) == bytes.fromhex(
+        "00000000 0500 0200 0000 0000 b200 0600 0e0220012401")
+
+
+# -- device/: fault parameters to their bounds, and what several faults make together ---------------------
+
+
+@pytest.mark.parametrize(("kind", "params", "message"), [
+    ("status", {"service": 256, "status": 8}, "service: must be a CIP service code 0..255 (0x00..0xFF), got 256"),
+    ("status", {"service": -1, "status": 8}, "service: must be a CIP service code 0..255 (0x00..0xFF), got -1"),
+    ("status", {"service": 14, "status": 256}, "status: must be a CIP general status 0..255 (0x00..0xFF), got 256"),
+    ("status", {"service": 14}, "status: a status fault needs a service and a status"),
+    ("status", {"status": 8}, "service: a status fault needs a service and a status"),
+    ("delay", {"delay_ms": 60_000.5}, "delay_ms: must be 0..60000 ms, got 60000.5"),
+    ("delay", {"delay_ms": -0.5}, "delay_ms: must be 0..60000 ms, got -0.5"),
+    ("delay", {"delay_ms": 50, "max_delay_ms": 40}, "max_delay_ms: must not be below delay_ms (50), got 40"),
+    ("delay", {"delay_ms": 0}, "delay_ms: a delay fault needs delay_ms > 0 (and optionally max_delay_ms)"),
+    ("delay", {"delay_ms": True}, "delay_ms: must be a number, got True"),
+    ("drop", {"duration_s": 0}, "duration_s: must be > 0, got 0"),
+    ("drop", {"duration_s": -1}, "duration_s: must be > 0, got -1"),
+])
+def test_fault_parameters_refused_at_their_bounds_with_the_field_named(kind: str, params: dict, message: str) -> None:
+    """Each a FaultError naming its field (not pydantic's ValidationError, also a ValueError)."""
+    with pytest.raises(FaultError) as refused:
+        Fault(kind, **params)
+    assert (type(refused.value), str(refused.value), refused.value.field) == (FaultError, message,
+                                                                              message.split(":")[0])
+
+
+@pytest.mark.parametrize(("kind", "params"), [
+    ("status", {"service": 0, "status": 0}), ("status", {"service": 255, "status": 255}),
+    ("delay", {"delay_ms": 0, "max_delay_ms": 0.001}), ("delay", {"delay_ms": 60_000}),
+    ("delay", {"delay_ms": 0.001}), ("drop", {"duration_s": 0.001}), ("drop", {"duration_s": 0.5}),
+])
+def test_fault_parameters_taken_at_their_bounds(kind: str, params: dict) -> None:
+    assert Fault(kind, **params).parameters() == {"kind": kind, **{k: float(v) if kind == "delay" else v
+                                                                    for k, v in params.items()}}
+
+
+def test_the_identity_fault_adds_1_to_the_product_code_modulo_2_16() -> None:
+    faults = DeviceFaults()
+    assert faults.product_code(1030) == 1030
+    faults.set(Fault("identity"), T0)
+    assert [faults.product_code(code) for code in (0, 1030, 0x7FFF, 0xFFFE, 0xFFFF)] == [1, 1031, 0x8000, 0xFFFF, 0]
+
+
+@pytest.mark.parametrize(("kinds", "ends"), [((), None), (("delay",), None), (("close",), Disconnect.CLOSE),
+                                             (("reset",), Disconnect.RESET), (("close", "reset"), Disconnect.RESET),
+                                             (("reset", "close", "drop"), Disconnect.RESET)])
+def test_how_new_tcp_connections_end_reset_wins_over_close(kinds: tuple[str, ...], ends: Disconnect | None) -> None:
+    faults = DeviceFaults()
+    for kind in kinds:
+        faults.set(Fault(kind, **({"delay_ms": 5} if kind == "delay" else {})), T0)
+    assert faults.on_tcp_connection() is ends
+    assert faults.clear() == list(kinds) and faults.on_tcp_connection() is None
+
+
+def test_clearing_one_kind_leaves_the_others() -> None:
+    faults = DeviceFaults()
+    faults.set(Fault("status", service=14, status=8), T0)
+    faults.set(Fault("offline"), T0)
+    assert (faults.forced_status, faults.listens, faults.listens_without("offline"), faults.listens_without(None)) == (
+        {14: 8}, False, True, True)
+    assert faults.listens_without("status") is False
+    assert faults.clear("offline") == ["offline"] and faults.listens and list(faults.active) == ["status"]
+    assert faults.clear("offline") == [] and faults.forced_status == {14: 8}
+
+
+# -- cip/: the elementary types, the Message Router's class attributes, electronic keys --------------------
+
+
+def test_elementary_type_codes_are_pycomm3s() -> None:
+    """Vol. 1, C-6.1: e.g. LREAL 0xCB (a mutant made it 0xCC)."""
+    assert {code: kind.name for code, kind in ELEMENTARY.items()} == {
+        getattr(DataTypes, kind.name.lower()).code: kind.name for kind in ELEMENTARY.values()}
+
+
+def test_the_message_router_class_get_attributes_all_is_1_4_5_6_7() -> None:
+    """Vol. 1, 5-5.3 and 4-4.1: revision, optional attributes and services, highest class and
+    instance attribute ids, in that order, each as Get Attribute Single answers it (a mutant
+    answered 1, 4, 5, 7)."""
+    config = parse_config({"devices": [{"name": "d", "address": "127.0.0.1", "model": "DSQC1030"}]})
+    (profile,) = build_profiles(config, shipped_catalogue())
+    router = Device(profile).router
+
+    def ask(service: int, attribute: int | None = None) -> MessageRouterReply:
+        request = encode_request(service, encode_request_path(ClassCode.MESSAGE_ROUTER, 0, attribute))
+        return decode_reply(router.handle(request, MessageContext("127.0.0.9", None, (), T0)))
+
+    every = ask(Service.GET_ATTRIBUTES_ALL)
+    assert every.general_status == 0
+    assert every.data == b"".join(ask(Service.GET_ATTRIBUTE_SINGLE, a).data for a in (1, 4, 5, 6, 7))
+
+
+IDENTITY = KeyIdentity(75, 7, 1030, (2, 5))
+
+
+@pytest.mark.parametrize(("major", "minor", "compatible", "mismatch"), [
+    (2, 5, False, None), (2, 5, True, None), (2, 0, False, None), (2, 0, True, None),
+    (2, 4, True, None), (2, 1, True, None),  # an older minor revision: emulated when the key allows it
+    (2, 4, False, X.REVISION_MISMATCH), (2, 6, True, X.REVISION_MISMATCH), (2, 6, False, X.REVISION_MISMATCH),
+    (1, 5, True, X.REVISION_MISMATCH), (3, 5, False, X.REVISION_MISMATCH), (0, 9, False, None),
+])
+def test_an_electronic_keys_revision_and_its_compatibility_bit(major: int, minor: int, compatible: bool,
+                                                               mismatch: int | None) -> None:
+    """Vol. 1, C-1.4.2: without the compatibility bit the revision must be the device's exactly;
+    with it, the major must be and the minor at most the device's (a mutant swapped the two)."""
+    assert key_mismatch(ElectronicKey(75, 7, 1030, major, minor, compatible), IDENTITY) == mismatch
+
+
+@pytest.mark.parametrize(("nte", "taken"), [(0, False), (1, True), (2, True), (45_313, True), (45_314, False)])
+def test_a_safety_opens_network_time_expectation_multiplier_at_both_bounds(nte: int, taken: bool) -> None:
+    """Vol. 5, 3-5.4: 1..45313 (x 128 us, up to 5.8 s); a mutant refused 1."""
+    result = safety_make_table().forward_open(safety_open(nte=nte), SAFETY_ORIGINATOR, T0)
+    assert (type(result) is Opened) if taken else result == Refusal(X.INVALID_NETWORK_TIME_EXPECTATION_MULTIPLIER)
+
+
+def test_the_reconnections_remember_the_64_latest_originators() -> None:
+    """The oldest is forgotten when a 65th opens (a mutant forgot the newest)."""
+    reconnections = Reconnections()
+    originators = [f"127.0.1.{n}" for n in range(ORIGINATORS + 1)]
+    for n, originator in enumerate(originators):
+        reconnections.opened(originator, T0 + n, None)
+    reconnections.opened(originators[1], T0 + 100, None)  # seen again: now the latest
+    reconnections.opened("127.0.2.1", T0 + 101, None)  # the 66th: originators[2] goes, not [1]
+    reconnections.device_back("reset", T0 + 200, connected=set())
+    waiting = [r.originator for r in reconnections.figures("d")]
+    assert waiting == [*originators[3:], originators[1], "127.0.2.1"]

@@ -1,0 +1,169 @@
+"""Issue 28, items 3 and 4: scenarios run on a farm with a real originator (the `ethernetip` scanner
+from PyPI, reconnecting as a controller does), judged, and undone however they end."""
+
+from __future__ import annotations
+
+import asyncio
+import threading
+import time
+
+import ethernetip
+import pytest
+
+from enip_farm.scenario.run import run_scenario
+from tests.test_cell_faults import list_identity_answered
+
+pytestmark = pytest.mark.integration
+
+CELL = {"devices": [{"name": "io1", "address": "127.0.0.1", "model": "DSQC1030",
+                     "implicit": {"first_watchdog_s": 0}},
+                    {"name": "r2-io{n}", "count": 2, "address": "127.0.0.1", "model": "DSQC1030"}],
+        "groups": [{"name": "rack2", "members": ["r2-*"]}]}
+
+SCENARIO = """\
+name: io1 link lost
+duration: 2.5 s
+steps:
+  - at: 300 ms
+    id: cut
+    fault: link-down
+    target: io1
+    duration: 800 ms
+  - set: {r2-io1.DI3: 1}
+expect:
+  - io1.DO5 == 0 within 400 ms of step cut
+  - io1 reconnected within 1 s of end of step cut
+  - no connection timed out outside io1
+  - count(connection timed out, io1) == 1
+"""
+
+
+class Controller:
+    """A controller's scanner: holds io1's DO5 at 1 over class 1 (RPI 10 ms, timeout 160 ms) and,
+    when its connection is gone, opens it again once the module answers ListIdentity."""
+
+    def __init__(self, farm) -> None:
+        self.device = farm.device("io1")
+        self.address = self.device.profile.address
+        self.stopped = threading.Event()
+        self.opens = 0
+        self.enip = None
+        self.thread = threading.Thread(target=self.run, daemon=True)
+        self.thread.start()
+
+    def open(self) -> None:
+        enip = ethernetip.EtherNetIP(self.address)
+        conn = enip.explicit_conn(self.address)
+        assert conn.registerSession() == 0
+        enip.registerAssembly(ethernetip.EtherNetIP.ENIP_IO_TYPE_INPUT, 2, 101, conn)
+        outputs = enip.registerAssembly(ethernetip.EtherNetIP.ENIP_IO_TYPE_OUTPUT, 2, 100, conn)
+        outputs[4] = True  # DO5
+        enip.startIO(udp_port=0)
+        if conn.sendFwdOpenReq(101, 100, 1, torpi=10, otrpi=10, multiplier=2,
+                               originator_udp_port=enip.originator_udp_port) == 0:
+            conn.produce()
+            self.opens += 1
+        self.enip = enip
+
+    def run(self) -> None:
+        deadline = time.monotonic() + 60
+        while not self.stopped.is_set() and time.monotonic() < deadline:
+            if not self.device.connections and list_identity_answered(self.address, 0.05):
+                if self.enip is not None:
+                    self.enip.stopIO()
+                self.open()
+            time.sleep(0.01)
+        if self.enip is not None:
+            self.enip.stopIO()
+
+    def stop(self) -> None:
+        self.stopped.set()
+        self.thread.join(10)
+
+
+@pytest.fixture
+def cell(enip_farm, tmp_path):
+    farm = enip_farm(CELL)
+    controller = Controller(farm)
+    try:
+        assert _until(lambda: farm["io1"].get("DO5") == 1)
+        yield farm, tmp_path
+    finally:
+        controller.stop()
+
+
+def _until(predicate, timeout: float = 10.0) -> bool:
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        if predicate():
+            return True
+        time.sleep(0.005)
+    return bool(predicate())
+
+
+def test_a_link_down_scenario_passes_with_what_the_scanner_did(cell) -> None:
+    farm, tmp_path = cell
+    path = tmp_path / "link.yaml"
+    path.write_text(SCENARIO)
+    lines: list[str] = []
+    result = farm.run_scenario(path, progress=lines.append)
+    assert result.status == "passed", result.table()
+    within, reconnected, quiet, count = result.verdicts
+    assert within.passed and 150 <= float(within.figure.split()[1]) <= 400  # the module's watchdog: 160 ms
+    assert reconnected.passed and quiet.figure == "none" and count.figure == "1 connection timed out"
+    assert [step.state for step in result.steps] == ["done", "done"]
+    assert 0.3 <= result.steps[0].started_s < 0.3 + 0.1 and result.duration_s >= 2.5
+    assert lines[0].endswith("step 1 (cut): link-down on io1 for 0.8 s") and "set r2-io1.DI3=1" in lines[1]
+    assert farm["io1"].faults == [] and farm["r2-io1"].get("DI3") == 0  # nothing outlives the scenario
+    assert "PASS  io1.DO5 == 0 within 400 ms of step cut" in result.table()
+
+
+def test_a_broken_expectation_fails_the_scenario_with_its_figure(cell) -> None:
+    farm, tmp_path = cell
+    path = tmp_path / "tight.yaml"
+    path.write_text(SCENARIO.replace("within 400 ms of step cut", "within 20 ms of step cut")
+                    .replace("count(connection timed out, io1) == 1", "count(connection timed out, io1) == 0"))
+    result = farm.run_scenario(path)
+    assert result.status == "failed" and [v.passed for v in result.verdicts] == [False, True, True, False]
+    assert result.verdicts[0].figure.endswith("(bound 20.0 ms)")
+    xml = result.junit().tostring().decode()
+    assert 'failures="2"' in xml and "expectation not met" in xml
+
+
+def test_a_cancelled_scenario_clears_every_fault_and_signal_it_set(cell) -> None:
+    farm, tmp_path = cell
+    path = tmp_path / "long.yaml"
+    path.write_text("""\
+steps:
+  - {fault: power-loss, target: rack2, params: {boot_time_s: 0}}
+  - {set: {io1.DI3: 1}}
+  - {wait: io1.DI4 == 1, timeout: 60 s}
+""")
+    scenario = farm.load_scenario(path)
+
+    async def cancelled_soon():
+        task = asyncio.ensure_future(run_scenario(farm, scenario))
+        while farm["io1"].get("DI3") != 1:
+            await asyncio.sleep(0.005)
+        assert [f["kind"] for f in farm["r2-io1"].faults] == ["power-loss"]
+        task.cancel()
+        return await task
+
+    result = farm.run(cancelled_soon())
+    assert result.status == "cancelled" and [s.state for s in result.steps] == ["done", "done", "skipped"]
+    assert farm["r2-io1"].faults == [] and farm["r2-io2"].faults == [] and farm["io1"].get("DI3") == 0
+
+
+def test_a_wait_that_times_out_fails_its_step_and_skips_what_comes_after(cell) -> None:
+    farm, tmp_path = cell
+    path = tmp_path / "wait.yaml"
+    path.write_text("""\
+steps:
+  - {fault: stop-io, target: r2-io1}
+  - {wait: io1.DI4 == 1, timeout: 100 ms}
+  - {clear: r2-io1}
+""")
+    result = farm.run_scenario(path)
+    assert result.status == "failed" and [s.state for s in result.steps] == ["done", "failed", "skipped"]
+    assert result.steps[1].detail == "io1.DI4 == 1 not met within 0.1 s"
+    assert farm["r2-io1"].faults == []
