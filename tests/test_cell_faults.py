@@ -255,5 +255,6 @@ def test_a_degraded_link_delays_what_the_scanner_sees_and_loss_times_the_connect
         assert wait_for(lambda: r1.counters["connection_timeouts"] == 1, timeout=5)
         assert r1.device.faults.impairment.to_device.lost > 0
     finally:
+        conn.stopProduce()
         enip.stopIO()
         farm.clear("r1")
