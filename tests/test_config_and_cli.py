@@ -50,6 +50,10 @@ def _write(tmp_path: Path, text: str) -> Path:
          "  - {name: b, address: 127.0.0.3, model: DSQC1030}\n",
          ":3: device 'b' (devices[1]), address: 127.0.0.3 is taken by device 'a' (devices[0]) (here by 'b')"),
         ("devices: []\n", ":1: devices: List should have at least 1 item after validation, not 0"),
+        ("devices:\n  - {name: a, address: 127.0.0.3, model: DSQC1030, signals: [{name: s1, type: DI}]}\n",
+         ":2: device 'a' (devices[0]), signals.0.device_map: missing: the key is required here"),
+        ("devices:\n  - {name: a, address: 127.0.0.3, model: DSQC1030}\nrules:\n  - {when: a.DI1, set: a.DO1, "
+         "value: 3}\n", ":4: rules[0], value: Input should be 0 or 1"),
         ("devices: [\n", ":2:1: not valid YAML: while parsing a flow node: expected the node content, but found "
                           "'<stream end>'"),
         ("", ": the file is empty: a cell configuration is a mapping whose devices: lists the devices (see "

@@ -170,7 +170,7 @@ class Farm:
             budget = self.config.cyclic_io.budget_datagrams_per_s
             if budget == "auto":
                 measured = measure_budget(self._profiles)
-                self.budget.set(measured.datagrams_per_s, measured.source)
+                self.budget.set(measured.datagrams_per_s, measured.source, measured.ceiling)
             else:
                 self.budget.set(budget, "configured")
             self._implicit = ImplicitIo(self.budget if budget == "auto" else None)
