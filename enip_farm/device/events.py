@@ -224,6 +224,17 @@ class AddressConflict(Happened, kind="address conflict"):
 
 
 @dataclass(frozen=True, slots=True)
+class AddressStillTaken(Happened, kind="address still taken"):
+    """An address-conflict fault cleared, but the device's address is not its own again: why."""
+
+    reason: str
+
+    @property
+    def text(self) -> str:
+        return self.reason
+
+
+@dataclass(frozen=True, slots=True)
 class LinkDown(Happened, kind="link down"):
     """A flapping fault's down phase: its effects on for `for_s`."""
 

@@ -17,7 +17,7 @@ from collections.abc import Callable, Coroutine, Iterable, Iterator, Mapping
 from typing import Any
 
 from enip_farm.device.device import Device
-from enip_farm.device.events import FaultCleared, FaultInjected, LinkDown, LinkUp
+from enip_farm.device.events import AddressStillTaken, FaultCleared, FaultInjected, LinkDown, LinkUp
 from enip_farm.device.faults import Disconnect, FaultType
 from enip_farm.farm.listeners import BindError, Listeners
 from enip_farm.farm.resets import FarmResets
@@ -109,7 +109,7 @@ class FarmFaults:
         kinds = [k for k in faults.active if kind is None or k == kind]
         if name in self.off_network and "address-conflict" in kinds:
             kinds.remove("address-conflict")
-            device.record("address still taken", "configured onto another device's address", now)
+            device.record(AddressStillTaken("configured onto another device's address"), now)
         listens_again = not faults.listens and all(
             fault.listens() for k, fault in faults.active.items() if k not in kinds and k not in faults.suspended)
         booting = device.resetting
@@ -121,7 +121,7 @@ class FarmFaults:
             try:
                 await self.listeners.listen(device)  # listening again before the fault is seen gone
             except BindError as error:  # someone took the address meanwhile: say so, keep serving the others
-                device.record("address still taken", str(error), now)
+                device.record(AddressStillTaken(str(error)), now)
         cleared = [k for k in kinds for _ in faults.clear(k)]
         for k in cleared:
             self._forget(name, k)
