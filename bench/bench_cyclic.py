@@ -117,14 +117,15 @@ def descendants(pid: int) -> list[int]:
     return found
 
 
-def cpu_seconds(pids: list[int]) -> float:
+def cpu_seconds(pids: list[int], fields_of: tuple[int, ...] = (11, 12)) -> float:
+    """utime + stime of these processes (`fields_of=(11,)`: user time only, `(12,)`: system), seconds."""
     total = 0
     for pid in pids:
         try:
             fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
         except (FileNotFoundError, ProcessLookupError):
             continue
-        total += int(fields[11]) + int(fields[12])
+        total += sum(int(fields[i]) for i in fields_of)
     return total / CLK_TCK
 
 
@@ -342,7 +343,7 @@ def read_line(stream, timeout: float) -> str:
 
 def drive(binary: Path, connections: list[Connection], rpi_us: int, udp: list[socket.socket], seconds: float,
           warmup: float, cpus: str | None, peer_pids: list[int], work: Path, during_hold=None,
-          realtime: int = 0) -> dict:
+          realtime: int = 0, profile: Path | None = None) -> dict:
     """Run the originator over `connections`, connection i's T->O on `udp[i % len(udp)]` (one pair of
     its threads per socket); its figures plus CPU and drops sampled over its window."""
     listing = work / "originator.txt"
@@ -360,16 +361,20 @@ def drive(binary: Path, connections: list[Connection], rpi_us: int, udp: list[so
         peer_inodes = socket_inodes(peer_pids)
         own_inode = {os.fstat(fd).st_ino for fd in fds}
 
-        def sample() -> tuple[float, float, int, int, int, float]:
+        def sample() -> tuple[float, float, int, int, int, float, float, float]:
             return (cpu_seconds(peer_pids), cpu_seconds([originator.pid]), udp_drops(peer_inodes),
-                    udp_drops(own_inode), snmp_udp_errors(), host_busy_seconds())
+                    udp_drops(own_inode), snmp_udp_errors(), host_busy_seconds(), cpu_seconds(peer_pids, (11,)),
+                    os.getloadavg()[0])
 
         if read_line(originator.stdout, warmup + LINE_TIMEOUT_MARGIN) != "start":
             raise SystemExit("the originator did not start its window")
         before, wall0 = sample(), time.monotonic()
+        spies = py_spy(peer_pids, seconds, profile) if profile else []
         if read_line(originator.stdout, seconds + LINE_TIMEOUT_MARGIN) != "end":
             raise SystemExit("the originator did not end its window")
         after, wall1 = sample(), time.monotonic()
+        for spy in spies:
+            spy.wait(LINE_TIMEOUT_MARGIN)
         extra = during_hold() if during_hold else {}
         originator.stdin.close()
         originator.wait(60)
@@ -382,6 +387,9 @@ def drive(binary: Path, connections: list[Connection], rpi_us: int, udp: list[so
     figures.update(extra)
     figures.update({
         "peer_cpu_s": after[0] - before[0], "peer_cpu_percent": 100 * (after[0] - before[0]) / wall,
+        "peer_user_percent": 100 * (after[6] - before[6]) / wall,
+        "peer_system_percent": 100 * ((after[0] - before[0]) - (after[6] - before[6])) / wall,
+        "load_average": after[7],
         "originator_cpu_percent": 100 * (after[1] - before[1]) / wall,
         "peer_socket_drops": after[2] - before[2], "originator_socket_drops": after[3] - before[3],
         "host_udp_errors": after[4] - before[4],
@@ -403,6 +411,21 @@ def originator_threads(args: argparse.Namespace, count: int) -> int:
 def farm_budgets(log: Path) -> list[str]:
     """What the farm's banner says of each worker's cyclic I/O budget."""
     return [line.strip() for line in log.read_text(errors="replace").splitlines() if "cyclic I/O budget:" in line]
+
+
+def py_spy(pids: list[int], seconds: float, directory: Path) -> list[subprocess.Popen]:
+    """`py-spy record` (pip install py-spy; root) of every Python process of the farm over the window,
+    raw stacks into DIRECTORY/farm-PID.txt (`python bench/profile_summary.py` or a flame graph reads them)."""
+    binary = shutil.which("py-spy")
+    if binary is None:
+        raise SystemExit("--py-spy needs py-spy (pip install py-spy)")
+    directory.mkdir(parents=True, exist_ok=True)
+    return [subprocess.Popen([binary, "record", "--pid", str(pid), "--duration", str(max(1, int(seconds))),
+                              "--rate", "200", "--format", "raw", "--nonblocking",
+                              "--output", str(directory / f"farm-{pid}.txt")],
+                             stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+            for pid in pids if "python" in Path(f"/proc/{pid}/comm").read_text(errors="replace").lower()
+            or "enip" in Path(f"/proc/{pid}/cmdline").read_text(errors="replace")]
 
 
 def run_farm(count: int, rpi_us: int, args: argparse.Namespace, originator: Path, work: Path,
@@ -434,7 +457,7 @@ def run_farm(count: int, rpi_us: int, args: argparse.Namespace, originator: Path
                 return closes
 
             figures = drive(originator, connections, rpi_us, udp, args.seconds, args.warmup, args.originator_cpus,
-                            pids, work, close_all, args.realtime)
+                            pids, work, close_all, args.realtime, args.py_spy)
         finally:
             for u in udp:
                 u.close()
@@ -565,6 +588,8 @@ def main() -> None:
     parser.add_argument("--originator-threads", type=int, default=0, metavar="N",
                         help="pairs of originator threads (a socket each; default: one per 2500 connections, "
                              "at most 8), so that the originator is not the limit")
+    parser.add_argument("--py-spy", type=Path, default=None, metavar="DIR",
+                        help="record every farm process with py-spy over the window, raw stacks into DIR")
     parser.add_argument("--no-responder", action="store_true", help="leave out the C responder's runs")
     parser.add_argument("--measure-cost", action="store_true",
                         help="also run the farm with the report's measurement off (cyclic_io: {measure: false}), "
@@ -603,7 +628,9 @@ def main() -> None:
                 print(f"  farm: {farm['admitted']} admitted, {farm['refused']} refused, T->O "
                       f"{farm['t_o_received_window']}/{farm['t_o_expected_window']}, p99 {farm['err_p99_ms']:.2f} ms, "
                       f"{farm['timeouts']} timed out, {farm['sends_late']} late sends, "
-                      f"CPU {farm['peer_cpu_percent']:.0f}%", file=sys.stderr, flush=True)
+                      f"CPU {farm['peer_cpu_percent']:.0f}% ({farm['peer_user_percent']:.0f}% user, "
+                      f"{farm['peer_system_percent']:.0f}% system), load average {farm['load_average']:.2f}",
+                      file=sys.stderr, flush=True)
                 if args.measure_cost:
                     if "unmeasured" not in run:
                         run["unmeasured"] = run_farm(count, rpi_us, args, originator, work, measure=False)
@@ -614,7 +641,8 @@ def main() -> None:
                 if not args.no_responder:
                     c = run["c"] = run_responder(farm["admitted"], rpi_us, args, originator, responder, work)
                     print(f"  C responder: T->O {c['t_o_received_window']}/{c['t_o_expected_window']}, p99 "
-                          f"{c['err_p99_ms']:.2f} ms, CPU {c['peer_cpu_percent']:.0f}%", file=sys.stderr, flush=True)
+                          f"{c['err_p99_ms']:.2f} ms, CPU {c['peer_cpu_percent']:.0f}% ({c['peer_user_percent']:.0f}% "
+                          f"user, {c['peer_system_percent']:.0f}% system)", file=sys.stderr, flush=True)
                 runs.append(run)
             result = {"connections": count, "rpi_ms": rpi_ms,
                       **{side: medians([run[side] for run in runs]) for side in runs[0]}}

@@ -70,10 +70,11 @@ PACKAGES: dict[str, Package] = {
         {"enip_farm/farm/farm.py": ("inject_fault", "_arm_fault_end", "clear_faults", "_cancel_timer")}),
     "device-cyclic": Package(  # one device's class-1 path: cyclic I/O, its lock, its target
         ("enip_farm/device/cyclic.py", "enip_farm/device/guard.py", "enip_farm/device/target.py"),
-        ("tests/test_device.py", "tests/test_reset_effect.py", VARY, PINNED, "tests/test_implicit.py")),
+        ("tests/test_device.py", "tests/test_reset_effect.py", VARY, PINNED, "tests/test_report_unit.py",
+         "tests/test_implicit.py", "tests/test_report.py")),
     "server-class1": Package(  # the I/O thread and its sockets
         ("enip_farm/server/implicit.py", "enip_farm/server/batch.py", "enip_farm/server/waits.py"),
-        ("tests/test_implicit.py", "tests/test_batch.py", PINNED)),
+        ("tests/test_implicit.py", "tests/test_batch.py", PINNED, "tests/test_supervision.py")),
 }
 
 #: The six mutations issue 32 found surviving: (name, module, the code, the mutated code, tests).
@@ -157,7 +158,8 @@ def _rank(*parts: object) -> str:
     return hashlib.sha256(":".join(map(str, parts)).encode()).hexdigest()
 
 
-def sample_mutants(scratch: Path, package: Package, sample: int, seed: str) -> tuple[list, int, int]:
+def sample_mutants(scratch: Path, package: Package, sample: int, seed: str,
+                   replay: dict[str, str] | None = None) -> tuple[list, int, int]:
     """(the sampled mutation specs, all mutants, all sites) of a package. A site is ranked by a hash
     of the seed, its module, its line's text and its column, and so is each operator at a site: the
     sample stays the same when the code changes elsewhere (a new line only adds a site)."""
@@ -185,7 +187,25 @@ def sample_mutants(scratch: Path, package: Package, sample: int, seed: str) -> t
     finally:
         os.chdir(cwd)
     chosen = sorted(sites)[:sample]
+    if replay is not None:  # the survivors of an earlier run, wherever their lines are now (a module split)
+        candidates = [spec for site in sorted(sites) for spec in sites[site] if spec_key(spec, texts) in replay]
+        again = [spec for spec in candidates if replay[spec_key(spec, texts)] in (None, _mutated_line(scratch, spec))]
+        return again, total, len(sites)
     return [min(sites[site], key=lambda s: _rank(site, s.operator_name)) for site in chosen], total, len(sites)
+
+
+def spec_key(spec, texts: dict[str, list[str]]) -> str:
+    """A mutant's key without its module: definition::operator::line (the line before the mutation)."""
+    line = texts[str(spec.module_path)][spec.start_pos[0] - 1].strip()
+    return f"{spec.definition_name}::{spec.operator_name}::{line}"
+
+
+def _mutated_line(scratch: Path, spec) -> str | None:
+    from cosmic_ray.mutating import mutate_code
+    from cosmic_ray.plugins import get_operator
+
+    code = mutate_code((scratch / spec.module_path).read_text(), get_operator(spec.operator_name)(), spec.occurrence)
+    return None if code is None else code.splitlines()[spec.start_pos[0] - 1].strip()
 
 
 def run_package(name: str, package: Package, args: argparse.Namespace, known: dict[str, str]) -> dict:
@@ -198,11 +218,11 @@ def run_package(name: str, package: Package, args: argparse.Namespace, known: di
         clean, clean_s, output = run_tests(scratch, tests, 600)
         if clean != "passed":
             return {"package": name, "error": f"the tests fail without a mutant:\n{output}"}
-        specs, total, sites = sample_mutants(scratch, package, args.sample, f"{args.seed}:{name}")
+        again = None
         if args.replay is not None:  # only the survivors of an earlier run
-            again = {r["key"] for s in json.loads(args.replay.read_text()) for r in s.get("results", [])
-                     if r["verdict"] == "survived"}
-            specs = [spec for spec in specs if mutation_key(scratch, spec) in again]
+            again = {r["key"].split("::", 1)[1]: r.get("mutated") for s in json.loads(args.replay.read_text())
+                     for r in s.get("results", []) if r["verdict"] == "survived" and s["package"] == name}
+        specs, total, sites = sample_mutants(scratch, package, args.sample, f"{args.seed}:{name}", again)
         results: list[dict] = []
         deadline = time.monotonic() + args.budget_s
         for spec in specs:

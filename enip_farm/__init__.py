@@ -16,7 +16,7 @@ enip_farm.protocol.cip` and the command line do not pay for the farm's imports.
 from __future__ import annotations
 
 from importlib import import_module
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 __version__ = "0.1.0"
 
@@ -34,13 +34,6 @@ _PUBLIC = {
 
 __all__ = ["BindError", "ConfigError", "DeviceHandle", "EioImportWarning", "Farm", "FarmConfig", "__version__",
            "load_config", "parse_config"]
-
-if TYPE_CHECKING:  # for type checkers and editors; at run time __getattr__ imports them
-    from enip_farm.config import ConfigError, FarmConfig, load_config, parse_config
-    from enip_farm.control.handle import DeviceHandle
-    from enip_farm.eio.importer import EioImportWarning
-    from enip_farm.farm.farm import BindError, Farm
-
 
 def __getattr__(name: str) -> Any:
     if name not in _PUBLIC:

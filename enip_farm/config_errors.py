@@ -132,8 +132,12 @@ def describe(error: dict[str, Any], data: Any, model: type[BaseModel]) -> str:
         where = device_location(index, name) if part == "devices" else (
             f"group {name!r} (groups[{index}])" if name else f"groups[{index}]")
         location = location[2:]
+    elif len(location) >= 2 and isinstance(location[1], int):  # wires[1], rules[0]
+        where, location = f"{location[0]}[{location[1]}]", location[2:]
     field = ".".join(str(part) for part in location)
     message = error["msg"].removeprefix("Value error, ")
+    if error["type"] == "missing":
+        message = "missing: the key is required here"
     if error["type"] == "extra_forbidden":
         known = keys_at(model, tuple(error["loc"]))
         hint = did_you_mean(str(error["loc"][-1]), known)

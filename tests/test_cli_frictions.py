@@ -67,6 +67,9 @@ def test_golden_runs_beside_a_farm_serving_the_same_cell(enip_farm, tmp_path: Pa
     result = CliRunner().invoke(main, ["golden", str(SEED), "--config", str(_cell(tmp_path, farm["io1"].address)),
                                        "--device", "io1"])
     assert (result.exit_code, result.output.splitlines()[-1]) == (0, "4 exchanges: 4 passed, 0 failed"), result.output
+    # a cell on a controller's addresses (not this host's, RFC 5737 here): golden serves it on its own
+    elsewhere = CliRunner().invoke(main, ["golden", str(SEED), "--config", str(_cell(tmp_path, "203.0.113.7"))])
+    assert (elsewhere.exit_code, elsewhere.output.splitlines()[-1]) == (0, "4 exchanges: 4 passed, 0 failed")
 
 
 @pytest.mark.integration

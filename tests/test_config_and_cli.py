@@ -50,6 +50,10 @@ def _write(tmp_path: Path, text: str) -> Path:
          "  - {name: b, address: 127.0.0.3, model: DSQC1030}\n",
          ":3: device 'b' (devices[1]), address: 127.0.0.3 is taken by device 'a' (devices[0]) (here by 'b')"),
         ("devices: []\n", ":1: devices: List should have at least 1 item after validation, not 0"),
+        ("devices:\n  - {name: a, address: 127.0.0.3, model: DSQC1030, signals: [{name: s1, type: DI}]}\n",
+         ":2: device 'a' (devices[0]), signals.0.device_map: missing: the key is required here"),
+        ("devices:\n  - {name: a, address: 127.0.0.3, model: DSQC1030}\nrules:\n  - {when: a.DI1, set: a.DO1, "
+         "value: 3}\n", ":4: rules[0], value: Input should be 0 or 1"),
         ("devices: [\n", ":2:1: not valid YAML: while parsing a flow node: expected the node content, but found "
                           "'<stream end>'"),
         ("", ": the file is empty: a cell configuration is a mapping whose devices: lists the devices (see "
@@ -99,6 +103,24 @@ def test_every_problem_is_told_at_once_at_its_line(tmp_path: Path) -> None:
                               "  - {from: a.DO1, to: a.DI1}\n  - {from: a.DO2, to: b.DI1}\n")
     built = CliRunner().invoke(main, ["validate", str(wiring)])  # what only building the devices tells
     assert (built.exit_code, built.output) == (2, f"{wiring}:5: wire a.DO2 -> b.DI1: 'b.DI1': no device named 'b'\n")
+    both = _write(tmp_path, """\
+        devices:
+          - {name: a, address: 127.0.0.3, model: DSQC1030, writeable_inputs: true}
+          - {name: b, address: 127.0.0.4, model: DSQC1030, signals: [{name: diX, type: DI, device_map: "99"}]}
+          - {name: "c{n}", count: 2, address: 127.0.0.5, model: DSQC1030}
+        wires:
+          - {from: a.DO1, to: b.DI1}
+          - {from: c1.DO1, to: b.DI99}
+          - {from: c2.DO1, to: zz.DI1}
+        rules:
+          - {when: a.DI1, set: b.DO1}
+        """)
+    together = CliRunner().invoke(main, ["validate", str(both)])  # a field's problem and building's, in one pass
+    assert (together.exit_code, together.output.splitlines()) == (2, [
+        f"{both}:2: device 'a' (devices[0]), writeable_inputs: unknown key (did you mean writable_inputs?)",
+        f"{both}:3: devices[1], signals: diX: bit 99 is beyond the 2-byte input image (bits 0..15)",
+        f"{both}:7: wire c1.DO1 -> b.DI99: 'b.DI99': DI99: this device has 16 DI signals",
+        f"{both}:8: wire c2.DO1 -> zz.DI1: 'zz.DI1': no device named 'zz'"])  # a's wire and rule wait for a
 
 
 @pytest.mark.system

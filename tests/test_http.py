@@ -117,7 +117,8 @@ def test_the_fault_kinds_are_listed_with_their_parameters(enip_farm) -> None:
     kinds = httpx.get(f"{base}/fault-kinds").json()
     assert [kind["kind"] for kind in kinds] == ["delay", "drop", "close", "reset", "offline", "status", "stop-io",
                                                 "identity", "power-loss", "link-down", "flapping-link",
-                                                "degraded-link", "address-conflict", "wrong-module"]
+                                                "degraded-link", "address-conflict", "wrong-module", "safety-crc",
+                                                "safety-stale", "safety-time-coordination"]
     assert all(set(kind) == {"kind", "summary", "parameters"} for kind in kinds)
     assert all(kind["summary"] and "\n" not in kind["summary"] for kind in kinds)
     schemas = {kind["kind"]: kind["parameters"] for kind in kinds}
@@ -128,6 +129,7 @@ def test_the_fault_kinds_are_listed_with_their_parameters(enip_farm) -> None:
         "link-down": ["duration_s"], "address-conflict": ["duration_s", "phase", "remote_mac"],
         "flapping-link": ["count", "duration_s", "duty", "max_s", "min_s", "period_s", "random", "seed"],
         "wrong-module": ["duration_s", "major_revision", "minor_revision", "product_code"],
+        "safety-crc": ["duration_s"], "safety-stale": ["duration_s"], "safety-time-coordination": ["duration_s"],
         "degraded-link": ["delay_ms", "direction", "duplicate", "duration_s", "jitter_ms", "loss", "reorder",
                           "reorder_ms", "seed"]}
     assert schemas["status"]["required"] == ["service", "status"]

@@ -5,6 +5,10 @@ which mutant it kills; bench/mutation-equivalents.md lists those no test can tel
 
 from __future__ import annotations
 
+import math
+import socket
+import struct
+
 import pytest
 from pycomm3 import ClassCode as PeerClassCode
 from pycomm3 import Services as PeerServices
@@ -15,6 +19,7 @@ from enip_farm.cip.connection_path import KeyIdentity, key_mismatch
 from enip_farm.cip.connection_policy import Refusal
 from enip_farm.cip.connection_table import Opened
 from enip_farm.cip.data_types import ELEMENTARY
+from enip_farm.cip.parameter import ParameterInstance, ParameterSpec
 from enip_farm.cip.reconnection import ORIGINATORS, Reconnections
 from enip_farm.config import parse_config
 from enip_farm.device.build import build_profiles
@@ -28,10 +33,21 @@ from enip_farm.protocol.commands import (
     encode_service_item,
     encode_unconnected_payload,
 )
+from enip_farm.protocol.connection import (
+    ConnectionTriad,
+    ConnectionType,
+    ForwardOpenRequest,
+    NetworkParameters,
+    encode_forward_open,
+    encode_io_packet,
+)
 from enip_farm.protocol.encapsulation import Command
 from enip_farm.protocol.epath import ElectronicKey, LogicalSegment, LogicalType, decode_epath, encode_request_path
 from enip_farm.protocol.session import MessageContext
 from enip_farm.protocol.status import ExtendedStatus as X
+from enip_farm.server.batch import SO_TIMESTAMPNS, Datagrams, wall_stamp
+from enip_farm.server.implicit import Lag
+from enip_farm.server.waits import os_wait_s
 from tests.test_safety import ORIGINATOR as SAFETY_ORIGINATOR
 from tests.test_safety import make_table as safety_make_table
 from tests.test_safety import safety_open
@@ -229,3 +245,199 @@ def test_the_reconnections_remember_the_64_latest_originators() -> None:
     reconnections.device_back("reset", T0 + 200, connected=set())
     waiting = [r.originator for r in reconnections.figures("d")]
     assert waiting == [*originators[3:], originators[1], "127.0.2.1"]
+
+
+@pytest.mark.parametrize(("kind", "params", "field"), [
+    ("flapping-link", {"count": 0}, "count"), ("address-conflict", {"phase": "later"}, "phase")])
+def test_a_parameter_pydantic_refuses_is_a_fault_error_naming_its_field(kind: str, params: dict, field: str) -> None:
+    """Fields without a `before` validator of their own: pydantic's error, its field taken from
+    its location (a mutant read the location's second part)."""
+    with pytest.raises(FaultError) as refused:
+        Fault(kind, **params)
+    assert (type(refused.value), refused.value.field) == (FaultError, field)
+    assert str(refused.value).startswith(f"{field}: ")
+
+
+def test_a_kind_named_by_an_equal_string_not_the_same_object() -> None:
+    """Kinds from JSON are new strings, equal to the class's name but not the same object (a mutant
+    compared with `is not`)."""
+    faults = DeviceFaults()
+    faults.set(Fault("offline"), T0)
+    offline = "".join(["off", "line"])
+    assert offline == "offline" and offline is not Fault("offline").name
+    assert faults.listens_without(offline) is True
+    assert faults.clear(offline) == ["offline"] and faults.listens
+
+
+def test_a_suspended_fault_is_kept_without_its_effects_and_only_an_active_one_is_suspended() -> None:
+    faults = DeviceFaults()
+    faults.suspend("offline", True)  # not active: nothing to suspend
+    faults.set(Fault("offline"), T0)
+    assert (faults.listens, faults.suspended) == (False, set())
+    faults.suspend("offline", True)
+    assert (faults.listens, list(faults.active)) == (True, ["offline"])
+    faults.suspend("offline", False)
+    assert faults.listens is False
+
+
+# -- device/: what the cyclic path and the explicit path publish, and what a stop-io fault withholds -------
+
+PEER = "127.0.0.9"
+
+
+def _dsqc1030() -> Device:
+    config = parse_config({"devices": [{"name": "d", "address": "127.0.0.1", "model": "DSQC1030"}]})
+    (profile,) = build_profiles(config, shipped_catalogue())
+    return Device(profile)
+
+
+def _explicit(device: Device, service: int, class_id: int, instance: int, attribute: int | None = None,
+              data: bytes = b"") -> MessageRouterReply:
+    message = encode_request(service, encode_request_path(class_id, instance, attribute), data)
+    reply = device.handle_unconnected(message, MessageContext(PEER, None, (), T0))
+    return decode_reply(reply[0] if isinstance(reply, tuple) else reply)
+
+
+def _forward_open(device: Device) -> ForwardOpenRequest:
+    p2p = ConnectionType.POINT_TO_POINT
+    sizes = len(device.outputs) + 6, len(device.inputs) + 2
+    return ForwardOpenRequest(
+        0x0A, 0x0E, 0, 0x7E570001, ConnectionTriad(77, 0x1234, 0xABCD), 0, 10_000,
+        NetworkParameters(False, p2p, 2, False, sizes[0]), 10_000, NetworkParameters(False, p2p, 2, False, sizes[1]),
+        0x01, bytes.fromhex("20 04 24 01 2C 64 2C 65"))
+
+
+def test_an_observer_is_told_of_a_request_that_changed_nothing() -> None:
+    """A mutant told observers only when something changed (or when none listened)."""
+    device, seen = _dsqc1030(), []
+    device.observe(seen.append)
+    assert _explicit(device, Service.GET_ATTRIBUTE_SINGLE, ClassCode.IDENTITY, 1, 1).general_status == 0
+    assert [e.kind for e in seen] == ["request"] and seen[0].text.startswith("service 0x0E path 20 01 24 01 30 01")
+
+
+def test_with_nobody_listening_a_reset_and_a_connection_opened_are_still_done_and_logged() -> None:
+    """The hot path (nothing changed, nobody listening) must not swallow a reset or an opened
+    connection (a mutant did, each)."""
+    device, moved = _dsqc1030(), []
+    device.timer_moved = lambda: moved.append(True)
+    opened = _explicit(device, Service.FORWARD_OPEN, ClassCode.CONNECTION_MANAGER, 1,
+                       data=encode_forward_open(_forward_open(device)))
+    assert opened.general_status == 0 and len(device.connections) == 1
+    assert [e.kind for e in device.events if e.kind != "request"] == ["connection opened"] and moved == [True]
+    assert _explicit(device, Service.RESET, ClassCode.IDENTITY, 1).general_status == 0
+    assert [e.kind for e in device.events if e.kind.startswith("reset")] == ["reset"] and device.resetting
+
+
+def test_an_input_change_is_published_as_an_image_change() -> None:
+    device, seen = _dsqc1030(), []
+    device.observe(seen.append)
+    old = device.inputs
+    new = bytes([old[0] ^ 0x01]) + old[1:]
+    device.set_inputs(new, T0)
+    assert [(e.kind, e.detail.role, e.detail.old, e.detail.new) for e in seen] == [
+        ("image changed", "input", old, new)]
+
+
+def test_stop_io_withholds_the_t_o_due_and_drops_o_t() -> None:
+    """A mutant sent the T->O due while the fault stopped the I/O."""
+    device, sent = _dsqc1030(), []
+    _explicit(device, Service.FORWARD_OPEN, ClassCode.CONNECTION_MANAGER, 1,
+              data=encode_forward_open(_forward_open(device)))
+    device.service_io(T0, lambda data, address: sent.append(address))
+    assert sent == [(PEER, 2222)]
+    device.faults.set(Fault("stop-io"), T0)
+    device.service_io(T0 + 10 * 1_000_000, lambda data, address: sent.append(address))
+    assert sent == [(PEER, 2222)]
+    (connection,) = device.connections.values()
+    datagram = encode_io_packet(connection.o_t_id, 1, 1, bytes(4 + len(device.outputs)))
+    assert device.receive_io(datagram, (PEER, 2222), T0, lambda *a: None) is False
+    assert device.counters["o_t_dropped_io_stopped"] == 1
+    device.faults.clear()
+    device.service_io(T0 + 20 * 1_000_000, lambda data, address: sent.append(address))
+    assert sent == [(PEER, 2222)] * 2
+
+
+def test_a_connection_past_its_deadline_times_out_at_the_next_turn_however_late() -> None:
+    """The I/O thread may come late: a deadline passed (not only one reached to the nanosecond)
+    is supervision due (a mutant took only `deadline == now`)."""
+    device = _dsqc1030()
+    _explicit(device, Service.FORWARD_OPEN, ClassCode.CONNECTION_MANAGER, 1,
+              data=encode_forward_open(_forward_open(device)))
+    (connection,) = device.connections.values()
+    device.service_io(connection.deadline - 1, lambda *a: None)
+    assert len(device.connections) == 1
+    device.service_io(connection.deadline + 7_000_000, lambda *a: None)  # 7 ms late
+    assert device.connections == {} and [e.kind for e in device.events if e.kind.startswith("connection t")] == [
+        "connection timed out"]
+
+
+@pytest.mark.parametrize(("value", "status"), [(9, 0x09), (10, 0), (11, 0), (1000, 0), (1001, 0x09)])
+def test_a_parameter_is_set_within_its_minimum_and_maximum_both_included(value: int, status: int) -> None:
+    """Vol. 1, 7-3.6.8 (an EDS's min and max): a mutant refused the minimum and took less."""
+    parameter = ParameterInstance(ParameterSpec(1, "p", 0, 0xC7, 2, minimum=10, maximum=1000, default=500))
+    assert parameter.set(value) == status
+    assert parameter.value == (value if status == 0 else 500)
+
+
+# -- server/: the I/O thread's lag, the kernel's receive time, the bounded waits ----------------------------
+
+S = 1_000_000_000  # ns
+
+
+def test_the_lag_is_the_worst_of_the_last_whole_second_and_overloads_are_beyond_5_ms() -> None:
+    lag = Lag()
+    assert [lag.observe(ns, 7 * S + n) for n, ns in enumerate((2_000_000, 9_000_000, 5_000_000, 5_000_001))] == [
+        False, True, False, True]
+    assert (lag.worst_ns, lag.overloads) == (0, 2)  # the second is not over
+    assert lag.observe(1_000, 8 * S) is False
+    assert (lag.worst_ns, lag.overloads) == (9_000_000, 2)  # second 7's worst
+    assert lag.observe(3_000, 8 * S + 5) is False and lag.observe(0, 10 * S) is False
+    assert lag.worst_ns == 3_000  # second 8's (second 9 had no wake-up)
+
+
+def test_the_kernels_receive_time_or_0() -> None:
+    stamp = struct.pack("@qq", 1_700_000_000, 123_456_789)  # struct timespec
+    assert wall_stamp([(socket.SOL_SOCKET, SO_TIMESTAMPNS, stamp)]) == 1_700_000_000_123_456_789
+    assert wall_stamp([(socket.SOL_SOCKET, SO_TIMESTAMPNS + 1, stamp)]) == 0
+    assert wall_stamp([(socket.SOL_SOCKET, SO_TIMESTAMPNS, stamp[:8])]) == 0
+    assert wall_stamp([]) == 0
+
+
+@pytest.mark.parametrize(("seconds", "wait"), [(1.5, 1.5), (1e-9, 1e-9), (0, 0.0), (-1, 0.0), (math.nan, 0.0),
+                                               (3600, 3600), (3600.5, 3600), (math.inf, 3600)])
+def test_a_wait_handed_to_the_os_is_bounded(seconds: float, wait: float) -> None:
+    assert os_wait_s(seconds) == wait
+
+
+@pytest.mark.integration
+def test_the_fallback_receive_reads_what_waits_and_passes_over_empty_unknown_and_failed_sockets(free_address) -> None:
+    """Without the native extension: a socket with nothing to read, an fd it does not know and a
+    socket with an ICMP error pending (port unreachable) give nothing and end nothing; a datagram
+    without a kernel timestamp has receive time 0 (mutants let the errors out, or made it 1)."""
+    host = free_address()
+    sockets = [socket.socket(socket.AF_INET, socket.SOCK_DGRAM) for _ in range(3)]
+    try:
+        for sock in sockets:
+            sock.bind((host, 0))
+            sock.setblocking(False)
+        waiting, empty, refused = sockets
+        closed = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        closed.bind((host, 0))
+        port = closed.getsockname()[1]
+        closed.close()
+        refused.connect((host, port))
+        refused.send(b"to nobody")  # the ICMP port unreachable comes back as an error on the socket
+        datagrams = Datagrams(native=False)
+        for sock in sockets:
+            datagrams.add(sock)
+        empty.sendto(b"o->t", waiting.getsockname())
+        got: list = []
+        for _ in range(200):  # loopback: there as soon as sendto returns; bounded all the same
+            got += datagrams.receive([empty.fileno(), 9999, refused.fileno(), waiting.fileno()])
+            if got:
+                break
+        assert got == [(waiting.fileno(), b"o->t", host, empty.getsockname()[1], 0)]
+        assert datagrams.receive([empty.fileno(), refused.fileno(), waiting.fileno()]) == []
+    finally:
+        for sock in sockets:
+            sock.close()

@@ -48,6 +48,7 @@ class Controller:
         self.stopped = threading.Event()
         self.opens = 0
         self.enip = None
+        self.conn = None
         self.thread = threading.Thread(target=self.run, daemon=True)
         self.thread.start()
 
@@ -63,16 +64,20 @@ class Controller:
                                originator_udp_port=enip.originator_udp_port) == 0:
             conn.produce()
             self.opens += 1
-        self.enip = enip
+        self.enip, self.conn = enip, conn
 
     def run(self) -> None:
         deadline = time.monotonic() + 60
         while not self.stopped.is_set() and time.monotonic() < deadline:
             if not self.device.connections and list_identity_answered(self.address, 0.05):
-                if self.enip is not None:
-                    self.enip.stopIO()
+                self.close()
                 self.open()
             time.sleep(0.01)
+        self.close()
+
+    def close(self) -> None:
+        if self.conn is not None:
+            self.conn.stopProduce()
         if self.enip is not None:
             self.enip.stopIO()
 

@@ -102,7 +102,7 @@ def test_every_defect_is_one_line_naming_the_file_and_line() -> None:
     assert caught.value.problems == [
         "s.yaml:2: step 1: fault power-cut: kind: 'power-cut' is not one of delay, drop, close, reset, offline, "
         "status, stop-io, identity, power-loss, link-down, flapping-link, degraded-link, address-conflict, "
-        "wrong-module",
+        "wrong-module, safety-crc, safety-stale, safety-time-coordination",
         "s.yaml:5: step 2: target: 'rack9' is neither a device nor a group of the cell (groups: rack2)",
         "s.yaml:7: step 3: after: no step '9' (steps 1..8, or 6)",
         "s.yaml:7: step 3: set io1.DI99: device 'io1': DI99: this device has 16 DI signals",
@@ -193,3 +193,16 @@ def test_steps_at_times_from_the_start_come_in_time_order_whatever_the_file_orde
     assert [s.number for s in schedule.due(3_000 * MS)] == [2, 3, 1]
     schedule.cancel()
     assert schedule.done
+
+
+def test_a_run_lasts_until_its_faults_and_its_expectations_have_had_their_time() -> None:
+    from enip_farm.scenario.run import horizon
+
+    scenario = parse(GOOD.replace("    duration: 5 s\n", ""))
+    schedule = Schedule(scenario.steps)
+    schedule.start(0)
+    assert horizon(scenario, schedule) == 0
+    schedule.due(2_000 * MS)
+    schedule.end(1, 2_000 * MS)
+    # the fault's 4 s, then 3 s for rack2 to reconnect after its end (the 100 ms of step 1 is shorter)
+    assert horizon(scenario, schedule) == 2_000 * MS + 4_000 * MS + 3_000 * MS

@@ -41,13 +41,17 @@ class CyclicBudget:
     """`datagrams_per_s` for all the connections of one I/O thread; `source` says where the figure
     came from (configured, or measured at start with the cost per packet, or lowered running)."""
 
-    def __init__(self, datagrams_per_s: float, source: str = "configured") -> None:
+    def __init__(self, datagrams_per_s: float, source: str = "configured", ceiling: float | None = None) -> None:
         self.datagrams_per_s = float(datagrams_per_s)
         self.source = source
         self.reserved = 0.0
         self.refused = 0  # Forward Opens refused for want of budget
         self.lowered = 0  # times the running check took the figure down
-        self._measured = self.datagrams_per_s  # the figure measured at start: the ceiling of any rise
+        #: the ceiling of any rise: the figure measured at start, or what the CPU cost alone allows
+        #: where the machine gave the measuring thread less of a core than the budget is for
+        self.ceiling = float(ceiling if ceiling is not None else datagrams_per_s)
+        self._measured = self.ceiling
+        self._start = self.datagrams_per_s  # the figure set at start
         self._measured_source = source
         self._calm = 0  # seconds on time in a row
         self._lock = threading.Lock()
@@ -70,23 +74,28 @@ class CyclicBudget:
         with self._lock:
             self.reserved = max(0.0, self.reserved - reservation.rate)
 
-    def set(self, datagrams_per_s: float, source: str) -> None:
-        """The figure once it is known (measured when the farm starts, or configured)."""
+    def set(self, datagrams_per_s: float, source: str, ceiling: float | None = None) -> None:
+        """The figure once it is known (measured when the farm starts, or configured), and the
+        ceiling of any rise (default: the figure)."""
         with self._lock:
             self.datagrams_per_s, self.source = float(datagrams_per_s), source
-            self._measured, self._measured_source, self._calm = self.datagrams_per_s, source, 0
+            self.ceiling = float(ceiling if ceiling is not None else datagrams_per_s)
+            self._measured, self._measured_source, self._calm = self.ceiling, source, 0
+            self._start = self.datagrams_per_s
 
     def observe(self, cpu_ns: int, datagrams: int, turns: int, late_turns: int) -> None:
         """One second of the I/O thread: the CPU it spent (its system calls included), the datagrams
         it took and sent, its turns with something due and how many of them ran more than
-        LAG_LIMIT_NS late. Only a second of at least MIN_DATAGRAMS says anything (a few
-        connections' cost is the turns', not the packets'). More than 1 % of the turns late: the
-        budget is held at what is taken (nothing more admitted); else it is what BUDGET_UTILISATION
-        of a core carries at the CPU per datagram seen, when that is lower than the figure; after
-        CALM_SECONDS such seconds on time it may rise again, up to the figure measured at start."""
-        if datagrams < MIN_DATAGRAMS or cpu_ns <= 0:
-            return
+        LAG_LIMIT_NS late. Only a thread that moves or has taken MIN_DATAGRAMS a second is judged
+        (a few connections' cost is the turns', not the packets'; and a thread starved of the CPU
+        moves fewer than it has taken). More than 1 % of the turns late: the budget is held at what
+        is taken (nothing more admitted); else, with MIN_DATAGRAMS moved, it is what
+        BUDGET_UTILISATION of a core carries at the CPU per datagram seen, when that is lower than
+        the figure; after CALM_SECONDS seconds on time it may rise again, up to the figure measured
+        at start."""
         with self._lock:
+            if cpu_ns <= 0 or max(datagrams, self.reserved) < MIN_DATAGRAMS:
+                return
             if late_turns * 100 > turns:
                 self._calm = 0
                 if self.reserved < self.datagrams_per_s:
@@ -94,14 +103,18 @@ class CyclicBudget:
                                 f"thread in a second ran more than {LAG_LIMIT_NS / 1e6:g} ms late")
                 return
             self._calm += 1
-            carried = round(BUDGET_UTILISATION * 1e9 * datagrams / cpu_ns, -2)
-            cost = f"{cpu_ns / datagrams / 1000:.2f} us of CPU per datagram in the I/O thread"
-            if carried < self.datagrams_per_s:
-                self._lower(carried, f"lowered running: {cost}, for {BUDGET_UTILISATION:.0%} of a core")
-            elif self._calm >= CALM_SECONDS and self.datagrams_per_s < self._measured:
+            carried, cost = self._measured, ""
+            if datagrams >= MIN_DATAGRAMS:
+                carried = round(BUDGET_UTILISATION * 1e9 * datagrams / cpu_ns, -2)
+                cost = f"{cpu_ns / datagrams / 1000:.2f} us of CPU per datagram in the I/O thread"
+                if carried < self.datagrams_per_s:
+                    self._lower(carried, f"lowered running: {cost}, for {BUDGET_UTILISATION:.0%} of a core")
+                    return
+            if self._calm >= CALM_SECONDS and self.datagrams_per_s < self._measured:
                 self.datagrams_per_s = min(self._measured, carried)
-                self.source = (self._measured_source if self.datagrams_per_s == self._measured else
-                               f"raised running: {cost}, {CALM_SECONDS} s on time")
+                back = self.datagrams_per_s == self._measured == self._start
+                self.source = self._measured_source if back else (
+                    f"raised running: {cost or 'the I/O thread'}, {CALM_SECONDS} s on time")
 
     def _lower(self, datagrams_per_s: float, source: str) -> None:
         self.datagrams_per_s, self.source = float(datagrams_per_s), source

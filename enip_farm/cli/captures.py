@@ -6,16 +6,9 @@ from __future__ import annotations
 import re
 import sys
 from contextlib import ExitStack
-from ipaddress import IPv4Address
 from pathlib import Path
-from typing import TYPE_CHECKING
 
 import click
-
-if TYPE_CHECKING:
-    from enip_farm.config import DeviceConfig, FarmConfig
-    from enip_farm.device.profile import DeviceProfile
-    from enip_farm.farm.farm import Farm
 
 
 @click.command()
@@ -37,6 +30,7 @@ def golden(capture: Path, config_path: Path | None, device: str | None, address:
     from enip_farm.capture.golden import replay
     from enip_farm.capture.packets import read_capture
     from enip_farm.cli.cell import load_cell
+    from enip_farm.cli.golden_farm import own_farm
     from enip_farm.farm.farm import BindError
     from enip_farm.protocol.encapsulation import ENIP_PORT
     from enip_farm.words import plural
@@ -70,7 +64,7 @@ def golden(capture: Path, config_path: Path | None, device: str | None, address:
             names = {ip: device or known[0] for ip in captured}
     try:
         with ExitStack() as stack:
-            farm = _own_farm(stack, config) if config is not None else None
+            farm = own_farm(stack, config) if config is not None else None
 
             def target(ip: str) -> str:
                 if farm is None:
@@ -96,43 +90,6 @@ def golden(capture: Path, config_path: Path | None, device: str | None, address:
     skipped = f", {plural(read.damaged, 'damaged frame')} skipped" if read.damaged else ""
     click.echo(f"{plural(len(results), 'exchange')}: {len(results) - failed} passed, {failed} failed{skipped}")
     sys.exit(1 if failed else 0)
-
-
-def _own_farm(stack: ExitStack, config: FarmConfig) -> Farm:
-    """The cell served from a thread for golden, on its own addresses; where a farm already serves
-    one of them (the README's running cell), on fresh loopback addresses of a block of this
-    process's instead, with what a device derives from its address (serial number, MAC, safety
-    node address) kept: golden maps the captured device's address to wherever the device answers,
-    so the replies compared are the same."""
-    import os
-
-    from enip_farm.cli.cell import make_farm
-    from enip_farm.farm.farm import BindError
-    from enip_farm.farm.loopback import LoopbackPool
-
-    config = config.model_copy(update={"discovery": False})  # golden replays to each device's own address
-    first = farm = make_farm(config)
-    for attempt in range(6):
-        try:
-            stack.enter_context(farm.running_in_thread())
-            return farm
-        except BindError as error:
-            if "already in use" not in str(error) or attempt == 5:
-                raise
-        addresses = LoopbackPool(214 + (os.getpid() + attempt) % 40)  # another process may hold one: the next
-        farm = make_farm(config.model_copy(update={"devices": [
-            _moved(device, first.devices[device.name].profile, addresses()) for device in config.devices]}))
-    raise AssertionError("unreachable")
-
-
-def _moved(device: DeviceConfig, profile: DeviceProfile, address: str) -> DeviceConfig:
-    """The device on another address, answering with the identity it has on its own."""
-    safety = device.safety
-    if profile.safety is not None:
-        safety = safety.model_copy(update={"node_address": profile.safety.node_address})
-    return device.model_copy(update={
-        "address": IPv4Address(address), "mac": ":".join(f"{b:02x}" for b in profile.mac), "safety": safety,
-        "identity": device.identity.model_copy(update={"serial_number": profile.serial_number})})
 
 
 @click.command()

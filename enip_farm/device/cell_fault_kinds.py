@@ -10,6 +10,9 @@ device/fault_kinds.py lists every kind). A group fault sets one of these on ever
 - address-conflict: probe: the address given up (as link-down); ongoing: defended (served); the TCP/IP
   object's attributes 1 and 11 say so if SelectAcd (attribute 10) is 1.
 - wrong-module: another product code or revision (ListIdentity, Identity, electronic keys).
+- safety-crc, safety-stale, safety-time-coordination (a CIP Safety target, the DSQC1042): its
+  safe-input messages with a wrong CRC, or standing still (the same time stamp), or no time
+  coordination answers to the originator's pings (device/safety_faults.py).
 - degraded-link: class 1 (O->T and T->O, device/impairment.py) delayed, jittered, lost, duplicated and
   reordered, seeded, one or both directions; explicit (TCP) replies delayed and jittered, a lost
   segment showing as the retransmission time (TCP hides loss, duplication and reordering).
@@ -31,6 +34,7 @@ from pydantic import Field, PrivateAttr, field_validator, model_validator
 
 from enip_farm.device.fault_type import DROP, FaultedDevice, FaultError, FaultType, number
 from enip_farm.device.impairment import DegradedPath, LinkQuality
+from enip_farm.device.safety_faults import SafetyTamper
 
 #: A lost TCP segment is sent again after the retransmission timeout: Linux's least (RFC 6298 allows 1 s).
 TCP_RTO_MS = 200.0
@@ -226,3 +230,27 @@ class DegradedLink(FaultType):
         if self.loss and rng.random() < self.loss:
             hold += TCP_RTO_MS
         return round(max(hold, 0.0) * 1e6)
+
+
+class SafetyCrc(FaultType):
+    name = "safety-crc"
+    summary = "CIP Safety target: its safe-input messages carry a wrong CRC (the originator's consumer drops them)"
+
+    def safety_tamper(self) -> SafetyTamper | None:
+        return SafetyTamper("crc")
+
+
+class SafetyStale(FaultType):
+    name = "safety-stale"
+    summary = "CIP Safety target: its safe-input messages stand still (the same time stamp and data, valid CRCs)"
+
+    def safety_tamper(self) -> SafetyTamper | None:
+        return SafetyTamper("stale")
+
+
+class SafetyTimeCoordination(FaultType):
+    name = "safety-time-coordination"
+    summary = "CIP Safety target: no time coordination answers to the originator's pings (its producer times out)"
+
+    def safety_tamper(self) -> SafetyTamper | None:
+        return SafetyTamper("time-coordination")

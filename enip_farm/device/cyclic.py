@@ -44,6 +44,7 @@ class CyclicIo:
         if self.window.active:
             self.counters["o_t_dropped_resetting"] += 1
             return False
+        send = self._tampered(send)
         path = self.faults.impairment
         if path is not None:  # a degraded link: the datagram may be lost, held, doubled
             if path.from_device is not None:
@@ -80,6 +81,7 @@ class CyclicIo:
         """Supervise the connections at `now` and hand `send` the T->O packets due by `now` (or by
         `horizon`, the end of the I/O thread's turn), after the lock; the next time something is due."""
         guard, table = self.guard, self.table
+        send = self._tampered(send)
         path = self.faults.impairment
         if path is not None:  # a degraded link: what it held is due now, and what is sent goes through it
             if path.from_device is not None:
@@ -114,6 +116,15 @@ class CyclicIo:
         if expiring and connections:
             guard.publish(before, after, now, (), connections)
         return _earliest(timer, path.next_due()) if path is not None else timer
+
+    def _tampered(self, send: SendDatagram) -> SendDatagram:
+        """`send` behind a safety fault's tampering (device/safety_faults.py), if one is set."""
+        tamper = self.faults.safety_tamper
+        if tamper is None:
+            return send
+        with self.guard.lock:
+            data, coordination = tamper.streams(self.table.connections.values())
+        return tamper.through(send, data, coordination)
 
     def get_timer(self) -> int | None:
         with self.guard.lock:

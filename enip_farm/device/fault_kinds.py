@@ -21,6 +21,9 @@ from enip_farm.device.cell_fault_kinds import (
     FlappingLink,
     LinkDown,
     PowerLoss,
+    SafetyCrc,
+    SafetyStale,
+    SafetyTimeCoordination,
     WrongModule,
 )
 from enip_farm.device.fault_type import DROP, MAX_DELAY_MS, Disconnect, FaultError, FaultType, byte, delay_ms
@@ -136,4 +139,5 @@ class Identity(FaultType):
 
 #: Every fault kind, in the order the API, the CLI and the dashboard list them.
 KINDS: tuple[type[FaultType], ...] = (Delay, Drop, Close, Reset, Offline, Status, StopIo, Identity, PowerLoss,
-                                      LinkDown, FlappingLink, DegradedLink, AddressConflict, WrongModule)
+                                      LinkDown, FlappingLink, DegradedLink, AddressConflict, WrongModule,
+                                      SafetyCrc, SafetyStale, SafetyTimeCoordination)

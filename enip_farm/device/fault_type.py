@@ -18,6 +18,7 @@ keeps their answers for the fast paths), so their answer depends on the paramete
 | `hears()` | server/tcp.py, per read | False: requests are not received (no power, no link) |
 | `phases()` | the farm, on inject | (down s, up s) pairs: the effects come and go (a flapping link) |
 | `impairment()` | device/faults.py, when set | a DegradedPath the class-1 datagrams go through |
+| `safety_tamper()` | device/faults.py, when set | a SafetyTamper the CIP Safety datagrams go through |
 | `on_set(device, now)` / `on_clear(device, now)` | the farm, as the fault is set and cleared | None |
 
 `on_set` and `on_clear` act on the device itself (`FaultedDevice`: a power loss loses its state, an
@@ -158,6 +159,10 @@ class FaultType(BaseModel):
         return True
 
     def phases(self) -> Iterator[tuple[float, float]] | None:
+        return None
+
+    def safety_tamper(self) -> Any:
+        """A new SafetyTamper (device/safety_faults.py) for a safety target's class-0 datagrams, or None."""
         return None
 
     def impairment(self) -> Any:

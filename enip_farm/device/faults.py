@@ -74,6 +74,9 @@ class DeviceFaults:
         #: The class-1 datagrams' degraded path (a degraded-link fault), read by the cyclic I/O thread.
         self.impairment: Any = None
         self._impaired_by: FaultType | None = None
+        #: A safety fault's SafetyTamper of the class-0 datagrams, read by the cyclic I/O thread.
+        self.safety_tamper: Any = None
+        self._tampered_by: FaultType | None = None
         self._replies: tuple[FaultType, ...] = ()  # the faults that change how TCP replies go out
         self._disconnect: Disconnect | None = None
 
@@ -117,6 +120,10 @@ class DeviceFaults:
         if impairing is not self._impaired_by:  # a new one starts afresh; the same one keeps what it holds
             self._impaired_by = impairing
             self.impairment = impairing.impairment() if impairing is not None else None
+        tampering = next((f for f in faults if type(f).safety_tamper is not FaultType.safety_tamper), None)
+        if tampering is not self._tampered_by:
+            self._tampered_by = tampering
+            self.safety_tamper = tampering.safety_tamper() if tampering is not None else None
         self._replies = tuple(f for f in faults if type(f).on_reply is not FaultType.on_reply)
         ends = {fault.on_tcp_connection() for fault in faults} - {None}
         self._disconnect = Disconnect.RESET if Disconnect.RESET in ends else ends.pop() if ends else None

@@ -105,6 +105,13 @@ class Farm:
         self._implicit: ImplicitIo | None = None
         self._tasks: set[asyncio.Task] = set()
         self.resets = FarmResets(self.listeners, self._spawn)
+        #: A device configured onto an earlier device's address -> that device (config `duplicate_address`).
+        self.address_owners: dict[str, str] = {}
+        owners: dict[str, str] = {}
+        for entry in config.devices:
+            owner = owners.setdefault(str(entry.address), entry.name)
+            if owner != entry.name:
+                self.address_owners[entry.name] = owner
         self.faults = FarmFaults(self.devices, self.listeners, self.resets, self._spawn, lambda: self.running)
         for device in self.devices.values():
             device.observe(lambda event, d=device: self.resets.on_event(d, event))
@@ -156,6 +163,8 @@ class Farm:
         endpoints: list[DeviceDatagramProtocol] = []
         try:
             for device in self.devices.values():
+                if device.name in self.address_owners:
+                    continue  # configured onto another device's address: it does not take it (below)
                 address = device.profile.address
                 await self._listen(device)
                 try:
@@ -170,16 +179,19 @@ class Farm:
             budget = self.config.cyclic_io.budget_datagrams_per_s
             if budget == "auto":
                 measured = measure_budget(self._profiles)
-                self.budget.set(measured.datagrams_per_s, measured.source)
+                self.budget.set(measured.datagrams_per_s, measured.source, measured.ceiling)
             else:
                 self.budget.set(budget, "configured")
             self._implicit = ImplicitIo(self.budget if budget == "auto" else None)
             for device in self.devices.values():
+                if device.name in self.address_owners:
+                    continue
                 try:
                     self._implicit.add(device)
                 except OSError as error:
                     raise BindError(bind_message(device, "UDP", error, IO_PORT)) from None
             self._implicit.start()
+            await self._address_conflicts()
             self.supervision.start()
             if self._http_address is not None:
                 host, port = self._http_address
@@ -201,6 +213,17 @@ class Farm:
             raise
         self.running = True
         self.resets.start(loop)
+
+    async def _address_conflicts(self) -> None:
+        """Each device configured onto an earlier device's address (`duplicate_address`) detects the
+        conflict as it comes up (Address Conflict Detection, its SelectAcd on) and does not take the
+        address: an `address-conflict` fault in its probe phase, the other host the address's owner."""
+        for name, owner in self.address_owners.items():
+            device = self.devices[name]
+            device.hardware.objects.tcpip.settings.select_acd = 1
+            self.faults.off_network.add(name)
+            mac = self.devices[owner].profile.mac.hex(":")
+            await self.faults.inject((name,), Fault("address-conflict", phase="probe", remote_mac=mac))
 
     async def stop(self) -> None:
         self.resets.stop()

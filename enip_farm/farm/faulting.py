@@ -18,7 +18,7 @@ from typing import Any
 
 from enip_farm.device.device import Device
 from enip_farm.device.faults import Disconnect, FaultType
-from enip_farm.farm.listeners import Listeners
+from enip_farm.farm.listeners import BindError, Listeners
 from enip_farm.farm.resets import FarmResets
 from enip_farm.server.waits import os_wait_s
 
@@ -35,6 +35,7 @@ class FarmFaults:
         self.running = running
         self.timers: dict[tuple[str, str], asyncio.TimerHandle] = {}
         self.flaps: dict[tuple[str, str], asyncio.Task] = {}
+        self.off_network: set[str] = set()  # configured onto another device's address (duplicate_address)
 
     def stop(self) -> None:
         for timer in self.timers.values():
@@ -100,20 +101,27 @@ class FarmFaults:
 
     async def clear(self, name: str, kind: str | None = None) -> list[str]:
         """Switch one fault (or all) of one device off; normal behaviour returns (after a boot, where
-        the fault took the power)."""
+        the fault took the power). A device configured onto another's address keeps its conflict."""
         device = self.devices[name]
         faults = device.faults
-        listens_again = not faults.listens and faults.listens_without(kind)
         now = time.monotonic_ns()
-        ending = [fault for k, fault in faults.active.items() if kind is None or k == kind]
+        kinds = [k for k in faults.active if kind is None or k == kind]
+        if name in self.off_network and "address-conflict" in kinds:
+            kinds.remove("address-conflict")
+            device.record("address still taken", "configured onto another device's address", now)
+        listens_again = not faults.listens and all(
+            fault.listens() for k, fault in faults.active.items() if k not in kinds and k not in faults.suspended)
         booting = device.resetting
-        for fault in ending:
-            fault.on_clear(device.hardware, now)
+        for k in kinds:
+            faults.active[k].on_clear(device.hardware, now)
         if device.resetting and not booting:  # the module restarts (power back): its TCP peers are stale
             self.resets.power_returned(device)
         if listens_again and self.running() and not self.listeners.listening(name) and not device.resetting:
-            await self.listeners.listen(device)  # listening again before the fault is seen gone
-        cleared = faults.clear(kind)
+            try:
+                await self.listeners.listen(device)  # listening again before the fault is seen gone
+            except BindError as error:  # someone took the address meanwhile: say so, keep serving the others
+                device.record("address still taken", str(error), now)
+        cleared = [k for k in kinds for _ in faults.clear(k)]
         for k in cleared:
             self._forget(name, k)
         if cleared:

@@ -1,8 +1,10 @@
 """A scenario run on a running farm, on the farm's event loop: the schedule (schedule.py) given the
 time by `clock`, each due step carried out (a fault on a device or a group, a clear, a stimulus, a
 wait for a condition), every device's events recorded while it runs, the expectations judged at the
-end (verdict.py). However it ends (its steps done, a wait timed out, cancelled), every fault it set
-is cleared and every signal it set is put back: nothing a scenario does outlives it."""
+end (verdict.py). It ends when its steps have, not before its `duration`, every fault it set with a
+duration has ended and every `within T of step S` has had its T. However it ends (its steps done, a
+wait timed out, cancelled), every fault it set is cleared and every signal it set is put back:
+nothing a scenario does outlives it."""
 
 from __future__ import annotations
 
@@ -15,7 +17,16 @@ from enip_farm.config import FarmConfig
 from enip_farm.device.device import Device
 from enip_farm.device.faults import Fault, FaultType
 from enip_farm.device.signals import SignalMap
-from enip_farm.scenario.model import ClearAction, FaultAction, Scenario, SetAction, Step, WaitAction
+from enip_farm.scenario.model import (
+    ClearAction,
+    FaultAction,
+    Reconnected,
+    Scenario,
+    SetAction,
+    SignalWithin,
+    Step,
+    WaitAction,
+)
 from enip_farm.scenario.schedule import Schedule, StepState
 from enip_farm.scenario.verdict import Recording, ScenarioResult, StepOutcome, judge
 
@@ -61,7 +72,7 @@ async def run_scenario(farm: ScenarioFarm, scenario: Scenario, progress: Callabl
     run = _Run(farm, schedule, say, start)
     status = "passed"
     try:
-        while not schedule.done or clock() < start + scenario.duration_ns:
+        while not schedule.done or clock() < max(start + scenario.duration_ns, horizon(scenario, schedule)):
             now = clock()
             for step in schedule.due(now):
                 await run.carry_out(step, clock())
@@ -88,6 +99,26 @@ async def run_scenario(farm: ScenarioFarm, scenario: Scenario, progress: Callabl
                          _seconds(schedule.started.get(n), start), _seconds(schedule.ended.get(n), start),
                          run.details.get(n, "")) for n, step in schedule.steps.items()]
     return ScenarioResult(scenario.name, status, steps, verdicts, round((clock() - start) / 1e9, 3))
+
+
+def horizon(scenario: Scenario, schedule: Schedule) -> int:
+    """The least end of a run whose steps are done: every fault it set with a duration has ended, and
+    every `within T of step S` has had its T (so that what is expected has had the time it is given)."""
+    ends = [schedule.start_ns or 0]
+    for number, step in schedule.steps.items():
+        if isinstance(step.action, FaultAction) and step.action.duration_ns and number in schedule.started:
+            ends.append(schedule.started[number] + step.action.duration_ns)
+    for expectation in scenario.expectations:
+        check = expectation.check
+        if isinstance(check, (SignalWithin, Reconnected)) and check.step in schedule.started:
+            since = schedule.started[check.step]
+            step = schedule.steps[check.step]
+            if check.end and isinstance(step.action, FaultAction) and step.action.duration_ns:
+                since += step.action.duration_ns
+            elif check.end:
+                since = schedule.ended.get(check.step, since)
+            ends.append(since + check.bound_ns)
+    return max(ends)
 
 
 def _seconds(when: int | None, start: int) -> float | None:

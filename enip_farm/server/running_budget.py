@@ -42,8 +42,11 @@ class RunningBudget:
         cpu = self._cpu_ns()
         budget = self.budget
         if until is not None and budget is not None:
+            # a loop held up (a busy machine) makes the window longer than a second: per second it is
+            seconds = (now - until + _SECOND_NS) / _SECOND_NS
             source = budget.source
-            budget.observe(cpu - self._cpu_at, self.datagrams, self.turns, self.late_turns)
+            budget.observe(round((cpu - self._cpu_at) / seconds), round(self.datagrams / seconds), self.turns,
+                           self.late_turns)
             if budget.source != source:  # at most once a second
                 log.warning("cyclic I/O budget now %s", budget.describe())
         self._until, self._cpu_at = now + _SECOND_NS, cpu
