@@ -319,6 +319,13 @@ class Farm:
         parsed = scenario if isinstance(scenario, Scenario) else self.load_scenario(scenario)
         return self.run(run_scenario(self, parsed, progress), timeout)
 
+    def mark(self, text: str) -> None:
+        """A scenario's step, in the recording's side file (`--record FILE`: FILE.steps, a line of wall-clock
+        time and text per step, to find it among the packets' time stamps); nothing when not recording."""
+        if self.recorder is not None:
+            with open(f"{self.recorder.path}.steps", "a", encoding="utf-8") as steps:
+                steps.write(f"{time.time():.6f} {text}\n")
+
     def _spawn(self, coroutine: Coroutine[Any, Any, Any]) -> None:
         """A task of the farm, kept until it ends; its exception reaches the loop's handler."""
         task = self.loop.create_task(coroutine)  # type: ignore[union-attr]

@@ -58,6 +58,8 @@ class ScenarioFarm(Protocol):
 
     async def clear_faults(self, name: str, kind: str | None = None) -> list[str]: ...
 
+    def mark(self, text: str) -> None: ...
+
 
 async def run_scenario(farm: ScenarioFarm, scenario: Scenario, progress: Callable[[str], None] | None = None,
                        clock: Callable[[], int] = time.monotonic_ns) -> ScenarioResult:
@@ -101,6 +103,15 @@ async def run_scenario(farm: ScenarioFarm, scenario: Scenario, progress: Callabl
     return ScenarioResult(scenario.name, status, steps, verdicts, round((clock() - start) / 1e9, 3))
 
 
+def _devices_of(farm: ScenarioFarm, step: Step) -> tuple[str, ...]:
+    action = step.action
+    if isinstance(action, (FaultAction, ClearAction)):
+        return farm.config.topology.targets(action.target)
+    if isinstance(action, SetAction):
+        return tuple(dict.fromkeys(device for device, _, _ in action.values))
+    return (action.condition.device,)
+
+
 def horizon(scenario: Scenario, schedule: Schedule) -> int:
     """The least end of a run whose steps are done: every fault it set with a duration has ended, and
     every `within T of step S` has had its T (so that what is expected has had the time it is given)."""
@@ -139,7 +150,13 @@ class _Run:
         self.details: dict[int, str] = {}
 
     def _line(self, step: Step, now: int, text: str) -> None:
-        self.say(f"{(now - self.start) / 1e9:8.3f} s  {step.label}: {text}")
+        """A progress line; the step in the recording's side file (the farm's `mark`) and in the event
+        log of each device it touches (the dashboard's events), as "scenario step"."""
+        line = f"{step.label}: {text}"
+        self.say(f"{(now - self.start) / 1e9:8.3f} s  {line}")
+        self.farm.mark(line)
+        for device in _devices_of(self.farm, step):
+            self.farm.devices[device].record("scenario step", line, now)
 
     async def carry_out(self, step: Step, now: int) -> None:
         action = step.action
