@@ -224,6 +224,17 @@ class AddressConflict(Happened, kind="address conflict"):
 
 
 @dataclass(frozen=True, slots=True)
+class ScenarioStep(Happened, kind="scenario step"):
+    """A scenario's step began or ended (scenario/run.py): its label and what it did."""
+
+    line: str
+
+    @property
+    def text(self) -> str:
+        return self.line
+
+
+@dataclass(frozen=True, slots=True)
 class AddressStillTaken(Happened, kind="address still taken"):
     """An address-conflict fault cleared, but the device's address is not its own again: why."""
 
