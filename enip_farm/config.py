@@ -170,6 +170,7 @@ class DeviceConfig(_Strict):
     reset_time_s: float = Field(
         1.0, ge=0, le=3600, allow_inf_nan=False, description="Identity Reset: how long the device does not "
         "answer (no TCP listener, UDP dropped) after it has replied, as a module restarts")
+    duplicate_address: bool = Field(False, description="on an earlier device's address: ACD finds it taken")
     signals: list[SignalConfig] = Field([], description="named signals (RobotWare EIO_SIGNAL) beside DI1.., DO1..")
     safety: SafetyConfig = SafetyConfig()
     bounds: BoundsConfig = Field(BoundsConfig(), description="the report's bounds for this device, over the cell's")
@@ -286,8 +287,7 @@ class CyclicIoConfig(_Strict):
 
 class FarmConfig(_Strict):
     devices: list[DeviceConfig] = Field(min_length=1)
-    groups: list[GroupConfig] = Field([], description="the topology (enip_farm/topology.py): named groups of "
-                                      "devices (a rack, a switch, a power feed, a ring) a fault or a scenario names")
+    groups: list[GroupConfig] = Field([], description="named groups of devices that fail together (topology.py)")
     cyclic_io: CyclicIoConfig = CyclicIoConfig()
     discovery: bool = Field(True, description="answer broadcast ListIdentity on 0.0.0.0:44818")
     max_tcp_connections: int = Field(60000, ge=1, description="TCP connections of all devices at once (also "
@@ -325,7 +325,7 @@ class FarmConfig(_Strict):
             for device in self.devices:
                 value = getattr(device, field)
                 first = seen.setdefault(value, device)
-                if first is not device:  # expanded names hold no braces, so the message is no template
+                if first is not device and not (field == "address" and device.duplicate_address):
                     message = f"{value} is taken by {device_location(first.entry, first.name)}" + (
                         f" (here by {device.name!r})" if field == "address" else "")
                     errors.append(InitErrorDetails(type=PydanticCustomError("duplicate", message),

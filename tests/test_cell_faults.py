@@ -14,6 +14,7 @@ import ethernetip
 import httpx
 import pytest
 
+from enip_farm.config import ConfigError, parse_config
 from enip_farm.device.cell_fault_kinds import FlappingLink
 from enip_farm.device.faults import Fault, FaultError
 from enip_farm.protocol.encapsulation import Command, encode_frame
@@ -255,5 +256,32 @@ def test_a_degraded_link_delays_what_the_scanner_sees_and_loss_times_the_connect
         assert wait_for(lambda: r1.counters["connection_timeouts"] == 1, timeout=5)
         assert r1.device.faults.impairment.to_device.lost > 0
     finally:
+        conn.stopProduce()
         enip.stopIO()
         farm.clear("r1")
+
+
+
+def test_two_devices_configured_onto_one_address_the_second_finds_it_taken(enip_farm, free_address) -> None:
+    with pytest.raises(ConfigError, match=r"127.0.9.1 is taken by device 'old' \(devices\[0\]\) \(here by 'new'\)"):
+        parse_config({"devices": [{"name": "old", "address": "127.0.9.1", "model": "DSQC1030"},
+                                  {"name": "new", "address": "127.0.9.1", "model": "DSQC1030"}]})
+    address = free_address()
+    farm = enip_farm({"devices": [
+        {"name": "old", "address": address, "model": "DSQC1030", "identity": {"serial_number": 1111}},
+        {"name": "new", "address": address, "model": "DSQC1030", "duplicate_address": True,
+         "identity": {"serial_number": 4242}}]}, keep_addresses=True)
+    with RawClient(address) as client:  # the address is the old module's
+        client.register()
+        assert client.get(1, 1, 6).data == (1111).to_bytes(4, "little")
+    new = farm.device("new")
+    assert [f["kind"] for f in farm["new"].faults] == ["address-conflict"]
+    old_mac = farm.device("old").profile.mac
+    conflict = new.hardware.objects.tcpip.last_conflict
+    assert conflict[0] == 1 and conflict[1:7] == old_mac  # found while probing, the other host the old module
+    assert new.hardware.objects.tcpip.acd_bits == 0x40 | 0x80  # AcdStatus, AcdFault: the address given up
+    assert [e.text for e in farm["new"].events("address conflict")] == [
+        f"with {old_mac.hex(':')}: address given up"]
+    assert farm.clear("new") == []  # the address is still the old module's: it stays off
+    assert [e.kind for e in farm["new"].events("address still taken")] == ["address still taken"]
+    assert [f["kind"] for f in farm["new"].faults] == ["address-conflict"]

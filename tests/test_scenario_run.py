@@ -48,6 +48,7 @@ class Controller:
         self.stopped = threading.Event()
         self.opens = 0
         self.enip = None
+        self.conn = None
         self.thread = threading.Thread(target=self.run, daemon=True)
         self.thread.start()
 
@@ -63,16 +64,20 @@ class Controller:
                                originator_udp_port=enip.originator_udp_port) == 0:
             conn.produce()
             self.opens += 1
-        self.enip = enip
+        self.enip, self.conn = enip, conn
 
     def run(self) -> None:
         deadline = time.monotonic() + 60
         while not self.stopped.is_set() and time.monotonic() < deadline:
             if not self.device.connections and list_identity_answered(self.address, 0.05):
-                if self.enip is not None:
-                    self.enip.stopIO()
+                self.close()
                 self.open()
             time.sleep(0.01)
+        self.close()
+
+    def close(self) -> None:
+        if self.conn is not None:
+            self.conn.stopProduce()
         if self.enip is not None:
             self.enip.stopIO()
 
@@ -167,3 +172,22 @@ steps:
     assert result.status == "failed" and [s.state for s in result.steps] == ["done", "failed", "skipped"]
     assert result.steps[1].detail == "io1.DI4 == 1 not met within 0.1 s"
     assert farm["r2-io1"].faults == []
+
+
+def test_each_step_is_marked_in_the_recording_and_the_event_logs(enip_farm, tmp_path) -> None:
+    from enip_farm.farm.farm import Farm
+
+    farm = enip_farm(CELL)
+    path = tmp_path / "mark.yaml"
+    path.write_text("steps:\n  - {fault: link-down, target: rack2, duration: 100 ms}\n  - {set: {io1.DI2: 1}}\n")
+    record = tmp_path / "cell.pcap"
+    recording = Farm({"devices": [{"name": "x", "address": farm["io1"].address.rsplit(".", 1)[0] + ".250",
+                                   "model": "DSQC1030"}], "discovery": False}, record=record)
+    recording.mark("step 1: link-down on x")  # a farm recording its traffic (serve --record) marks the steps
+    recording.recorder.close()
+    assert (tmp_path / "cell.pcap.steps").read_text().split(" ", 1)[1] == "step 1: link-down on x\n"
+    result = farm.run_scenario(path)
+    assert result.passed
+    for name in ("r2-io1", "r2-io2"):
+        assert [e.text for e in farm[name].events("scenario step")] == ["step 1: link-down on rack2 for 0.1 s"]
+    assert [e.text for e in farm["io1"].events("scenario step")] == ["step 2: set io1.DI2=1"]

@@ -193,3 +193,16 @@ def test_steps_at_times_from_the_start_come_in_time_order_whatever_the_file_orde
     assert [s.number for s in schedule.due(3_000 * MS)] == [2, 3, 1]
     schedule.cancel()
     assert schedule.done
+
+
+def test_a_run_lasts_until_its_faults_and_its_expectations_have_had_their_time() -> None:
+    from enip_farm.scenario.run import horizon
+
+    scenario = parse(GOOD.replace("    duration: 5 s\n", ""))
+    schedule = Schedule(scenario.steps)
+    schedule.start(0)
+    assert horizon(scenario, schedule) == 0
+    schedule.due(2_000 * MS)
+    schedule.end(1, 2_000 * MS)
+    # the fault's 4 s, then 3 s for rack2 to reconnect after its end (the 100 ms of step 1 is shorter)
+    assert horizon(scenario, schedule) == 2_000 * MS + 4_000 * MS + 3_000 * MS

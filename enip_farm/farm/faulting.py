@@ -17,8 +17,9 @@ from collections.abc import Callable, Coroutine, Iterable, Iterator, Mapping
 from typing import Any
 
 from enip_farm.device.device import Device
+from enip_farm.device.events import AddressStillTaken, FaultCleared, FaultInjected, LinkDown, LinkUp
 from enip_farm.device.faults import Disconnect, FaultType
-from enip_farm.farm.listeners import Listeners
+from enip_farm.farm.listeners import BindError, Listeners
 from enip_farm.farm.resets import FarmResets
 from enip_farm.server.waits import os_wait_s
 
@@ -35,6 +36,7 @@ class FarmFaults:
         self.running = running
         self.timers: dict[tuple[str, str], asyncio.TimerHandle] = {}
         self.flaps: dict[tuple[str, str], asyncio.Task] = {}
+        self.off_network: set[str] = set()  # configured onto another device's address (duplicate_address)
 
     def stop(self) -> None:
         for timer in self.timers.values():
@@ -56,7 +58,7 @@ class FarmFaults:
             if previous is not None:
                 previous.on_clear(device.hardware, now)
             device.faults.set(fault, now)
-            device.record("fault injected", fault.parameters(), now)
+            device.record(FaultInjected(fault.parameters()), now)
             fault.on_set(device.hardware, now)
             ends = fault.on_tcp_connection()
             if ends is not None or (not fault.listens() and fault.hears()):
@@ -74,10 +76,10 @@ class FarmFaults:
         """Down (the fault's effects on) and up (off) by `phases`, then up until the fault is cleared."""
         for down_s, up_s in phases:
             device.faults.suspend(kind, False)
-            device.record("link down", f"{kind}: for {down_s:.3f} s")
+            device.record(LinkDown(kind, down_s))
             await asyncio.sleep(os_wait_s(down_s))
             device.faults.suspend(kind, True)
-            device.record("link up", f"{kind}: for {up_s:.3f} s")
+            device.record(LinkUp(kind, up_s))
             await asyncio.sleep(os_wait_s(up_s))
         device.faults.suspend(kind, True)
 
@@ -100,22 +102,29 @@ class FarmFaults:
 
     async def clear(self, name: str, kind: str | None = None) -> list[str]:
         """Switch one fault (or all) of one device off; normal behaviour returns (after a boot, where
-        the fault took the power)."""
+        the fault took the power). A device configured onto another's address keeps its conflict."""
         device = self.devices[name]
         faults = device.faults
-        listens_again = not faults.listens and faults.listens_without(kind)
         now = time.monotonic_ns()
-        ending = [fault for k, fault in faults.active.items() if kind is None or k == kind]
+        kinds = [k for k in faults.active if kind is None or k == kind]
+        if name in self.off_network and "address-conflict" in kinds:
+            kinds.remove("address-conflict")
+            device.record(AddressStillTaken("configured onto another device's address"), now)
+        listens_again = not faults.listens and all(
+            fault.listens() for k, fault in faults.active.items() if k not in kinds and k not in faults.suspended)
         booting = device.resetting
-        for fault in ending:
-            fault.on_clear(device.hardware, now)
+        for k in kinds:
+            faults.active[k].on_clear(device.hardware, now)
         if device.resetting and not booting:  # the module restarts (power back): its TCP peers are stale
             self.resets.power_returned(device)
         if listens_again and self.running() and not self.listeners.listening(name) and not device.resetting:
-            await self.listeners.listen(device)  # listening again before the fault is seen gone
-        cleared = faults.clear(kind)
+            try:
+                await self.listeners.listen(device)  # listening again before the fault is seen gone
+            except BindError as error:  # someone took the address meanwhile: say so, keep serving the others
+                device.record(AddressStillTaken(str(error)), now)
+        cleared = [k for k in kinds for _ in faults.clear(k)]
         for k in cleared:
             self._forget(name, k)
         if cleared:
-            device.record("fault cleared", {"kind": ", ".join(cleared)}, now)
+            device.record(FaultCleared(tuple(cleared)), now)
         return cleared

@@ -1,8 +1,10 @@
 """A scenario run on a running farm, on the farm's event loop: the schedule (schedule.py) given the
 time by `clock`, each due step carried out (a fault on a device or a group, a clear, a stimulus, a
 wait for a condition), every device's events recorded while it runs, the expectations judged at the
-end (verdict.py). However it ends (its steps done, a wait timed out, cancelled), every fault it set
-is cleared and every signal it set is put back: nothing a scenario does outlives it."""
+end (verdict.py). It ends when its steps have, not before its `duration`, every fault it set with a
+duration has ended and every `within T of step S` has had its T. However it ends (its steps done, a
+wait timed out, cancelled), every fault it set is cleared and every signal it set is put back:
+nothing a scenario does outlives it."""
 
 from __future__ import annotations
 
@@ -13,9 +15,19 @@ from typing import Any, Protocol
 
 from enip_farm.config import FarmConfig
 from enip_farm.device.device import Device
+from enip_farm.device.events import ScenarioStep
 from enip_farm.device.faults import Fault, FaultType
 from enip_farm.device.signals import SignalMap
-from enip_farm.scenario.model import ClearAction, FaultAction, Scenario, SetAction, Step, WaitAction
+from enip_farm.scenario.model import (
+    ClearAction,
+    FaultAction,
+    Reconnected,
+    Scenario,
+    SetAction,
+    SignalWithin,
+    Step,
+    WaitAction,
+)
 from enip_farm.scenario.schedule import Schedule, StepState
 from enip_farm.scenario.verdict import Recording, ScenarioResult, StepOutcome, judge
 
@@ -47,6 +59,8 @@ class ScenarioFarm(Protocol):
 
     async def clear_faults(self, name: str, kind: str | None = None) -> list[str]: ...
 
+    def mark(self, text: str) -> None: ...
+
 
 async def run_scenario(farm: ScenarioFarm, scenario: Scenario, progress: Callable[[str], None] | None = None,
                        clock: Callable[[], int] = time.monotonic_ns) -> ScenarioResult:
@@ -61,7 +75,7 @@ async def run_scenario(farm: ScenarioFarm, scenario: Scenario, progress: Callabl
     run = _Run(farm, schedule, say, start)
     status = "passed"
     try:
-        while not schedule.done or clock() < start + scenario.duration_ns:
+        while not schedule.done or clock() < max(start + scenario.duration_ns, horizon(scenario, schedule)):
             now = clock()
             for step in schedule.due(now):
                 await run.carry_out(step, clock())
@@ -90,6 +104,35 @@ async def run_scenario(farm: ScenarioFarm, scenario: Scenario, progress: Callabl
     return ScenarioResult(scenario.name, status, steps, verdicts, round((clock() - start) / 1e9, 3))
 
 
+def _devices_of(farm: ScenarioFarm, step: Step) -> tuple[str, ...]:
+    action = step.action
+    if isinstance(action, (FaultAction, ClearAction)):
+        return farm.config.topology.targets(action.target)
+    if isinstance(action, SetAction):
+        return tuple(dict.fromkeys(device for device, _, _ in action.values))
+    return (action.condition.device,)
+
+
+def horizon(scenario: Scenario, schedule: Schedule) -> int:
+    """The least end of a run whose steps are done: every fault it set with a duration has ended, and
+    every `within T of step S` has had its T (so that what is expected has had the time it is given)."""
+    ends = [schedule.start_ns or 0]
+    for number, step in schedule.steps.items():
+        if isinstance(step.action, FaultAction) and step.action.duration_ns and number in schedule.started:
+            ends.append(schedule.started[number] + step.action.duration_ns)
+    for expectation in scenario.expectations:
+        check = expectation.check
+        if isinstance(check, (SignalWithin, Reconnected)) and check.step in schedule.started:
+            since = schedule.started[check.step]
+            step = schedule.steps[check.step]
+            if check.end and isinstance(step.action, FaultAction) and step.action.duration_ns:
+                since += step.action.duration_ns
+            elif check.end:
+                since = schedule.ended.get(check.step, since)
+            ends.append(since + check.bound_ns)
+    return max(ends)
+
+
 def _seconds(when: int | None, start: int) -> float | None:
     return None if when is None else round((when - start) / 1e9, 6)
 
@@ -108,7 +151,13 @@ class _Run:
         self.details: dict[int, str] = {}
 
     def _line(self, step: Step, now: int, text: str) -> None:
-        self.say(f"{(now - self.start) / 1e9:8.3f} s  {step.label}: {text}")
+        """A progress line; the step in the recording's side file (the farm's `mark`) and in the event
+        log of each device it touches (the dashboard's events), as a `ScenarioStep` event."""
+        line = f"{step.label}: {text}"
+        self.say(f"{(now - self.start) / 1e9:8.3f} s  {line}")
+        self.farm.mark(line)
+        for device in _devices_of(self.farm, step):
+            self.farm.devices[device].record(ScenarioStep(line), now)
 
     async def carry_out(self, step: Step, now: int) -> None:
         action = step.action
