@@ -280,7 +280,7 @@ def test_two_devices_configured_onto_one_address_the_second_finds_it_taken(enip_
     conflict = new.hardware.objects.tcpip.last_conflict
     assert conflict[0] == 1 and conflict[1:7] == old_mac  # found while probing, the other host the old module
     assert new.hardware.objects.tcpip.acd_bits == 0x40 | 0x80  # AcdStatus, AcdFault: the address given up
-    assert [e.detail for e in farm["new"].events("address conflict")] == [
+    assert [e.text for e in farm["new"].events("address conflict")] == [
         f"with {old_mac.hex(':')}: address given up"]
     assert farm.clear("new") == []  # the address is still the old module's: it stays off
     assert [e.kind for e in farm["new"].events("address still taken")] == ["address still taken"]

@@ -78,7 +78,7 @@ def test_safety_scanner_safe_inputs_outputs_and_safety_timeout(
     farm = enip_farm(name="s1", model="DSQC1042")
     scanner = originator(**safety_args(farm, format=fmt))
     assert scanner.wait("open")["event"] == "open"
-    opened = [e.detail for e in events(farm, "connection opened")]
+    opened = [e.text for e in events(farm, "connection opened")]
     assert len(opened) == 2 and opened[0].startswith("safety output (server)")
     assert opened[1].startswith("safety input (client)")
     farm["s1"].set(DI3=1, DI12=1)
@@ -91,7 +91,7 @@ def test_safety_scanner_safe_inputs_outputs_and_safety_timeout(
     farm["s1"].wait_for(lambda io: bool(io.events("safe state")), timeout=5)
     safe_state = events(farm, "safe state")[0]
     assert farm["s1"].outputs == b"\x00"
-    assert "safety timeout: no valid data for the network time expectation, 99.968 ms" in safe_state.detail
+    assert "safety timeout: no valid data for the network time expectation, 99.968 ms" in safe_state.text
     after_last_message = safe_state.monotonic_ns - silent["last_sent_ns"]
     assert NTE_NS <= after_last_message <= NTE_NS + SLACK_NS, after_last_message
     counters = farm["s1"].counters
@@ -110,7 +110,7 @@ def test_forward_close_of_the_safety_connection_is_the_safe_state(
     scanner.wait("closed")
     farm["s1"].wait_for(lambda io: bool(io.events("safe state")), timeout=5)
     assert farm["s1"].outputs == b"\x00"
-    assert "forward close" in events(farm, "safe state")[0].detail
+    assert "forward close" in events(farm, "safe state")[0].text
 
 
 def test_unfixed_cm_ethernetip_producer_is_refused_by_the_timestamp_checks(

@@ -26,7 +26,8 @@ from enip_farm.cip.connection_events import (
     SafetyCrcFault,
     SafetyTimingFault,
 )
-from enip_farm.device.events import EventLog
+from enip_farm.cip.identity import ResetRequested
+from enip_farm.device.events import EventLog, Reset, ResetDone
 from enip_farm.protocol.cip import decode_reply, encode_request
 from enip_farm.protocol.connection import (
     ConnectionTriad,
@@ -203,15 +204,16 @@ def test_now_is_required_by_the_session_and_the_message_context() -> None:
         MessageContext("127.0.0.9", None, ())  # type: ignore[call-arg]
     log = EventLog("io1")
     with pytest.raises(TypeError, match="missing 1 required positional argument: 'now'"):
-        log.record("reset", "")  # type: ignore[call-arg]
+        log.record(ResetDone())  # type: ignore[call-arg]
     with pytest.raises(TypeError, match="missing 1 required positional argument: 'now'"):
         log.request((0x0E, b"", 0, None, False))  # type: ignore[call-arg]
 
 
 def test_the_event_log_counts_integer_nanoseconds() -> None:
     log = EventLog("io1")
-    event = log.record("reset", "type 0", T0 + 1)
+    event = log.record(Reset(ResetRequested(0), 1.0), T0 + 1)
     assert (event.monotonic_ns, event.wall_ns) == (T0 + 1, T0 + 1 + log.wall_offset_ns)
     assert type(event.monotonic_ns) is int and type(event.wall_ns) is int
     assert event.as_dict() == {"time": (T0 + 1 + log.wall_offset_ns) / 1e9, "monotonic": (T0 + 1) / 1e9,
-                               "device": "io1", "kind": "reset", "detail": "type 0"}
+                               "device": "io1", "kind": "reset",
+                               "detail": "type 0 (power cycle): not answering for 1 s"}

@@ -289,8 +289,8 @@ def test_wiring_end_to_end_with_pycomm3(enip_farm) -> None:
         farm["robot1"].wait_for(lambda d: d.get("DI1") == 1, timeout=10)  # the rule, 100 ms later
     # when, by the farm's own clock (a loaded test thread may look late, the farm's timestamps do not)
     wired = farm["robot1"].events("wired")
-    (fall,) = [e for e in wired if e.detail == f"robot1.DI1-16 = {[0] * 16} (wire from harness.DO1-16)"]
-    (rule,) = [e for e in wired if e.detail == "robot1.DI1 = 1 (rule: harness.DO16 falls, after 100 ms)"]
+    (fall,) = [e for e in wired if e.text == f"robot1.DI1-16 = {[0] * 16} (wire from harness.DO1-16)"]
+    (rule,) = [e for e in wired if e.text == "robot1.DI1 = 1 (rule: harness.DO16 falls, after 100 ms)"]
     assert 99_000_000 <= rule.monotonic_ns - fall.monotonic_ns < 2_000_000_000
 
 

@@ -26,7 +26,7 @@ from enip_farm.control.io_changes import IoChange, SignalDiff, coalesce
 from enip_farm.control.stream import EventHub
 from enip_farm.device.build import build_profiles
 from enip_farm.device.catalogue import shipped_catalogue
-from enip_farm.device.events import Event, ImageChange
+from enip_farm.device.events import Event, FaultInjected, ImageChanged
 from enip_farm.device.faults import FaultKind
 from enip_farm.device.signals import SignalMap
 from tests.helpers import CLI, ROOT, RawClient, read_lines, wait_for
@@ -45,7 +45,7 @@ def _diff(**device: object) -> SignalDiff:
 
 
 def _change(device: str, role: str, old: str, new: str, at: int = 1_000_000_000) -> Event:
-    return Event(at, at + 1000 * S, device, "image changed", ImageChange(role, bytes.fromhex(old), bytes.fromhex(new)))
+    return Event(at, at + 1000 * S, device, ImageChanged(role, bytes.fromhex(old), bytes.fromhex(new)))
 
 
 # -- signals by name (unit) -------------------------------------------------------------------------------
@@ -66,7 +66,7 @@ def test_coalesce_merges_each_devices_image_changes_into_one_io_event() -> None:
     diff = _diff(signals=NAMED)
     events = [
         _change("a", "input", "0000", "0100", 1_000 * MS),
-        Event(1_100 * MS, 1_001_100 * MS, "a", "fault injected", "drop"),
+        Event(1_100 * MS, 1_001_100 * MS, "a", FaultInjected({"kind": "drop"})),
         _change("a", "input", "0100", "0300", 1_200 * MS),
         _change("b", "input", "0000", "0100", 1_300 * MS),
         _change("a", "output", "0000", "0001", 1_400 * MS),

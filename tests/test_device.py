@@ -4,11 +4,12 @@ story. No sockets, no sleeps."""
 
 from __future__ import annotations
 
+from enip_farm.cip.connection_events import ConnectionTimedOut
 from enip_farm.config import parse_config
 from enip_farm.device.build import build_profiles
 from enip_farm.device.catalogue import shipped_catalogue
 from enip_farm.device.device import Device
-from enip_farm.device.events import Event
+from enip_farm.device.events import Event, ImageChanged
 from enip_farm.protocol.cip import decode_reply, encode_request
 from enip_farm.protocol.connection import (
     ConnectionTriad,
@@ -82,9 +83,9 @@ def test_silence_closes_at_the_deadline_with_outputs_off_and_observers_told() ->
     assert device.connections and device.outputs == b"\x10\x00"
     device.service_io(last + 40 * MS, lambda *_: None)
     assert not device.connections and device.outputs == b"\x00\x00" and device.status == 0x0030
-    timed_out = [e for e in seen if e.kind == "connection timed out"]
+    timed_out = [e for e in seen if isinstance(e.detail, ConnectionTimedOut)]
     assert len(timed_out) == 1 and timed_out[0].monotonic_ns == last + 40 * MS
-    changes = [e.detail for e in seen if e.kind == "image changed"]
+    changes = [e.detail for e in seen if isinstance(e.detail, ImageChanged)]
     assert [(c.role, c.old, c.new) for c in changes] == [("output", b"\x00\x00", b"\x10\x00"),
                                                          ("output", b"\x10\x00", b"\x00\x00")]
 

@@ -15,6 +15,7 @@ import pytest
 
 from enip_farm.config import parse_config
 from enip_farm.control.guard import MAX_BODY, allowed_hosts, host_name
+from enip_farm.device.events import TcpConnected
 from enip_farm.device.faults import MAX_DELAY_MS, Fault, FaultError
 from enip_farm.pytest_plugin import AddressPool
 from tests.helpers import wait_for
@@ -285,14 +286,14 @@ def test_a_reader_that_stops_loses_counted_events_and_slows_nobody(enip_farm) ->
     hub, port, device = farm.http.hub, farm.http.port, farm.devices["io"]
     hub.queue_size = 64
     sent = 0
-    with _subscribe(port, "?kind=burst", rcvbuf=4096) as sock:
+    with _subscribe(port, "?kind=tcp%20connected", rcvbuf=4096) as sock:
         (subscriber,) = hub.subscribers
         deadline = time.monotonic() + DEADLINE_S
         # from this thread, as the Python API would: record() never waits for the stream
         while not (subscriber.lost_total and len(subscriber.queue) == hub.queue_size):  # full: the stream waits
             assert time.monotonic() < deadline and sent < 100_000, "the stream never stalled"
             for _ in range(100):
-                device.record("burst", f"{sent:06} " + "x" * 2000)
+                device.record(TcpConnected(f"{sent:06} " + "x" * 2000))
                 sent += 1
             time.sleep(0.001)  # lets the loop hand the batch out
         assert httpx.get(f"http://127.0.0.1:{port}/devices/io", timeout=DEADLINE_S).status_code == 200
@@ -321,7 +322,7 @@ def test_a_stalled_stream_is_closed(enip_farm) -> None:
         while hub.subscribers:
             assert time.monotonic() < deadline, "the stalled stream is still open"
             for _ in range(50):
-                device.record("burst", "x" * 2000)
+                device.record(TcpConnected("x" * 2000))
             time.sleep(0.01)
 
 

@@ -311,7 +311,7 @@ def test_io_get_prints_the_signals_named(enip_farm) -> None:
 def test_wired_events_name_both_ends_and_the_cause(free_address: AddressPool, enip_farm) -> None:
     farm = enip_farm(plc_and_robot(free_address))
     farm["plc"].set(goRecipe=77, doStart=1)
-    assert [event.detail for event in farm["robot"].events("wired")] == [
+    assert [event.text for event in farm["robot"].events("wired")] == [
         "robot.giRecipe = 77 (wire from plc.goRecipe)", "robot.diStarted = 1 (rule: plc.doStart rises)"]
 
 

@@ -8,17 +8,21 @@ from __future__ import annotations
 import ethernetip
 import httpx
 
+from enip_farm.cip.connection import Connection, ConnectionKind
+from enip_farm.cip.connection_events import ConnectionClosed, ConnectionFaulted, ConnectionTimedOut
 from enip_farm.config import parse_config
 from enip_farm.control.overview import RECENT, Overview
 from enip_farm.device.build import build_profiles
 from enip_farm.device.catalogue import shipped_catalogue
 from enip_farm.device.device import Device
+from enip_farm.device.events import FaultInjected, TcpConnected
 from enip_farm.device.faults import Fault
+from enip_farm.protocol.connection import ConnectionTriad
 from tests.helpers import wait_for
 
 DEADLINE_S = 30.0  # generous: conditions end the waits as soon as they hold
-OWNER = "exclusive owner from 127.0.0.1: O->T 0x00000001 RPI 10000 us 4 bytes, T->O 0x00000002 RPI 10000 us 4 bytes"
-EXPLICIT = "explicit (class 3) from 127.0.0.1: O->T 0x00000003 RPI 10000 us 0 bytes, T->O 0x00000004 RPI ..."
+OWNER = Connection(ConnectionKind.EXCLUSIVE_OWNER, ConnectionTriad(1, 1, 1), 1, 2, 10000, 10000, 0, "127.0.0.1", 0)
+EXPLICIT = Connection(ConnectionKind.EXPLICIT, ConnectionTriad(2, 1, 1), 3, 4, 10000, 10000, 0, "127.0.0.1", 0)
 
 
 def _devices(count: int) -> list[Device]:
@@ -36,13 +40,13 @@ def test_the_last_class1_ending_decides_between_timed_out_and_idle() -> None:
     io1, io2, io3 = devices
     overview = Overview(devices)
     assert _states(overview) == {"io1": "idle", "io2": "idle", "io3": "idle"}
-    io1.record("connection timed out", OWNER)
-    io2.record("connection timed out", EXPLICIT)  # a class-3 connection's timeout is not class 1's
+    io1.record(ConnectionTimedOut(1, OWNER))
+    io2.record(ConnectionTimedOut(2, EXPLICIT))  # a class-3 connection's timeout is not class 1's
     assert _states(overview) == {"io1": "timed_out", "io2": "idle", "io3": "idle"}
-    io1.record("connection timed out", EXPLICIT)  # nor does it clear a class-1 timeout
-    io2.record("connection faulted", OWNER)
-    io3.record("connection timed out", OWNER)
-    io3.record("connection closed", OWNER)  # a later class-1 connection closed normally
+    io1.record(ConnectionTimedOut(3, EXPLICIT))  # nor does it clear a class-1 timeout
+    io2.record(ConnectionFaulted(4, OWNER))
+    io3.record(ConnectionTimedOut(5, OWNER))
+    io3.record(ConnectionClosed(6, OWNER))  # a later class-1 connection closed normally
     assert _states(overview) == {"io1": "timed_out", "io2": "idle", "io3": "idle"}
     io3.faults.set(Fault("drop"), 0)
     io1.faults.set(Fault("delay", delay_ms=5), 0)  # a fault wins over a timeout
@@ -55,7 +59,7 @@ def test_the_last_class1_ending_decides_between_timed_out_and_idle() -> None:
     io1.faults.clear()
     assert _states(overview)["io1"] == "timed_out"
     overview.close()
-    io1.record("connection closed", OWNER)  # closed: no longer observed
+    io1.record(ConnectionClosed(7, OWNER))  # closed: no longer observed
     assert _states(overview)["io1"] == "timed_out"
 
 
@@ -65,8 +69,8 @@ def test_recent_events_leave_out_requests_and_image_changes_and_keep_the_newest(
     assert overview.snapshot(10)["events"] == []
     device.set_inputs(b"\x01\x00")  # an image change: not kept
     for n in range(6):
-        device.record("tcp connected", f"127.0.0.9:{n}")
-    device.record("fault injected", {"kind": "drop"})
+        device.record(TcpConnected(f"127.0.0.9:{n}"))
+    device.record(FaultInjected({"kind": "drop"}))
     events = overview.snapshot(10)["events"]
     assert [(e["kind"], e["detail"]) for e in events] == [
         ("tcp connected", "127.0.0.9:3"), ("tcp connected", "127.0.0.9:4"), ("tcp connected", "127.0.0.9:5"),

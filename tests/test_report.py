@@ -82,7 +82,7 @@ def test_intervals_are_the_kernels_receive_times_not_the_farms(farm) -> None:
             payload = b"\x01\x00\x00\x00\x00\x00"
             udp.sendto(encode_io_packet(oid, 1, 1, payload), target)
             assert wait_for(lambda: device.counters["o_t_packets"] == 1)
-            with device.lock:  # the I/O thread takes packet 2 only once this is released
+            with device.guard.lock:  # the I/O thread takes packet 2 only once this is released
                 before2 = time.monotonic_ns()
                 udp.sendto(encode_io_packet(oid, 2, 2, payload), target)
                 after2 = time.monotonic_ns()

@@ -1,6 +1,6 @@
 """Identity Reset as an effect (issue 23, item 2): the Identity object's Reset service returns
 `ResetRequested(type)` beside its reply, the message router queues it, the device performs it once
-the reply is built and records a "reset" event whose detail is a `DeviceReset`, and the farm acts
+the reply is built and records a `Reset` event (device/events.py), and the farm acts
 on that type, never on an event's text. And the device's class-1 sends leave after its lock."""
 
 from __future__ import annotations
@@ -14,8 +14,8 @@ from enip_farm.cip.message_router import MessageRouter
 from enip_farm.config import DeviceConfig
 from enip_farm.device.catalogue import shipped_catalogue
 from enip_farm.device.device import Device
+from enip_farm.device.events import Reset, TcpConnected
 from enip_farm.device.profile import resolve
-from enip_farm.device.reset import DeviceReset
 from enip_farm.protocol.cip import encode_multiple_service, encode_request
 from enip_farm.protocol.commands import decode_send_data, encode_send_data
 from enip_farm.protocol.connection import decode_io_packet, encode_class0_packet, encode_forward_open, encode_io_packet
@@ -75,8 +75,8 @@ def test_the_device_records_the_reset_it_performed_as_a_typed_detail(kind: int) 
     device.observe(seen.append)
     reply = ask(device, encode_request(0x05, RESET_PATH, bytes((kind,))), now=T0)
     assert (reply.service, reply.general_status, reply.data) == (0x85, 0, b"")
-    (event,) = [e for e in seen if e.kind == "reset"]
-    assert event.detail == DeviceReset(ResetRequested(kind), 2.5) and type(event.detail) is DeviceReset
+    (event,) = [e for e in seen if isinstance(e.detail, Reset)]
+    assert event.detail == Reset(ResetRequested(kind), 2.5) and event.kind == "reset"
     assert event.as_dict()["detail"] == event.text  # the API's JSON: the text, as before
     assert device.restarts == 1 and device.reset_window.due() == T0 + 2_500 * MS
 
@@ -84,8 +84,8 @@ def test_the_device_records_the_reset_it_performed_as_a_typed_detail(kind: int) 
 def test_the_api_reset_is_the_same_effect() -> None:
     device = make_device()
     assert device.reset(2, T0) is True and device.reset(0, T0) is False  # resetting already
-    (event,) = device.events.of_kind("reset")
-    assert event.detail == DeviceReset(ResetRequested(2), 1.0)
+    (event,) = device.events.of_type(Reset)
+    assert event.detail == Reset(ResetRequested(2), 1.0)
     assert event.text == "type 2 (out-of-box configuration but the communication parameters): not answering for 1 s"
     with pytest.raises(ValueError, match=r"^reset type 3: one of 0, 1, 2$"):
         device.reset(3, T0)
@@ -96,7 +96,7 @@ def test_the_farm_acts_on_the_typed_reset_not_on_an_events_text(enip_farm) -> No
     address = farm["io1"].address
     with RawClient(address) as client:
         client.register()
-        farm.device("io1").record("reset", "type 0 (power cycle): not answering for 120 s")  # text only
+        farm.device("io1").record(TcpConnected("type 0 (power cycle): not answering for 120 s"))  # text only
         assert client.get(1, 1, 1).general_status == 0  # still served: nothing matched the text
         frame = client.exchange(encode_frame(Command.SEND_RR_DATA, encode_send_data(
             [(ItemType.NULL_ADDRESS, b""), (ItemType.UNCONNECTED_DATA, encode_request(0x05, RESET_PATH))]),
@@ -106,14 +106,15 @@ def test_the_farm_acts_on_the_typed_reset_not_on_an_events_text(enip_farm) -> No
         assert client.is_closed()  # then the farm dropped the TCP connection
     with pytest.raises(ConnectionRefusedError, match="Connection refused"):  # and listens no more until the window ends
         socket.create_connection((address, ENIP_PORT), timeout=5)
-    resets = farm["io1"].events("reset")
-    assert [type(e.detail) for e in resets] == [str, DeviceReset] and resets[1].detail.request == ResetRequested(0)
+    resets = farm["io1"].events(Reset)
+    assert [type(e.detail) for e in resets] == [Reset] and resets[0].detail.request == ResetRequested(0)
+    assert farm["io1"].events("reset") == resets  # the API's kind names the class
 
 
 def _lock_free_send(device: Device, sent: list[tuple[bytes, tuple[str, int]]]):  # noqa: ANN202
     def send(packet: bytes, address: tuple[str, int]) -> None:
-        assert device.lock.acquire(blocking=False), "a class-1 send under the device lock"
-        device.lock.release()
+        assert device.guard.lock.acquire(blocking=False), "a class-1 send under the device lock"
+        device.guard.lock.release()
         sent.append((packet, address))
     return send
 

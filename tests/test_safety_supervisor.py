@@ -134,7 +134,7 @@ def test_safety_reset_type_0_closes_the_safety_connections_and_keeps_the_configu
     assert open_safety(device, scid=SCID) == 0 and open_safety(device, server=False, scid=SCID) == 0
     assert ask(device, 0x54, reset_request(0), now=T0 + MS).general_status == 0
     assert device.connections == {}
-    assert [e.detail for e in device.events.of_kind("safe state")][0].endswith("safety reset (type 0)")
+    assert [e.text for e in device.events.of_kind("safe state")][0].endswith("safety reset (type 0)")
     assert attribute(device, 26) == SCID and attribute(device, 27) == TUNID.encode()
     assert attribute(device, 11) == b"\x02"
     assert open_safety(device, scid=SCID) == 0

@@ -189,5 +189,5 @@ def test_each_step_is_marked_in_the_recording_and_the_event_logs(enip_farm, tmp_
     result = farm.run_scenario(path)
     assert result.passed
     for name in ("r2-io1", "r2-io2"):
-        assert [e.detail for e in farm[name].events("scenario step")] == ["step 1: link-down on rack2 for 0.1 s"]
-    assert [e.detail for e in farm["io1"].events("scenario step")] == ["step 2: set io1.DI2=1"]
+        assert [e.text for e in farm[name].events("scenario step")] == ["step 1: link-down on rack2 for 0.1 s"]
+    assert [e.text for e in farm["io1"].events("scenario step")] == ["step 2: set io1.DI2=1"]

@@ -12,11 +12,12 @@ import httpx
 import pytest
 from pycomm3 import CIPDriver, Services
 
+from enip_farm.cip.connection_events import ConnectionTimedOut
 from enip_farm.config import parse_config
 from enip_farm.control.timeline import MAX_CHANGES, DeviceRecorder
 from enip_farm.device.build import build_profiles
 from enip_farm.device.catalogue import shipped_catalogue
-from enip_farm.device.events import Event, ImageChange
+from enip_farm.device.events import Event, ImageChanged, RequestHandled
 from tests.helpers import wait_for
 
 S = 1_000_000_000
@@ -36,11 +37,11 @@ class StandIn:
         self.observers.append(observer)
         return lambda: self.observers.remove(observer)
 
-    def tell(self, at: int, kind: str, detail: object) -> None:
-        if kind == "image changed":
-            setattr(self, detail.role + "s", detail.new)  # type: ignore[attr-defined]
+    def tell(self, at: int, detail: object) -> None:
+        if isinstance(detail, ImageChanged):
+            setattr(self, detail.role + "s", detail.new)
         for observer in self.observers:
-            observer(Event(at, at, "io", kind, detail))
+            observer(Event(at, at, "io", detail))
 
 
 def trace(timeline: dict, name: str) -> list:
@@ -50,12 +51,12 @@ def trace(timeline: dict, name: str) -> list:
 def test_steps_and_marks_with_injected_times() -> None:
     device = StandIn()
     recorder = DeviceRecorder(device, 10 * S)  # type: ignore[arg-type]
-    device.tell(11 * S, "image changed", ImageChange("input", b"\x00\x00", b"\x04\x00"))  # DI3 on: the test
-    device.tell(12 * S, "request", ("Set_Attribute_Single",))
-    device.tell(12 * S, "image changed", ImageChange("output", b"\x00\x00", b"\x10\x00"))  # DO5 on: explicit
-    device.tell(13 * S, "image changed", ImageChange("output", b"\x10\x00", b"\x30\x00"))  # DO6 on: O->T
-    device.tell(14 * S, "connection timed out", "O->T 0x1")
-    device.tell(14 * S, "image changed", ImageChange("output", b"\x30\x00", b"\x00\x00"))  # fault state
+    device.tell(11 * S, ImageChanged("input", b"\x00\x00", b"\x04\x00"))  # DI3 on: the test
+    device.tell(12 * S, RequestHandled(0x10, bytes.fromhex("20 04 24 96 30 03"), 0, None, False))
+    device.tell(12 * S, ImageChanged("output", b"\x00\x00", b"\x10\x00"))  # DO5 on: explicit
+    device.tell(13 * S, ImageChanged("output", b"\x10\x00", b"\x30\x00"))  # DO6 on: O->T
+    device.tell(14 * S, ConnectionTimedOut(14 * S, None))  # type: ignore[arg-type]  # (no connection: not read)
+    device.tell(14 * S, ImageChanged("output", b"\x30\x00", b"\x00\x00"))  # fault state
     whole = recorder.timeline(60, 20 * S)
     assert (whole["start"], whole["now"], whole["recording_since"]) == (10.0, 20.0, 10.0)  # not before recording
     assert trace(whole, "DI3") == [[10.0, 0], [11.0, 1]]
@@ -74,7 +75,7 @@ def test_steps_and_marks_with_injected_times() -> None:
     assert trace(late, "DO5") == [[12.5, 1], [14.0, 0]]
     assert [m["at"] for m in late["marks"]] == [13.0, 14.0]
     # a change that leaves every value as it was is no mark
-    device.tell(15 * S, "image changed", ImageChange("output", b"\x00\x00", b"\x00\x00"))
+    device.tell(15 * S, ImageChanged("output", b"\x00\x00", b"\x00\x00"))
     assert len(recorder.timeline(60, 20 * S)["marks"]) == 4
 
 
@@ -83,7 +84,7 @@ def test_memory_is_bounded_whatever_the_controller_writes() -> None:
     recorder = DeviceRecorder(device, 0)  # type: ignore[arg-type]
     for k in range(3 * MAX_CHANGES):
         old, new = bytes([k % 2, 0]), bytes([(k + 1) % 2, 0])
-        device.tell(k + 1, "image changed", ImageChange("output", old, new))
+        device.tell(k + 1, ImageChanged("output", old, new))
     assert len(recorder.changes) == MAX_CHANGES
     recorder.unobserve()
     assert device.observers == []

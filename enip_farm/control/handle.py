@@ -13,7 +13,7 @@ from typing import Any, Protocol, TypeVar, runtime_checkable
 
 from enip_farm.config import FarmConfig
 from enip_farm.device.device import Device, replace_image
-from enip_farm.device.events import Event
+from enip_farm.device.events import Event, ImageChanged
 from enip_farm.device.faults import Fault, FaultKind, FaultType
 from enip_farm.device.named_signals import NamedSignal
 from enip_farm.device.report import FarmReport, TestBounds
@@ -59,12 +59,11 @@ class DeviceHandle:
         self.device = device
         self.signals = SignalMap(device.profile)
         self._changed = threading.Condition()
-        device.observe(self._notify)
 
-    def _notify(self, event: Event) -> None:
-        if event.kind == "image changed":
-            with self._changed:
-                self._changed.notify_all()
+    def _notify(self, _: Event) -> None:
+        """An observer of image changes while a `wait_for` waits."""
+        with self._changed:
+            self._changed.notify_all()
 
     # -- identity and images ----------------------------------------------------------------------
 
@@ -140,12 +139,16 @@ class DeviceHandle:
     def wait_for(self, predicate: Callable[[DeviceHandle], bool], timeout: float = 5.0) -> None:
         """Block until predicate(handle) is true; raise TimeoutError after `timeout` seconds."""
         deadline = time.monotonic() + timeout
-        with self._changed:
-            while not predicate(self):
-                remaining = deadline - time.monotonic()
-                if remaining <= 0:
-                    raise TimeoutError(f"{self.name}: condition not met within {timeout} s")
-                self._changed.wait(min(remaining, 0.01))  # other state (connections) is polled
+        unobserve = self.device.observe(self._notify, ImageChanged)  # only while waiting: the hot paths compare
+        try:                                                          # no image while nobody waits
+            with self._changed:
+                while not predicate(self):
+                    remaining = deadline - time.monotonic()
+                    if remaining <= 0:
+                        raise TimeoutError(f"{self.name}: condition not met within {timeout} s")
+                    self._changed.wait(min(remaining, 0.01))  # other state (connections) is polled
+        finally:
+            unobserve()
 
     async def until(self, predicate: Callable[[DeviceHandle], bool], timeout: float = 5.0) -> None:
         """wait_for for async tests: waits in a worker thread, so the test's own loop keeps running."""
@@ -160,16 +163,21 @@ class DeviceHandle:
         out["open_connections"] = len(self.device.connections)
         return out
 
-    def events(self, kind: str | None = None) -> list[Event]:
-        return list(self.device.events) if kind is None else self.device.events.of_kind(kind)
+    def events(self, kind: str | type | None = None) -> list[Event]:
+        """The device's events, oldest first: all, those of a class (device/events.py,
+        cip/connection_events.py) or those of a kind as the API names it (`"tcp closed"`)."""
+        if kind is None:
+            return list(self.device.events)
+        return self.device.events.of_type(kind) if isinstance(kind, type) else self.device.events.of_kind(kind)
 
     def on_output_change(self, callback: Callable[[DeviceHandle, bytes, bytes], None]) -> None:
         """callback(handle, old, new) after every change of the output image, in the thread that
         changed it (the farm's event loop or its cyclic I/O thread): keep it short."""
         def listener(event: Event) -> None:
-            if event.kind == "image changed" and event.detail.role == "output":
-                callback(self, event.detail.old, event.detail.new)
-        self.device.observe(listener)
+            change: ImageChanged = event.detail
+            if change.role == "output":
+                callback(self, change.old, change.new)
+        self.device.observe(listener, ImageChanged)
 
     # -- reset ----------------------------------------------------------------------------------------
 
@@ -178,7 +186,7 @@ class DeviceHandle:
         configuration, 2: out-of-box but the communication parameters): its TCP connections drop,
         its CIP connections close, it answers nothing for its `reset_time_s`, Identity attribute 8
         says self-testing meanwhile. False if it is resetting already."""
-        return self.device.reset(kind, time.monotonic_ns())
+        return self.device.reset(kind)
 
     # -- faults -------------------------------------------------------------------------------------
 
@@ -192,7 +200,7 @@ class DeviceHandle:
 
     @property
     def faults(self) -> list[dict]:
-        return self.device.faults.describe(time.monotonic_ns())
+        return self.device.faults.describe(self.device.clock())
 
 
 def _chain(steps: list[Callable[[bytearray], object]]) -> Callable[[bytearray], None]:

@@ -1,7 +1,7 @@
 """I/O changes by signal name, for the event stream's "io" events: which signals of a device an
 image change touched, with their values before and after.
 
-Image changes arrive as "image changed" events (device/events.py `ImageChange`: the role and the
+Image changes arrive as `ImageChanged` events (device/events.py: the role and the
 whole image before and after). `SignalDiff` names the signals whose bytes differ and whose value
 changed, numbered (DI1.., DO1.., AI1.., AO1..) and named (device/signals.py `SignalMap`), in the
 map's listing order. `coalesce` merges the changes of one batch per device and image: the image
@@ -14,11 +14,10 @@ from __future__ import annotations
 from collections.abc import Iterable
 from typing import Any, NamedTuple
 
-from enip_farm.device.events import Event, ImageChange
+from enip_farm.device.events import Event, ImageChanged
 from enip_farm.device.signals import Signal, SignalMap
 
 IO_KIND = "io"
-IMAGE_CHANGED = "image changed"
 
 
 class IoChange(NamedTuple):
@@ -28,14 +27,20 @@ class IoChange(NamedTuple):
     signals: dict[str, tuple[int | float, int | float]]  # name -> (old, new), listing order
     changes: int  # image changes merged into this one
 
-    def __str__(self) -> str:
+    kind = IO_KIND
+
+    @property
+    def text(self) -> str:
         return f"{self.role} " + ", ".join(f"{name} {old} -> {new}" for name, (old, new) in self.signals.items())
+
+    def __str__(self) -> str:
+        return self.text
 
     def as_dict(self, event: Event) -> dict[str, Any]:
         return {"time": event.wall_ns / 1e9, "monotonic": event.monotonic_ns / 1e9, "device": event.device,
                 "kind": IO_KIND, "role": self.role, "signals": {name: {"old": old, "new": new}
                                                for name, (old, new) in self.signals.items()},
-                "changes": self.changes, "detail": str(self)}
+                "changes": self.changes, "detail": self.text}
 
 
 class SignalDiff:
@@ -69,14 +74,14 @@ class SignalDiff:
 
 
 def coalesce(events: Iterable[Event], diff_of: Any) -> list[Event]:
-    """`events` in order, with each device's "image changed" events merged per image into one "io"
+    """`events` in order, with each device's `ImageChanged` events merged per image into one "io"
     event at the place of the last of them (none when no signal's value changed in the end).
     `diff_of(device_name)` gives that device's `SignalDiff`."""
     events = list(events)
     merged: dict[tuple[str, str], list] = {}  # (device, role) -> [old, new, count, index of the last]
     for index, event in enumerate(events):
-        if event.kind == IMAGE_CHANGED:
-            change: ImageChange = event.detail
+        change = event.detail
+        if isinstance(change, ImageChanged):
             key = (event.device, change.role)
             entry = merged.get(key)
             if entry is None:
@@ -88,11 +93,11 @@ def coalesce(events: Iterable[Event], diff_of: Any) -> list[Event]:
     last = {entry[3]: (key, entry) for key, entry in merged.items()}
     out: list[Event] = []
     for index, event in enumerate(events):
-        if event.kind != IMAGE_CHANGED:
+        if not isinstance(event.detail, ImageChanged):
             out.append(event)
         elif index in last:
             (device, role), (old, new, count, _) = last[index]
             signals = diff_of(device).changes(role, old, new) if len(old) == len(new) else {}
             if signals:
-                out.append(Event(event.monotonic_ns, event.wall_ns, device, IO_KIND, IoChange(role, signals, count)))
+                out.append(Event(event.monotonic_ns, event.wall_ns, device, IoChange(role, signals, count)))
     return out

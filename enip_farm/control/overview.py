@@ -9,12 +9,12 @@ A device is in exactly one state, the first that holds of:
   connection's watchdog, Vol. 1, 3-4.4.2), until another opens or one closes normally;
 - `idle`: otherwise.
 
-How the last class-1 connection ended is learnt from the devices' events as they happen (an
-observer that keeps the device's last ending and a bounded list of the recent events other than
-explicit requests and image changes); everything else is read when asked, so a poll costs a few
-microseconds per device and nothing runs between polls. The observer is called in whatever thread
-made the event (the cyclic I/O thread included): a set lookup for each request, an append or a
-dict store otherwise.
+How the last class-1 connection ended is learnt from the devices' events as they happen, by their
+classes (an observer of the connection events and the device's other events, not of explicit
+requests and image changes, that keeps the device's last ending and a bounded list of the recent
+events); everything else is read when asked, so a poll costs a few microseconds per device and
+nothing runs between polls. The observer is called in whatever thread made the event (the cyclic
+I/O thread included): an append and a dict store.
 """
 
 from __future__ import annotations
@@ -25,16 +25,13 @@ from collections.abc import Iterable
 from typing import Any
 
 from enip_farm.cip.connection import ConnectionKind
+from enip_farm.cip.connection_events import ConnectionEnded, ConnectionEvent, ConnectionTimedOut
 from enip_farm.device.device import Device
-from enip_farm.device.events import Event
+from enip_farm.device.events import Event, Happened
 
 STATES = ("idle", "running", "timed_out", "faulted")
 RECENT = 500  # events kept for a page that opens now
 #: Not kept as recent: too many and too small (the stream carries them, coalesced, live).
-QUIET_KINDS = frozenset({"request", "image changed"})
-ENDED = frozenset({"connection closed", "connection timed out", "connection faulted"})
-#: A connection event's detail starts with its kind (device.describe): this one is not class 1.
-EXPLICIT = ConnectionKind.EXPLICIT.value
 
 
 class Overview:
@@ -44,15 +41,15 @@ class Overview:
         self.devices = list(devices)
         self.recent: deque[Event] = deque(maxlen=recent)
         self._timed_out: dict[str, bool] = {}  # device -> whether its last class-1 connection timed out
-        self._unobserve = [device.observe(self._observe) for device in self.devices]
+        #: Not kept as recent: requests and image changes, too many and too small (the stream
+        #: carries them, coalesced, live); so observed: the connection events and the device's others.
+        self._unobserve = [device.observe(self._observe, ConnectionEvent, Happened) for device in self.devices]
 
     def _observe(self, event: Event) -> None:
-        kind = event.kind
-        if kind in QUIET_KINDS:
-            return
         self.recent.append(event)
-        if kind in ENDED and not str(event.detail).startswith(EXPLICIT):
-            self._timed_out[event.device] = kind == "connection timed out"
+        ended = event.detail
+        if isinstance(ended, ConnectionEnded) and ended.connection.kind is not ConnectionKind.EXPLICIT:
+            self._timed_out[event.device] = isinstance(ended, ConnectionTimedOut)
 
     def close(self) -> None:
         for unobserve in self._unobserve:

@@ -14,7 +14,7 @@ from collections.abc import Callable, Mapping
 
 from enip_farm.cip.report import ReactionFigures
 from enip_farm.control.handle import DeviceHandle
-from enip_farm.device.events import Event
+from enip_farm.device.events import Event, ImageChanged
 from enip_farm.device.reaction import ReactionProbe
 
 #: (device, signal, value), as farm["io1"].set(DI3=1) writes it: ("io1", "DI3", 1).
@@ -70,19 +70,19 @@ def _once(source: DeviceHandle, target: DeviceHandle, probe: ReactionProbe, name
           timeout: float, watch_flush: WatchFlush | None) -> int | None:
     """One repetition with the probe armed: its latency, or None if the output did not come in time."""
     def explicit(event: Event) -> None:
-        if event.kind == "image changed" and event.detail.role == "output":
-            probe.consumed(event.detail.new, event.monotonic_ns, "explicit")
+        change: ImageChanged = event.detail
+        if change.role == "output":
+            probe.consumed(change.new, event.monotonic_ns, "explicit")
 
     s_cyclic, t_cyclic = source.device.cyclic, target.device.cyclic
     s_cyclic.stimuli = (*s_cyclic.stimuli, probe)
     t_cyclic.expectations = (*t_cyclic.expectations, probe)
-    unsubscribe = target.device.observe(explicit)
+    unsubscribe = target.device.observe(explicit, ImageChanged)
     unwatch = watch_flush(probe.flushed) if watch_flush is not None else None
     try:
         written_at = time.monotonic_ns()
         source.set({name: value})
-        with source.device.lock:
-            produced = bool(source.device.table.productions)
+        produced = source.device.guard.read(lambda: bool(source.device.table.productions))
         if not produced:  # no T->O carries the inputs: an explicit reader could see it from now
             probe.set_at(written_at)
         probe.done.wait(timeout)

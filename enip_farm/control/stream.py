@@ -33,9 +33,9 @@ from starlette.responses import JSONResponse, Response
 from starlette.types import Receive, Scope, Send
 
 from enip_farm.control.client import KEEPALIVE_S
-from enip_farm.control.io_changes import IMAGE_CHANGED, IO_KIND, IoChange, SignalDiff, coalesce
+from enip_farm.control.io_changes import IO_KIND, IoChange, SignalDiff, coalesce
 from enip_farm.device.device import Device
-from enip_farm.device.events import Event
+from enip_farm.device.events import Event, ImageChanged
 from enip_farm.device.signals import SignalMap
 
 log = logging.getLogger(__name__)
@@ -211,11 +211,12 @@ class EventHub:
             watching = [subscriber.devices for subscriber in self.subscribers if subscriber.wants(IO_KIND)]
             if watching and None not in watching:  # only these devices' I/O is named (e.g. `io watch io1`)
                 wanted = frozenset().union(*watching)
-                events = [event for event in events if event.kind != IMAGE_CHANGED or event.device in wanted]
+                events = [event for event in events
+                          if not isinstance(event.detail, ImageChanged) or event.device in wanted]
             if watching:
                 events = coalesce(events, self._diff)
             else:
-                events = [event for event in events if event.kind != IMAGE_CHANGED]
+                events = [event for event in events if not isinstance(event.detail, ImageChanged)]
             batch = [_Item(event) for event in events]
             overflow, self._overflow = self._overflow, 0
             for subscriber in self.subscribers:

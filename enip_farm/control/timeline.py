@@ -20,13 +20,12 @@ from collections.abc import Mapping
 from typing import Any
 
 from enip_farm.device.device import Device
-from enip_farm.device.events import Event
+from enip_farm.device.events import Event, ImageChanged, RequestHandled
 from enip_farm.device.signals import SignalMap
 
 MAX_CHANGES = 4096  # per device
 KEEP_NS = 600 * 1_000_000_000  # the longest window a timeline shows
 MAX_SECONDS = KEEP_NS // 1_000_000_000
-IMAGE_CHANGED = "image changed"
 
 
 class DeviceRecorder:
@@ -37,18 +36,18 @@ class DeviceRecorder:
         self.since_ns = now_ns
         self.signals = SignalMap(device.profile)
         self.changes: deque[tuple[int, str, bytes, bytes, str]] = deque(maxlen=MAX_CHANGES)
-        self._last: tuple[int, str] = (-1, "")  # the last other event: (when, kind)
+        self._last: tuple[int, Any] = (-1, None)  # the last other event: (when, what)
         self.unobserve = device.observe(self.observe)
 
     def observe(self, event: Event) -> None:
-        if event.kind != IMAGE_CHANGED:
-            self._last = (event.monotonic_ns, event.kind)
-            return
         change = event.detail
+        if not isinstance(change, ImageChanged):
+            self._last = (event.monotonic_ns, change)
+            return
         if change.role == "input":
             by = "stimulus"
-        elif self._last[0] == event.monotonic_ns:
-            by = "explicit" if self._last[1] == "request" else self._last[1]
+        elif self._last[0] == event.monotonic_ns:  # made by what happened at the same instant: its kind
+            by = "explicit" if isinstance(self._last[1], RequestHandled) else self._last[1].kind
         else:
             by = "o->t"
         self.changes.append((event.monotonic_ns, change.role, change.old, change.new, by))

@@ -12,7 +12,7 @@ from __future__ import annotations
 
 from enip_farm.control.handle import FarmControl
 from enip_farm.device.device import Device
-from enip_farm.device.events import Event
+from enip_farm.device.events import Event, ImageChanged, Wired
 from enip_farm.device.signals import Endpoint, SignalMap, parse_endpoint
 
 
@@ -32,11 +32,10 @@ class Wiring:
             self.rules.setdefault((when.device, when.signal.role), []).append((when, target, rule))
         if self.wires or self.rules:
             for device in farm.devices.values():
-                device.observe(lambda event, device=device: self._observe(device, event))
+                device.observe(lambda event, device=device: self._observe(device, event), ImageChanged)
 
     def _observe(self, device: Device, event: Event) -> None:
-        if event.kind == "image changed":
-            self.changed(device, *event.detail)
+        self.changed(device, *event.detail)  # an ImageChanged: role, old, new
 
     def changed(self, device: Device, role: str, old: bytes, new: bytes) -> None:
         key = (device.name, role)
@@ -58,9 +57,9 @@ class Wiring:
                     self.write(target, [rule.value], cause)
 
     def write(self, target: Endpoint, values: list, cause: str) -> None:
-        """Set the target and record a "wired" event naming both ends by their signal names, e.g.
+        """Set the target and record a `Wired` event naming both ends by their signal names, e.g.
         `robot.giRecipe = 77 (wire from plc.goRecipe)` or `robot.DI1 = 1 (rule: plc.doStart rises)`."""
         device = self.farm.devices[target.device]
         signals = self.maps[target.device]
         device.write_image(target.signal.role, lambda image: signals.write(target.signal, image, values))
-        device.record("wired", f"{target} = {values if len(values) > 1 else values[0]} ({cause})")
+        device.record(Wired(str(target), tuple(values), cause))

@@ -1,7 +1,7 @@
 """One device's class-1 cyclic I/O, the cyclic I/O thread's side (CIP Networks Library Vol. 2, 3-2
 and 3-3; Vol. 1, 3-4.4): O->T datagrams to the connection table, supervision (watchdogs) and T->O
-production. The table is read and written under the device lock; what it hands out to send (T->O
-packets, CIP Safety time coordination replies) is computed under the lock and sent after it, so a
+production. Each is one device transaction (device/guard.py); what the table hands out to send
+(T->O packets, CIP Safety time coordination replies) is computed in it and sent after it, so a
 socket write never holds the lock. A `stop-io` fault or the reset window drops O->T and withholds T->O;
 a `degraded-link` fault's path (device/impairment.py) loses, holds and doubles datagrams both ways.
 """
@@ -12,7 +12,7 @@ from collections import Counter
 from collections.abc import Callable
 
 from enip_farm.device.faults import DeviceFaults
-from enip_farm.device.guard import DeviceGuard
+from enip_farm.device.guard import BOTH_IMAGES, NO_IMAGES, OUTPUT_IMAGE, DeviceGuard
 from enip_farm.device.reaction import ReactionProbe
 from enip_farm.device.reset import ResetWindow
 
@@ -59,22 +59,17 @@ class CyclicIo:
 
     def _take(self, data: bytes, source: tuple[str, int], now: int, send: SendDatagram,
               received_at: int | None) -> bool:
-        guard, table, output = self.guard, self.table, self.guard.output
-        with guard.lock:  # O->T changes the outputs only: the inputs need no snapshot
-            old = bytes(output.data) if output is not None else b""
+        table, output, expectations = self.table, self.guard.output, self.expectations
+        with self.guard.transaction(now, OUTPUT_IMAGE):  # O->T changes the outputs only
+            old = bytes(output.data) if expectations and output is not None else None
             taken = table.receive_datagram(data, source[0], now, source[1], received_at)
             # the one way out: the answers queued, and whatever T->O is due by now goes with them
             replies = table.datagrams_to_send(now) if table.answers_queued else ()
-            connections = table.pop_events() if table.has_events else ()
-            changed = output is not None and output.data != old
-            new = bytes(output.data) if changed else old
+            if old is not None and output.data != old:  # before the observers hear of the change (O(1) each)
+                for probe in expectations:
+                    probe.consumed(output.data, now if received_at is None else received_at)
         for packet, address in replies:
             send(packet, address)
-        if changed and self.expectations:
-            for probe in self.expectations:
-                probe.consumed(new, now if received_at is None else received_at)
-        if connections or changed:
-            guard.publish((old, b""), (new, b""), now, (), connections)
         return taken
 
     def service_io(self, now: int, send: SendDatagram, horizon: int | None = None) -> int | None:
@@ -91,10 +86,9 @@ class CyclicIo:
             if path.to_device is not None and not self.faults.io_stopped and not self.window.active:
                 for data, source in path.to_device.due(now):
                     self._take(data, source, now, send, None)
-        with guard.lock:
-            expiring = table.supervision_due(now)
-            if expiring:  # a timeout may change the outputs: look before and after
-                before = guard.snapshot()
+        with guard.transaction(now, NO_IMAGES) as transaction:
+            if table.supervision_due(now):  # a timeout may change the outputs: look before and after
+                transaction.watch(BOTH_IMAGES)
                 table.handle_timer(now)
                 if self.faults.active:  # the device's fault stopped the I/O: not the originator's timeout
                     for connection in table.ended:
@@ -102,19 +96,14 @@ class CyclicIo:
                         if measure is not None and measure.ended_at == now and measure.ended == "timeout":
                             measure.ended = "device fault"
             due, timer = table.produce(now, horizon)
-            # the inputs the T->O of this turn carried, read in the same hold of the lock
+            # the inputs the T->O of this turn carried, read in the same transaction
             carried = bytes(table.assemblies["input"].data) if due and self.stimuli else None
-            if expiring:
-                connections = table.pop_events()
-                after = guard.snapshot()
         if due and not self.faults.io_stopped:
             for packet, address in due:
                 send(packet, address)
             if carried is not None:
                 for probe in self.stimuli:
                     probe.produced(carried, now)
-        if expiring and connections:
-            guard.publish(before, after, now, (), connections)
         return _earliest(timer, path.next_due()) if path is not None else timer
 
     def _tampered(self, send: SendDatagram) -> SendDatagram:
@@ -122,13 +111,11 @@ class CyclicIo:
         tamper = self.faults.safety_tamper
         if tamper is None:
             return send
-        with self.guard.lock:
-            data, coordination = tamper.streams(self.table.connections.values())
+        data, coordination = self.guard.read(lambda: tamper.streams(self.table.connections.values()))
         return tamper.through(send, data, coordination)
 
     def get_timer(self) -> int | None:
-        with self.guard.lock:
-            timer = self.table.get_timer()
+        timer = self.guard.read(self.table.get_timer)
         path = self.faults.impairment
         return _earliest(timer, path.next_due()) if path is not None else timer
 

@@ -11,6 +11,7 @@ APIs and the farm see (the encapsulation `Target` of protocol/session.py among t
 
 from __future__ import annotations
 
+import time
 from collections import Counter
 from collections.abc import Callable
 
@@ -21,9 +22,9 @@ from enip_farm.cip.ethernet_link import InterfaceCounters
 from enip_farm.cip.identity import STATE_OPERATIONAL, STATE_SELF_TESTING
 from enip_farm.cip.object import ReplyItems
 from enip_farm.device.cyclic import CyclicIo, SendDatagram
-from enip_farm.device.events import Event
+from enip_farm.device.events import DeviceEvent, Event, FaultCleared, ResetDone
 from enip_farm.device.faults import DeviceFaults
-from enip_farm.device.guard import DeviceGuard, Observer, describe, replace_image
+from enip_farm.device.guard import NO_IMAGES, Clock, DeviceGuard, Observer, describe, replace_image
 from enip_farm.device.hardware import ModuleHardware
 from enip_farm.device.latency import LatencyHistogram
 from enip_farm.device.objects import build_objects
@@ -36,7 +37,7 @@ from enip_farm.protocol.commands import IdentityItem
 from enip_farm.protocol.connection import ConnectionTriad
 from enip_farm.protocol.session import MessageContext, ReplyWithItems
 
-__all__ = ["COUNTERS", "Device", "Observer", "SendDatagram", "describe", "replace_image"]
+__all__ = ["COUNTERS", "Clock", "Device", "Observer", "SendDatagram", "describe", "replace_image"]
 
 #: Every counter of a device, present (at 0) from the start: TCP, sessions, replies, class 1 (the table's).
 COUNTERS = ("tcp_connections", "tcp_refused", "tcp_write_paused", "tcp_inactivity_closed", "sessions",
@@ -47,9 +48,11 @@ COUNTERS = ("tcp_connections", "tcp_refused", "tcp_write_paused", "tcp_inactivit
 class Device:
     """One configured device; implements the encapsulation `Target` protocol."""
 
-    def __init__(self, profile: DeviceProfile, budget: CyclicBudget | None = None) -> None:
+    def __init__(self, profile: DeviceProfile, budget: CyclicBudget | None = None,
+                 clock: Clock = time.monotonic_ns) -> None:
         """`budget`: the cyclic I/O budget this device's connections share with the other devices of
-        its I/O thread (None: no limit but each device's connection counts)."""
+        its I/O thread (None: no limit but each device's connection counts); `clock`: the monotonic
+        time (int ns) its API's edge takes when not given a `now` (the farm's; a test's to drive it)."""
         self.profile = profile
         self.faults = DeviceFaults()
         self.recorder: TrafficTap | None = None  # serve --record
@@ -63,8 +66,8 @@ class Device:
         self.assemblies, self.table, self.router, self.link = (objects.assemblies, objects.table, objects.router,
                                                                objects.link)
         self._tcpip = objects.tcpip
-        self.guard = guard = DeviceGuard(profile.name, objects.assemblies, objects.table)
-        self.lock, self.events = guard.lock, guard.events
+        self.guard = guard = DeviceGuard(profile.name, objects.assemblies, objects.table, clock)
+        self.clock, self.events = clock, guard.events
         self.session_handles = SessionHandles(profile.limits.max_sessions, self.counters, guard.record)
         self.resets = Resets(objects, guard, self.session_handles, profile.reset_time_s)
         self.reset_window = self.resets.window
@@ -79,13 +82,13 @@ class Device:
         #: 44818) count into `traffic`, the cyclic I/O thread's (UDP 2222) into `io_traffic`.
         self.traffic: InterfaceCounters = self.link.new_counters()
         self.io_traffic: InterfaceCounters = self.link.new_counters()
-        guard.observe(self._came_back)
+        guard.observe(self._came_back, FaultCleared, ResetDone)
 
     def _came_back(self, event: Event) -> None:
-        """A fault cleared or a reset done: the table expects its originators back (the report's reconnections)."""
-        if event.kind in ("fault cleared", "reset done"):
-            with self.lock:
-                self.table.device_back(event.kind, event.monotonic_ns)  # type: ignore[arg-type]
+        """A fault cleared or a reset done: the table expects its originators back (the report's
+        reconnections, which name what the device came back after by the event's kind)."""
+        with self.guard.transaction(event.monotonic_ns, NO_IMAGES):
+            self.table.device_back(event.detail.kind, event.monotonic_ns)
 
     @property
     def name(self) -> str:
@@ -93,14 +96,17 @@ class Device:
 
     # -- observers (device/guard.py) ------------------------------------------------------------
 
-    def observe(self, observer: Observer) -> Callable[[], None]:
-        """Call `observer(event)` for everything that happens to the device, after the device lock
-        is released, in the thread that made it happen (keep it short). Returns the unsubscribe."""
-        return self.guard.observe(observer)
+    def observe(self, observer: Observer, *classes: type) -> Callable[[], None]:
+        """Call `observer(event)` for every event of `classes` (device/events.py,
+        cip/connection_events.py; their subclasses too; none given: every event) that happens to
+        the device, after the device lock is released, in the thread that made it happen (keep it
+        short). Returns the unsubscribe."""
+        return self.guard.observe(observer, *classes)
 
-    def record(self, kind: str, detail: object = "", now: int | None = None) -> None:
-        """Log an event that happened at `now` (ns, monotonic; None: the clock's now) and tell the observers."""
-        self.guard.record(kind, detail, now)
+    def record(self, event: DeviceEvent, now: int | None = None) -> None:
+        """Log an event (device/events.py) that happened at `now` (ns, monotonic; None: the device's
+        clock) and tell the observers."""
+        self.guard.record(event, now)
 
     @property
     def timer_moved(self) -> Callable[[], None] | None:
@@ -126,9 +132,9 @@ class Device:
         self.write_image("input", lambda image: replace_image(image, data, self.name), now)
 
     def write_image(self, role: str, change: Callable[[bytearray], object], now: int | None = None) -> None:
-        """Change an image in one locked step: `change` edits a copy, which replaces the image only
+        """Change an image in one device transaction: `change` edits a copy, which replaces the image only
         if it returns without an error. No reader sees half of it, no concurrent writer loses a write.
-        `now` (ns): when; None: the clock's now (the Python and HTTP APIs' edge)."""
+        `now` (ns): when; None: the device's clock (the Python and HTTP APIs' edge)."""
         self.guard.write_image(role, change, now)
 
     @property
@@ -154,18 +160,15 @@ class Device:
     @property
     def status(self) -> int:
         """Identity attribute 5, from the device's I/O connections."""
-        with self.lock:
-            return self.table.status
+        return self.guard.read(lambda: self.table.status)
 
     @property
     def connections(self) -> dict[int, Connection]:
         """The open connections by O->T connection id (a copy)."""
-        with self.lock:
-            return dict(self.table.connections)
+        return self.guard.read(lambda: dict(self.table.connections))
 
     def find_connection(self, triad: ConnectionTriad) -> Connection | None:
-        with self.lock:
-            return self.table.find(triad)
+        return self.guard.read(lambda: self.table.find(triad))
 
     # -- encapsulation Target (device/target.py, device/sessions.py) ------------------------------
 
@@ -201,7 +204,8 @@ class Device:
         return self.target.handle_connected(connection_id, sequence_count, message, context)
 
     def session_closed(self, session: object, now: int) -> None:
-        self.guard.locked(lambda: self.table.session_closed(session, now), now)
+        with self.guard.transaction(now):
+            self.table.session_closed(session, now)
 
     # -- resets (device/reset.py) -----------------------------------------------------------------
 
@@ -215,15 +219,16 @@ class Device:
         """The device is in its reset window: it does not answer."""
         return self.reset_window.active
 
-    def reset(self, kind: int, now: int) -> bool:
-        """A reset from outside CIP (the API, the CLI, the dashboard): as an Identity Reset of type
-        `kind` (0 power cycle, 1 out-of-box, 2 out-of-box but the communication parameters). False
-        if the device is in its reset window already; ValueError for an unknown type."""
+    def reset(self, kind: int, now: int | None = None) -> bool:
+        """A reset from outside CIP (the API, the CLI, the dashboard) at `now` (ns; None: the
+        device's clock): as an Identity Reset of type `kind` (0 power cycle, 1 out-of-box, 2
+        out-of-box but the communication parameters). False if the device is in its reset window
+        already; ValueError for an unknown type."""
         return self.resets.reset(kind, now)
 
-    def end_reset(self, now: int) -> bool:
+    def end_reset(self, now: int | None = None) -> bool:
         """End the reset window if its deadline has come (never before): True if the device
-        answers again from now, with a "reset done" event."""
+        answers again from now, with a `ResetDone` event."""
         return self.resets.end(now)
 
     # -- class-1 I/O (device/cyclic.py, the cyclic I/O thread) -------------------------------------

@@ -1,68 +1,357 @@
-"""The device event log: what happened to a device, with monotonic and wall-clock timestamps in
-integer nanoseconds (the core's one time unit); the JSON form (`as_dict`) says seconds, as the API,
-the event stream and the dashboard always have.
+"""What happens to a device, as typed events in the style of aioquic's `quic/events.py`: one class
+per kind with typed fields. A consumer matches on the class (`isinstance`, `match`), never on text.
+The connection table's events are cip/connection_events.py's classes; this module has the others:
+explicit requests, image changes, sessions, resets, TCP connections, faults and wires.
 
-Request events keep their raw (service, path, status) and are formatted only when read, so that
-logging every request stays cheap. The device tells its observers (guard.py, `Device.observe`);
-the log only keeps what happened.
+The wire's words are made here and only here (and in cip/connection_events.py for the connection
+events): `kind` (a class constant: the HTTP API's, the SSE stream's, the dashboard's and the log
+line's "kind") and `text` (their "detail"); a fault's JSON detail is its parameters (`parameters`).
+
+`Event` is what observers and the log hand out: one of these with its device and its time, in
+integer nanoseconds of the monotonic clock the device is given and of the wall clock (`as_dict`, the
+JSON form, says seconds as the API always has). The log (`EventLog`) keeps plain tuples and makes
+Events only when read, so that logging every request stays cheap.
 """
 
 from __future__ import annotations
 
 import time
 from collections import deque
-from collections.abc import Iterator
-from typing import Any, NamedTuple
+from collections.abc import Iterator, Mapping
+from dataclasses import dataclass
+from types import MappingProxyType
+from typing import Any, ClassVar, NamedTuple, Protocol
+
+from enip_farm.cip.identity import ResetRequested
+from enip_farm.protocol.encapsulation import command_name, describe_encapsulation_status
 
 
-class ImageChange(NamedTuple):
-    """The detail of an "image changed" event: which image, its bytes before and after."""
+class DeviceEvent(Protocol):
+    """What every event class has (the connection events' too): its wire words."""
+
+    kind: ClassVar[str]
+
+    @property
+    def text(self) -> str: ...
+
+
+class RequestHandled(NamedTuple):
+    """An explicit request answered, as the message router answered it (cip/message_router.py `Handled`)."""
+
+    service: int
+    path: bytes
+    status: int  # general status
+    extended: int | None
+    relayed: bool  # embedded in a Multiple Service Packet
+
+    kind = "request"
+
+    @property
+    def text(self) -> str:
+        text = f"service 0x{self.service:02X} path {self.path.hex(' ')} status 0x{self.status:02X}"
+        return text if self.extended is None else f"{text} extended 0x{self.extended:04X}"
+
+
+class ImageChanged(NamedTuple):
+    """An image changed in one device transaction: which image, its bytes before and after."""
 
     role: str  # "input" or "output"
     old: bytes
     new: bytes
 
-    def __str__(self) -> str:
-        return f"{self.role} {self.old.hex()} -> {self.new.hex()}"
-
-
-class Event(NamedTuple):
-    monotonic_ns: int  # when it happened, ns of the monotonic clock the core is given
-    wall_ns: int  # the same moment, ns since the epoch
-    device: str
-    kind: str
-    detail: Any  # a string; a dict (faults); for "request" the router's (service, path, status, extended, relayed)
+    kind = "image changed"
 
     @property
     def text(self) -> str:
-        detail = self.detail
-        if self.kind == "request" and isinstance(detail, tuple):
-            service, path, status, extended = detail[:4]
-            text = f"service 0x{service:02X} path {path.hex(' ')} status 0x{status:02X}"
-            return text if extended is None else f"{text} extended 0x{extended:04X}"
-        if isinstance(detail, dict):  # e.g. a fault: "delay (delay_ms 800, duration_s 10)"
-            rest = {key: value for key, value in detail.items() if key != "kind"}
-            parameters = ", ".join(f"{key} {value:g}" if isinstance(value, float) else f"{key} {value}"
-                                   for key, value in rest.items())
-            head = str(detail.get("kind", ""))
-            return f"{head} ({parameters})" if head and parameters else head or parameters
-        return str(detail)
+        return f"{self.role} {self.old.hex()} -> {self.new.hex()}"
+
+
+@dataclass(frozen=True, slots=True)
+class Happened:
+    """The base of the events below: the wire's `kind` given by each class (`class X(Happened, kind="...")`)."""
+
+    kind: ClassVar[str] = ""
+
+    def __init_subclass__(cls, kind: str = "") -> None:
+        if kind:  # (no super(): dataclass(slots=True) makes a new class, object's takes nothing)
+            cls.kind = kind
+
+    @property
+    def text(self) -> str:
+        raise NotImplementedError
+
+
+@dataclass(frozen=True, slots=True)
+class SessionRegistered(Happened, kind="session registered"):
+    handle: int
+    peer_host: str = ""
+
+    @property
+    def text(self) -> str:
+        return f"handle {self.handle}" + (f" from {self.peer_host}" if self.peer_host else "")
+
+
+@dataclass(frozen=True, slots=True)
+class SessionEnded(Happened, kind="session ended"):
+    handle: int
+
+    @property
+    def text(self) -> str:
+        return f"handle {self.handle}"
+
+
+#: What each reset type does (Identity Reset, Vol. 1, 5-2.4.1), as the events say it.
+RESET_KINDS: Mapping[int, str] = MappingProxyType({
+    0: "power cycle", 1: "out-of-box configuration", 2: "out-of-box configuration but the communication parameters"})
+
+
+@dataclass(frozen=True, slots=True)
+class Reset(Happened, kind="reset"):
+    """A device performed a reset (device/reset.py): the request, and how long it does not answer.
+    The farm closes the device's TCP side on this class (farm/resets.py)."""
+
+    request: ResetRequested
+    quiet_s: float
+
+    @property
+    def text(self) -> str:
+        kind = self.request.type
+        return f"type {kind} ({RESET_KINDS[kind]}): not answering for {self.quiet_s:g} s"
+
+
+@dataclass(frozen=True, slots=True)
+class ResetDone(Happened, kind="reset done"):
+    """The reset window ended: the device answers again."""
+
+    @property
+    def text(self) -> str:
+        return "answering again"
+
+
+@dataclass(frozen=True, slots=True)
+class TcpConnected(Happened, kind="tcp connected"):
+    peer: str  # "host:port", "" if unknown
+
+    @property
+    def text(self) -> str:
+        return self.peer
+
+
+@dataclass(frozen=True, slots=True)
+class TcpInactive(Happened, kind="tcp inactive"):
+    """Closed by the farm: no whole request for the encapsulation inactivity timeout (TCP/IP attribute 13)."""
+
+    peer: str  # "host:port", "" if unknown
+    timeout_s: int
+
+    @property
+    def text(self) -> str:
+        if not self.peer:
+            return ""
+        return f"{self.peer}: no whole request for {self.timeout_s} s, closed (TCP/IP attribute 13)"
+
+
+@dataclass(frozen=True, slots=True)
+class TcpClosed(Happened, kind="tcp closed"):
+    peer: str  # "host:port", "?" if unknown
+    by_client: bool
+    after_s: float  # how long it was open
+
+    @property
+    def text(self) -> str:
+        return f"{self.peer} closed by {'the client' if self.by_client else 'the farm'} after {self.after_s:.1f} s"
+
+
+@dataclass(frozen=True, slots=True)
+class EncapsulationRefused(Happened, kind="encapsulation refused"):
+    """A request answered with an encapsulation error status (Vol. 2, 2-3.3)."""
+
+    command: int
+    peer: str
+    status: int
+
+    @property
+    def text(self) -> str:
+        return (f"{command_name(self.command)} from {self.peer}: encapsulation status "
+                f"{describe_encapsulation_status(self.status)}")
+
+
+@dataclass(frozen=True, slots=True)
+class EncapsulationIgnored(Happened, kind="encapsulation ignored"):
+    """A request that carried a non-zero status: not answered (Vol. 2, 2-3.5)."""
+
+    command: int
+    peer: str
+    status: int
+
+    @property
+    def text(self) -> str:
+        return (f"{command_name(self.command)} from {self.peer} carried status 0x{self.status:08X}; "
+                "a request's status must be 0 (Vol. 2, 2-3.5): no reply")
+
+
+@dataclass(frozen=True, slots=True)
+class PowerLost(Happened, kind="power lost"):
+    """The module's supply is gone (device/hardware.py): its volatile state with it."""
+
+    @property
+    def text(self) -> str:
+        return "no answer on TCP, UDP or class 1; connections end without a close"
+
+
+@dataclass(frozen=True, slots=True)
+class PowerReturned(Happened, kind="power returned"):
+    boot_s: float  # how long it boots, not answering
+
+    @property
+    def text(self) -> str:
+        return f"booting: not answering for {self.boot_s:g} s"
+
+
+@dataclass(frozen=True, slots=True)
+class AddressConflict(Happened, kind="address conflict"):
+    """Another host claims the module's address (RFC 826; TCP/IP attribute 11 keeps its ARP PDU)."""
+
+    remote_mac: bytes
+    detected: bool  # False: SelectAcd (TCP/IP attribute 10) is 0
+    silent: bool  # the module gives the address up
+
+    @property
+    def text(self) -> str:
+        outcome = (("address given up" if self.silent else "address defended") if self.detected
+                   else "not detected (SelectAcd, TCP/IP attribute 10, is 0)")
+        return f"with {self.remote_mac.hex(':')}: {outcome}"
+
+
+@dataclass(frozen=True, slots=True)
+class ScenarioStep(Happened, kind="scenario step"):
+    """A scenario's step began or ended (scenario/run.py): its label and what it did."""
+
+    line: str
+
+    @property
+    def text(self) -> str:
+        return self.line
+
+
+@dataclass(frozen=True, slots=True)
+class AddressStillTaken(Happened, kind="address still taken"):
+    """An address-conflict fault cleared, but the device's address is not its own again: why."""
+
+    reason: str
+
+    @property
+    def text(self) -> str:
+        return self.reason
+
+
+@dataclass(frozen=True, slots=True)
+class LinkDown(Happened, kind="link down"):
+    """A flapping fault's down phase: its effects on for `for_s`."""
+
+    fault: str
+    for_s: float
+
+    @property
+    def text(self) -> str:
+        return f"{self.fault}: for {self.for_s:.3f} s"
+
+
+@dataclass(frozen=True, slots=True)
+class LinkUp(Happened, kind="link up"):
+    """A flapping fault's up phase: its effects off for `for_s`."""
+
+    fault: str
+    for_s: float
+
+    @property
+    def text(self) -> str:
+        return f"{self.fault}: for {self.for_s:.3f} s"
+
+
+@dataclass(frozen=True, slots=True)
+class Wired(Happened, kind="wired"):
+    """A wire or a rule set a signal (control/wiring.py): both ends by their signal names."""
+
+    target: str  # e.g. "robot.giRecipe"
+    values: tuple[int | float, ...]
+    cause: str  # e.g. "wire from plc.goRecipe", "rule: plc.doStart rises"
+
+    @property
+    def text(self) -> str:
+        value = list(self.values) if len(self.values) > 1 else self.values[0]
+        return f"{self.target} = {value} ({self.cause})"
+
+
+@dataclass(frozen=True, slots=True)
+class FaultEvent(Happened):
+    """A fault switched on or off; its JSON detail is `parameters` (a dict), its text says them."""
+
+    @property
+    def parameters(self) -> dict[str, Any]:
+        raise NotImplementedError
+
+    @property
+    def text(self) -> str:  # e.g. "delay (delay_ms 800, duration_s 10)"
+        given = self.parameters
+        rest = {key: value for key, value in given.items() if key != "kind"}
+        parameters = ", ".join(f"{key} {value:g}" if isinstance(value, float) else f"{key} {value}"
+                               for key, value in rest.items())
+        head = str(given.get("kind", ""))
+        return f"{head} ({parameters})" if head and parameters else head or parameters
+
+
+@dataclass(frozen=True, slots=True)
+class FaultInjected(FaultEvent, kind="fault injected"):
+    fault: Mapping[str, Any]  # the fault's kind and parameters (device/fault_type.py `parameters`)
+
+    @property
+    def parameters(self) -> dict[str, Any]:
+        return dict(self.fault)
+
+
+@dataclass(frozen=True, slots=True)
+class FaultCleared(FaultEvent, kind="fault cleared"):
+    kinds: tuple[str, ...]
+
+    @property
+    def parameters(self) -> dict[str, Any]:
+        return {"kind": ", ".join(self.kinds)}
+
+
+class Event(NamedTuple):
+    """An event of one device at one time: `detail` is the typed event (match on its class)."""
+
+    monotonic_ns: int  # when it happened, ns of the monotonic clock the device is given
+    wall_ns: int  # the same moment, ns since the epoch
+    device: str
+    detail: Any  # a DeviceEvent: one of this module's classes or cip/connection_events.py's
+
+    @property
+    def kind(self) -> str:
+        """The wire's kind."""
+        return self.detail.kind
+
+    @property
+    def text(self) -> str:
+        """The wire's detail, as a log line says it."""
+        return self.detail.text
 
     def as_dict(self) -> dict[str, Any]:
-        """The event as JSON takes it: a dict detail (a fault's parameters) stays a dict."""
+        """The event as JSON takes it: a fault's detail is its parameters (a dict)."""
         detail = self.detail
         return {"time": self.wall_ns / 1e9, "monotonic": self.monotonic_ns / 1e9, "device": self.device,
-                "kind": self.kind, "detail": dict(detail) if isinstance(detail, dict) else self.text}
+                "kind": detail.kind, "detail": detail.parameters if isinstance(detail, FaultEvent) else detail.text}
 
 
 class EventLog:
-    """A bounded log; the oldest events fall off the end. Entries are stored as plain tuples and
-    become Events (with a wall-clock time) only when read or streamed: recording a request costs
-    well under a microsecond."""
+    """A bounded log; the oldest events fall off the end. Entries are stored as plain tuples (a
+    request as the router's own tuple) and become Events (with a wall-clock time) only when read or
+    streamed: recording a request costs well under a microsecond."""
 
     def __init__(self, device: str, size: int = 10000) -> None:
         self.device = device
-        self._entries: deque[tuple[int, str, Any]] = deque(maxlen=size)
+        self._entries: deque[tuple[int, Any]] = deque(maxlen=size)
         self._wall_offset_ns = time.time_ns() - time.monotonic_ns()  # monotonic -> wall clock
 
     @property
@@ -70,30 +359,35 @@ class EventLog:
         """Wall-clock time minus monotonic time (ns): an Event's `wall_ns` is its `monotonic_ns` plus this."""
         return self._wall_offset_ns
 
-    def record(self, kind: str, detail: Any, now: int) -> Event:
+    def record(self, detail: DeviceEvent, now: int) -> Event:
         """Keep an event that happened at `now` (ns, monotonic)."""
-        entry = (now, kind, detail)
+        entry = (now, detail)
         self._entries.append(entry)
-        return self._event(entry)
+        return self.event(entry)
 
-    def request(self, handled: tuple, now: int) -> tuple[int, str, Any]:
-        """One explicit request answered at `now` (ns), as the message router answered it (its
-        `Handled` tuple); the raw entry (`event` makes it an Event), so that logging a request costs
-        no more than a tuple."""
-        entry = (now, "request", handled)
+    def request(self, handled: tuple, now: int) -> tuple[int, tuple]:
+        """One explicit request answered at `now` (ns), as the message router's `Handled` tuple;
+        the raw entry (`event` makes it an Event of a RequestHandled), so that logging a request
+        costs no more than a tuple."""
+        entry = (now, handled)
         self._entries.append(entry)
         return entry
 
-    def event(self, entry: tuple[int, str, Any]) -> Event:
-        """An Event of an entry (now, kind, detail), whether kept in the log or not."""
-        return self._event(entry)
-
-    def _event(self, entry: tuple[int, str, Any]) -> Event:
-        monotonic_ns, kind, detail = entry
-        return Event(monotonic_ns, monotonic_ns + self._wall_offset_ns, self.device, kind, detail)
+    def event(self, entry: tuple[int, Any]) -> Event:
+        """An Event of an entry (now, detail), whether kept in the log or not."""
+        now, detail = entry
+        if type(detail) is tuple:  # a request as the router's tuple
+            detail = RequestHandled._make(detail)
+        return Event(now, now + self._wall_offset_ns, self.device, detail)
 
     def __iter__(self) -> Iterator[Event]:
-        return iter([self._event(entry) for entry in list(self._entries)])
+        return iter([self.event(entry) for entry in list(self._entries)])
+
+    def of_type(self, *classes: type) -> list[Event]:
+        """The events of these classes (or their subclasses), oldest first."""
+        events = [self.event(entry) for entry in list(self._entries)]
+        return [event for event in events if isinstance(event.detail, classes)]
 
     def of_kind(self, kind: str) -> list[Event]:
-        return [self._event(entry) for entry in list(self._entries) if entry[1] == kind]
+        """The events whose wire kind is `kind` (a name the API was given: `request`, `wired`, ...)."""
+        return [event for event in self if event.kind == kind]

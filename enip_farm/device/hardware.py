@@ -17,6 +17,7 @@ from __future__ import annotations
 import socket
 import struct
 
+from enip_farm.device.events import AddressConflict, PowerLost, PowerReturned
 from enip_farm.device.guard import DeviceGuard
 from enip_farm.device.objects import ObjectModel
 from enip_farm.device.reset import ResetWindow
@@ -40,8 +41,7 @@ class ModuleHardware:
         """The supply is gone at `now`: the module's volatile state with it."""
         objects, guard = self.objects, self.guard
         table = objects.table
-        with guard.lock:
-            before = guard.snapshot()
+        with guard.transaction(now) as transaction:
             for connection in list(table.connections.values()):
                 table.close(connection, "power lost", now)
             for role in ("output", "configuration"):
@@ -50,31 +50,26 @@ class ModuleHardware:
                     assembly.data[:] = bytes(len(assembly.data))
             objects.link.clear_counters()
             self.sessions.restart()
-            connections = table.pop_events()
-            after = guard.snapshot()
             self.powered = False
-        guard.publish(before, after, now, (), connections)
-        guard.record("power lost", "no answer on TCP, UDP or class 1; connections end without a close", now)
+            transaction.emit(PowerLost())
 
     def restore_power(self, boot_ns: int, now: int) -> None:
         """The supply is back at `now`: the module boots for `boot_ns` (its reset window), then answers."""
-        with self.guard.lock:
+        with self.guard.transaction(now) as transaction:
             self.window.resets += 1
             self.window.deadline = now + boot_ns
             self.powered = True
-        self.guard.record("power returned", f"booting: not answering for {boot_ns / 1e9:g} s", now)
+            transaction.emit(PowerReturned(boot_ns / 1e9))
 
     def address_conflict(self, activity: int, remote_mac: bytes, silent: bool) -> None:
         """Another host claims the module's address (its ARP reply, RFC 826, is the ARP PDU attribute 11
         keeps); `silent`: the module gives the address up."""
         ip = socket.inet_aton(self.address)
         arp_pdu = struct.pack("!HHBBH6s4s6s4s", 1, 0x0800, 6, 4, 2, remote_mac, ip, self.mac, ip)
-        with self.guard.lock:
+        with self.guard.transaction() as transaction:
             detected = self.objects.tcpip.conflict_detected(activity, remote_mac, arp_pdu, silent)
-        self.guard.record("address conflict", f"with {remote_mac.hex(':')}: " + (
-            ("address given up" if silent else "address defended") if detected
-            else "not detected (SelectAcd, TCP/IP attribute 10, is 0)"))
+            transaction.emit(AddressConflict(remote_mac, detected, silent))
 
     def conflict_resolved(self) -> None:
-        with self.guard.lock:
+        with self.guard.transaction():
             self.objects.tcpip.conflict_over()

@@ -46,8 +46,7 @@ def save_state(devices: Mapping[str, Device], path: Path) -> None:
     for name, device in devices.items():
         safety = device.table.policy.safety
         if safety is not None:
-            with device.lock:
-                entries[name] = {"safety": safety.state.snapshot()}
+            entries[name] = {"safety": device.guard.read(safety.state.snapshot)}
     temporary = path.with_name(path.name + ".tmp")
     temporary.write_text(json.dumps({"version": VERSION, "devices": entries}, indent=1, sort_keys=True))
     temporary.replace(path)

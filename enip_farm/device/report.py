@@ -35,11 +35,11 @@ def connection_figures(device: Device, connection: Connection, now: int) -> Conn
 
 def device_report(device: Device, now: int, bounds: ResolvedBounds) -> DeviceReport:
     """One device's measured connections, judged; under its lock (the I/O thread writes the figures)."""
-    with device.lock:
+    def read() -> tuple[list[ConnectionFigures], list]:
         table = device.table
         measured = [c for c in table.connections.values() if c.measure is not None] + list(table.ended)
-        figures = [connection_figures(device, c, now) for c in measured]
-        reconnections = table.reconnections.figures(device.name)
+        return [connection_figures(device, c, now) for c in measured], table.reconnections.figures(device.name)
+    figures, reconnections = device.guard.read(read)
     expected = (bounds["expected_o_t_rpi_us"], bounds["expected_t_o_rpi_us"])
     judged = []
     for f in figures:

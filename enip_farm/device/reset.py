@@ -7,29 +7,23 @@ server sends it before anything else of the device's), and the API's reset perfo
 without a request: every class-1 and class-3 connection closes, the output and configuration images
 go to their power-up state (all zero), the input image keeps what the field (the API, wires, rules)
 holds, the link counters clear, a type-1 reset also restores the configured TCP/IP and Ethernet
-Link settings, a safety target's types 1 and 2 clear its safety configuration, and a "reset" event
-is recorded whose detail is a `DeviceReset` (the request and the quiet time): the farm matches it
-by type (farm/resets.py) and closes the device's TCP connections and listener.
+Link settings, a safety target's types 1 and 2 clear its safety configuration, and a `Reset` event
+(device/events.py: the request and the quiet time) is published with the transaction's: the farm
+matches it by class (farm/resets.py) and closes the device's TCP connections and listener.
 
 A reset device does not answer (no TCP listener, UDP dropped) until its reset time has passed since
 the reset, then answers again (`restarts` moves on: a session of an earlier count has ended). Time
-is a parameter (int ns of a monotonic clock), never read here: the farm asks `due()` when to look
-again and calls `end(now)`, which ends the window at its deadline, not a nanosecond before."""
+is a parameter (int ns of the device's monotonic clock; None at the API's edge: the clock the device
+is given, device/guard.py): the farm asks `due()` when to look again and calls `end(now)`, which
+ends the window at its deadline, not a nanosecond before."""
 
 from __future__ import annotations
 
-from collections.abc import Mapping
-from dataclasses import dataclass
-from types import MappingProxyType
-
 from enip_farm.cip.identity import RESET_OUT_OF_BOX, ResetRequested
-from enip_farm.device.guard import DeviceGuard
+from enip_farm.device.events import RESET_KINDS, Reset, ResetDone
+from enip_farm.device.guard import DeviceGuard, Transaction
 from enip_farm.device.objects import ObjectModel
 from enip_farm.device.sessions import SessionHandles
-
-#: What each reset type does, as the events say it.
-RESET_KINDS: Mapping[int, str] = MappingProxyType({
-    0: "power cycle", 1: "out-of-box configuration", 2: "out-of-box configuration but the communication parameters"})
 
 
 class ResetWindow:
@@ -65,18 +59,6 @@ class ResetWindow:
         return True
 
 
-@dataclass(frozen=True, slots=True)
-class DeviceReset:
-    """The detail of a device's "reset" event: the reset it performs and how long it does not answer."""
-
-    request: ResetRequested
-    quiet_s: float
-
-    def __str__(self) -> str:
-        kind = self.request.type
-        return f"type {kind} ({RESET_KINDS[kind]}): not answering for {self.quiet_s:g} s"
-
-
 class Resets:
     """Runs one device's resets, requested by its Identity object or from outside CIP."""
 
@@ -87,8 +69,9 @@ class Resets:
         self.quiet_s = reset_time_s
         self.window = ResetWindow(round(reset_time_s * 1e9))
 
-    def perform(self, request: ResetRequested, now: int) -> None:
-        """Under the device lock: what a restart does to the device's state; `announce` after the lock."""
+    def perform(self, request: ResetRequested, transaction: Transaction) -> None:
+        """In a device transaction: what a restart does to the device's state, and its `Reset` event."""
+        now = transaction.now
         kind = request.type
         objects = self.objects
         table = objects.table
@@ -106,34 +89,26 @@ class Resets:
         objects.link.clear_counters()
         self.sessions.restart()
         self.window.start(now)
+        transaction.emit(Reset(request, self.quiet_s))
 
-    def announce(self, request: ResetRequested, now: int) -> None:
-        """After the lock: the "reset" event, whose `DeviceReset` detail the farm acts on."""
-        self.guard.record("reset", DeviceReset(request, self.quiet_s), now)
-
-    def reset(self, kind: int, now: int) -> bool:
-        """A reset from outside CIP (a test engineer's power switch or reset button): as an Identity
-        Reset of type `kind`, without a request to answer. False if the device is in its reset window
-        already (nothing happens); ValueError for an unknown type."""
+    def reset(self, kind: int, now: int | None = None) -> bool:
+        """A reset from outside CIP (a test engineer's power switch or reset button) at `now` (ns;
+        None: the device's clock): as an Identity Reset of type `kind`, without a request to answer.
+        False if the device is in its reset window already (nothing happens); ValueError for an
+        unknown type."""
         if kind not in RESET_KINDS:
             raise ValueError(f"reset type {kind}: one of {', '.join(map(str, RESET_KINDS))}")
-        request = ResetRequested(kind)
-        guard = self.guard
-        with guard.lock:
+        with self.guard.transaction(now) as transaction:
             if self.window.active:
                 return False
-            before = guard.snapshot()
-            self.perform(request, now)
-            connections = self.objects.table.pop_events()
-            after = guard.snapshot()
-        guard.publish(before, after, now, (), connections)
-        self.announce(request, now)
+            self.perform(ResetRequested(kind), transaction)
         return True
 
-    def end(self, now: int) -> bool:
-        """End the reset window if its deadline has come (never before): True if the device
-        answers again from now, with a "reset done" event."""
+    def end(self, now: int | None = None) -> bool:
+        """End the reset window if its deadline has come (`now`, ns; None: the device's clock;
+        never before): True if the device answers again from now, with a `ResetDone` event."""
+        now = self.guard.clock() if now is None else now
         if not self.window.end(now):
             return False
-        self.guard.record("reset done", "answering again", now)
+        self.guard.record(ResetDone(), now)
         return True

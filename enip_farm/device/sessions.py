@@ -7,14 +7,16 @@ from __future__ import annotations
 from collections import Counter
 from collections.abc import Callable
 
+from enip_farm.device.events import DeviceEvent, SessionEnded, SessionRegistered
+
 _LAST = 0xFFFFFFFF
 
 
 class SessionHandles:
     """Hands out and takes back one device's session handles, counting them (`sessions`,
-    `sessions_refused`) and recording each ("session registered", "session ended")."""
+    `sessions_refused`) and recording each (`SessionRegistered`, `SessionEnded`)."""
 
-    def __init__(self, max_sessions: int, counters: Counter[str], record: Callable[[str, str], None]) -> None:
+    def __init__(self, max_sessions: int, counters: Counter[str], record: Callable[[DeviceEvent], None]) -> None:
         self.max_sessions = max_sessions
         self.open: set[int] = set()
         self._counters = counters
@@ -32,12 +34,12 @@ class SessionHandles:
             handle = handle + 1 if handle < _LAST else 1
         self._next = handle + 1 if handle < _LAST else 1
         self.open.add(handle)
-        self._record("session registered", f"handle {handle}" + (f" from {peer_host}" if peer_host else ""))
+        self._record(SessionRegistered(handle, peer_host))
         return handle
 
     def unregister(self, session_handle: int) -> None:
         self.open.discard(session_handle)
-        self._record("session ended", f"handle {session_handle}")
+        self._record(SessionEnded(session_handle))
 
     def restart(self) -> None:
         """The device restarted: handles are numbered from 1 again."""

@@ -1,10 +1,10 @@
 """One device as the encapsulation layer sees it (the `Target` of protocol/session.py; CIP Networks
 Library Vol. 2, 2-4): ListIdentity, ListServices and ListInterfaces data, and explicit requests,
 unconnected (SendRRData) and on class-3 connections (SendUnitData, Vol. 1, 3-4.3), each dispatched
-by the Message Router under the device lock. An effect a service returns (the Identity object's
-`ResetRequested`) is performed under the same lock once the whole request is answered, so a reset
-in a Multiple Service Packet comes after every request of the packet; what happened is published
-after the lock."""
+by the Message Router in one device transaction (device/guard.py). An effect a service returns (the
+Identity object's `ResetRequested`) is performed in the same transaction once the whole request is
+answered, so a reset in a Multiple Service Packet comes after every request of the packet; what
+happened is published after the lock."""
 
 from __future__ import annotations
 
@@ -13,7 +13,7 @@ from collections.abc import Callable
 from enip_farm.cip.identity import ResetRequested
 from enip_farm.cip.message_router import MessageRouter
 from enip_farm.cip.object import Effect, ReplyItems
-from enip_farm.device.guard import DeviceGuard
+from enip_farm.device.guard import DeviceGuard, Transaction
 from enip_farm.device.profile import DeviceProfile
 from enip_farm.device.reset import Resets
 from enip_farm.protocol.commands import (
@@ -50,8 +50,7 @@ class EncapsulationTarget:
 
     def identity_item(self) -> IdentityItem:
         p = self.profile
-        with self.guard.lock:
-            status = self.table.status
+        status = self.guard.read(lambda: self.table.status)
         major, minor = self.revision()
         return IdentityItem(PROTOCOL_VERSION, SocketAddress(p.address, ENIP_PORT), p.vendor_id, p.device_type,
                             self.product_code(), major, minor, status, p.serial_number,
@@ -66,52 +65,37 @@ class EncapsulationTarget:
     def list_interfaces_data(self) -> bytes:
         return encode_items([])
 
-    def _perform(self, effects: list[Effect], now: int) -> ResetRequested | None:
-        """Under the lock, once the request is answered: its effects; the reset performed, if any
-        (of several in one request, the last, as one restart)."""
+    def _perform(self, effects: list[Effect], transaction: Transaction) -> None:
+        """In the transaction, once the request is answered: its effects; of several resets in one
+        request, the last, as one restart."""
         reset = None
         for effect in effects:
             if type(effect) is ResetRequested:
                 reset = effect
         if reset is not None:
-            self.resets.perform(reset, now)
-        return reset
+            self.resets.perform(reset, transaction)
 
     def handle_unconnected(self, message: bytes, context: MessageContext) -> ReplyWithItems:
-        router, guard = self.router, self.guard
-        with guard.lock:
-            before = guard.snapshot()
+        router = self.router
+        with self.guard.transaction(context.now) as transaction:
             reply = router.dispatch(message, context)
-            reset = self._perform(router.pop_effects(), context.now) if router.effects else None
-            requests = router.pop_handled()
-            connections = self.table.pop_events() if self.table.has_events else ()
-            after = guard.snapshot()
-        if connections or before != after or guard.observers or reset is not None:
-            guard.publish(before, after, context.now, requests, connections)
-            if reset is not None:
-                self.resets.announce(reset, context.now)
-        else:  # the hot path: a request that changed nothing, nobody listening
-            for handled in requests:
-                guard.events.request(handled, context.now)
+            if router.effects:
+                self._perform(router.pop_effects(), transaction)
+            transaction.requests = router.pop_handled()
         return reply
 
     def handle_connected(self, connection_id: int, sequence_count: int, message: bytes,
                          context: MessageContext) -> tuple[int, bytes, ReplyItems] | None:
-        router, guard, table = self.router, self.guard, self.table
-        with guard.lock:
+        router, table = self.router, self.table
+        with self.guard.transaction(context.now) as transaction:
             connection = table.receive_connected(connection_id, context.session, context.now)
             if connection is None:
                 return None
             if connection.last_reply is not None and connection.last_reply[0] == sequence_count:
                 return connection.t_o_id, connection.last_reply[1], connection.last_reply[2]  # a duplicate
-            before = guard.snapshot()
             reply, items = router.dispatch(message, context)
             connection.last_reply = (sequence_count, reply, items)
-            reset = self._perform(router.pop_effects(), context.now) if router.effects else None
-            requests = router.pop_handled()
-            connections = table.pop_events()
-            after = guard.snapshot()
-        guard.publish(before, after, context.now, requests, connections)
-        if reset is not None:
-            self.resets.announce(reset, context.now)
+            if router.effects:
+                self._perform(router.pop_effects(), transaction)
+            transaction.requests = router.pop_handled()
         return connection.t_o_id, reply, items

@@ -1,5 +1,7 @@
 """The talking console of `enip-farm serve`: one log line per thing that happened to a device, taken
 from the devices' events (`Device.observe`, device/events.py), as `DEVICE ADDRESS: KIND: DETAIL`.
+How loud a line is depends on the event's class; the console observes only the classes its
+logger's level shows (so a quiet farm makes no Event per request and compares no image for it).
 
 - WARNING: connection timed out; connection refused (a Forward Open or Close, with the general and
   extended status in hex and words); encapsulation refused (with the encapsulation status);
@@ -23,8 +25,26 @@ import time
 from collections.abc import Callable, Iterable, Mapping
 from types import MappingProxyType
 
+from enip_farm.cip.connection_events import (
+    ConnectionEvent,
+    ConnectionFaulted,
+    ConnectionRefused,
+    ConnectionTimedOut,
+    SafeState,
+    SafetyCrcFault,
+    SafetyTimingFault,
+)
 from enip_farm.device.device import Device
-from enip_farm.device.events import Event
+from enip_farm.device.events import (
+    EncapsulationIgnored,
+    EncapsulationRefused,
+    Event,
+    FaultInjected,
+    Happened,
+    ImageChanged,
+    RequestHandled,
+    Wired,
+)
 from enip_farm.protocol.cip import Service
 from enip_farm.protocol.status import describe_status
 from enip_farm.server.limits import RateLimitedLog
@@ -33,15 +53,15 @@ LOGGER = "enip_farm.farm.console"
 #: Log line format of `serve` (configure_logging).
 LOG_FORMAT = "%(asctime)s %(levelname)s %(message)s"
 
-_LEVELS: Mapping[str, int] = MappingProxyType({
-    "connection timed out": logging.WARNING, "connection refused": logging.WARNING,
-    "encapsulation refused": logging.WARNING, "encapsulation ignored": logging.WARNING,
-    "fault injected": logging.WARNING,
+_LEVELS: Mapping[type, int] = MappingProxyType({
+    ConnectionTimedOut: logging.WARNING, ConnectionRefused: logging.WARNING,
+    EncapsulationRefused: logging.WARNING, EncapsulationIgnored: logging.WARNING,
+    FaultInjected: logging.WARNING,
     # CIP Safety (cip/connection_table.py): a faulted safety connection and its safe state
-    "connection faulted": logging.WARNING, "safety crc fault": logging.WARNING,
-    "safety timing fault": logging.WARNING, "safe state": logging.WARNING,
-    "image changed": logging.DEBUG, "wired": logging.DEBUG,
-})
+    ConnectionFaulted: logging.WARNING, SafetyCrcFault: logging.WARNING,
+    SafetyTimingFault: logging.WARNING, SafeState: logging.WARNING,
+    ImageChanged: logging.DEBUG, Wired: logging.DEBUG,
+})  # every other class: INFO (a request: DEBUG, or INFO when refused)
 #: Refusals the console leaves to another line: a Forward Open/Close refused by the connection
 #: table (its "connection refused" event says more), a Multiple Service Packet whose embedded
 #: requests failed (each is told).
@@ -89,9 +109,21 @@ class Console:
 
     def attach(self) -> Console:
         """Start telling the devices' events (those below the logger's level cost a check each)."""
-        for device in self.devices:
-            self._unsubscribe.append(device.observe(self._observer(device)))
+        classes = self._classes()
+        if classes is not None:
+            for device in self.devices:
+                self._unsubscribe.append(device.observe(self._observer(device), *classes))
         return self
+
+    def _classes(self) -> tuple[type, ...] | None:
+        """The event classes the logger's level shows: () every class, None none."""
+        logger = self.logger
+        if logger.isEnabledFor(logging.DEBUG):
+            return ()
+        if logger.isEnabledFor(logging.INFO):  # not the image changes (DEBUG)
+            return RequestHandled, ConnectionEvent, Happened
+        loud = tuple(cls for cls, level in _LEVELS.items() if level > logging.INFO and logger.isEnabledFor(level))
+        return loud or None
 
     def start(self, loop: asyncio.AbstractEventLoop) -> None:
         """Attach, and flush what was held back once per interval on `loop`."""
@@ -127,22 +159,22 @@ class Console:
         info = logger.isEnabledFor(logging.INFO)
 
         def observe(event: Event) -> None:
-            kind = event.kind
-            if kind == "request":  # the hot path: most requests succeed and are told at DEBUG only
-                handled = event.detail
-                status = handled[2]
+            detail = event.detail
+            if type(detail) is RequestHandled:  # the hot path: most requests succeed and are told at DEBUG only
+                status = detail.status
                 if status == 0:
                     if debug:
-                        log.log(logging.DEBUG, "request", time.monotonic(), "%s%s: %s", prefix, kind,
-                                request_text(handled))
+                        log.log(logging.DEBUG, detail.kind, time.monotonic(), "%s%s: %s", prefix, detail.kind,
+                                request_text(detail))
                     return
-                if info and not handled[4] and (handled[0], status) not in _TOLD_ELSEWHERE:
+                if info and not detail.relayed and (detail.service, status) not in _TOLD_ELSEWHERE:
                     log.log(logging.INFO, "request refused", time.monotonic(), "%srequest refused: %s", prefix,
-                            request_text(handled))
+                            request_text(detail))
                 return
-            level = _LEVELS.get(kind, logging.INFO)
+            level = _LEVELS.get(type(detail), logging.INFO)
             if level == logging.DEBUG and not debug:
                 return
-            log.log(level, kind, time.monotonic(), "%s%s: %s", prefix, kind, event.text)
+            kind = detail.kind
+            log.log(level, kind, time.monotonic(), "%s%s: %s", prefix, kind, detail.text)
 
         return observe

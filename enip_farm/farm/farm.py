@@ -29,7 +29,7 @@ from enip_farm.control.reaction import SignalValue, measure_reaction
 from enip_farm.control.wiring import Wiring
 from enip_farm.device.build import build_profiles
 from enip_farm.device.catalogue import Catalogue
-from enip_farm.device.device import Device
+from enip_farm.device.device import Clock, Device
 from enip_farm.device.faults import Disconnect, Fault, FaultType
 from enip_farm.device.nonvolatile import load_state, save_state
 from enip_farm.device.report import FarmReport, TestBounds, device_bounds, farm_report
@@ -64,15 +64,16 @@ class Farm:
     def __init__(self, config: FarmConfig | Mapping[str, Any] | str | Path, http: tuple[str, int] | None = None,
                  token: str | None = None, record: str | Path | None = None,
                  catalogue: Catalogue | None = None, heartbeat: str | Path | None = None,
-                 state: str | Path | None = None) -> None:
+                 state: str | Path | None = None, clock: Clock = time.monotonic_ns) -> None:
         """`config`: a FarmConfig, a dict as a YAML file holds it, or a file's path; `http`: serve
         the HTTP API on (host, port), port 0 picks a free one (see `http.port`); `record`: write the
         farm's traffic to this pcap file; `catalogue`: the models the devices name (default: the
         shipped catalogue); `heartbeat`: a file whose time the farm sets every second while its
         cyclic I/O runs (docker/healthcheck.sh reads it); `state`: a JSON file of the devices'
         non-volatile state (a safety target's TUNID, configuration and owner), restored now if it
-        exists and written at `stop` (device/nonvolatile.py). Raises ConfigError if the configuration
-        is invalid or its devices cannot be built, or the state file is not one."""
+        exists and written at `stop` (device/nonvolatile.py); `clock`: the monotonic time (int ns) the
+        devices' API edge takes when not given a time (a test's, to drive it). Raises ConfigError if
+        the configuration is invalid or its devices cannot be built, or the state file is not one."""
         models = eds_catalogue(catalogue)
         known = (models.bases(), models.addons())  # a file's unknown models are told with its other problems
         self.config = config = load_config(config, known) if isinstance(config, (str, Path)) else as_config(config)
@@ -84,7 +85,7 @@ class Farm:
         self._profiles = profiles
         #: What this farm's cyclic I/O thread admits connections for (set at start: measured or configured).
         self.budget = CyclicBudget(DEFAULT_DATAGRAMS_PER_S, "not started")
-        self.devices: dict[str, Device] = {p.name: Device(p, self.budget) for p in profiles}
+        self.devices: dict[str, Device] = {p.name: Device(p, self.budget, clock) for p in profiles}
         self.handles: dict[str, DeviceHandle] = {name: DeviceHandle(self, d) for name, d in self.devices.items()}
         for device in self.devices.values():
             device.recorder = self.recorder
@@ -114,7 +115,7 @@ class Farm:
                 self.address_owners[entry.name] = owner
         self.faults = FarmFaults(self.devices, self.listeners, self.resets, self._spawn, lambda: self.running)
         for device in self.devices.values():
-            device.observe(lambda event, d=device: self.resets.on_event(d, event))
+            self.resets.observe(device)
         self.loop: asyncio.AbstractEventLoop | None = None
         self.running = False
         self.supervision = Supervision(Path(heartbeat) if heartbeat is not None else None, lambda: self.running,

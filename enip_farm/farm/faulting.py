@@ -17,6 +17,7 @@ from collections.abc import Callable, Coroutine, Iterable, Iterator, Mapping
 from typing import Any
 
 from enip_farm.device.device import Device
+from enip_farm.device.events import AddressStillTaken, FaultCleared, FaultInjected, LinkDown, LinkUp
 from enip_farm.device.faults import Disconnect, FaultType
 from enip_farm.farm.listeners import BindError, Listeners
 from enip_farm.farm.resets import FarmResets
@@ -57,7 +58,7 @@ class FarmFaults:
             if previous is not None:
                 previous.on_clear(device.hardware, now)
             device.faults.set(fault, now)
-            device.record("fault injected", fault.parameters(), now)
+            device.record(FaultInjected(fault.parameters()), now)
             fault.on_set(device.hardware, now)
             ends = fault.on_tcp_connection()
             if ends is not None or (not fault.listens() and fault.hears()):
@@ -75,10 +76,10 @@ class FarmFaults:
         """Down (the fault's effects on) and up (off) by `phases`, then up until the fault is cleared."""
         for down_s, up_s in phases:
             device.faults.suspend(kind, False)
-            device.record("link down", f"{kind}: for {down_s:.3f} s")
+            device.record(LinkDown(kind, down_s))
             await asyncio.sleep(os_wait_s(down_s))
             device.faults.suspend(kind, True)
-            device.record("link up", f"{kind}: for {up_s:.3f} s")
+            device.record(LinkUp(kind, up_s))
             await asyncio.sleep(os_wait_s(up_s))
         device.faults.suspend(kind, True)
 
@@ -108,7 +109,7 @@ class FarmFaults:
         kinds = [k for k in faults.active if kind is None or k == kind]
         if name in self.off_network and "address-conflict" in kinds:
             kinds.remove("address-conflict")
-            device.record("address still taken", "configured onto another device's address", now)
+            device.record(AddressStillTaken("configured onto another device's address"), now)
         listens_again = not faults.listens and all(
             fault.listens() for k, fault in faults.active.items() if k not in kinds and k not in faults.suspended)
         booting = device.resetting
@@ -120,10 +121,10 @@ class FarmFaults:
             try:
                 await self.listeners.listen(device)  # listening again before the fault is seen gone
             except BindError as error:  # someone took the address meanwhile: say so, keep serving the others
-                device.record("address still taken", str(error), now)
+                device.record(AddressStillTaken(str(error)), now)
         cleared = [k for k in kinds for _ in faults.clear(k)]
         for k in cleared:
             self._forget(name, k)
         if cleared:
-            device.record("fault cleared", {"kind": ", ".join(cleared)}, now)
+            device.record(FaultCleared(tuple(cleared)), now)
         return cleared

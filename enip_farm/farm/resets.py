@@ -1,7 +1,7 @@
 """A device's reset as the farm carries it out (Identity Reset, CIP Networks Library Vol. 1,
 5-2.4.1; the device's own part is device/reset.py). A device tells its observers of a reset it
-performed by a "reset" event whose detail is a `DeviceReset` (the Identity object's
-`ResetRequested`, or the API's reset button); on that type, never on an event's text, the farm
+performed by a `Reset` event (device/events.py: the Identity object's `ResetRequested`, or the
+API's reset button); observing that class, never an event's text, the farm
 closes the device's TCP connections and its listener once the reply has been written (the event
 loop runs the close after the write), and listens again when the device's reset window ends
 (`Device.end_reset`, asked at the window's deadline and never before)."""
@@ -10,14 +10,12 @@ from __future__ import annotations
 
 import asyncio
 import logging
-import time
 from collections.abc import Callable, Coroutine
 from typing import Any
 
 from enip_farm.device.device import Device
-from enip_farm.device.events import Event
+from enip_farm.device.events import Reset
 from enip_farm.device.faults import Disconnect
-from enip_farm.device.reset import DeviceReset
 from enip_farm.farm.listeners import BindError, Listeners
 from enip_farm.server.waits import os_wait_s
 
@@ -44,10 +42,15 @@ class FarmResets:
             timer.cancel()
         self.timers.clear()
 
-    def on_event(self, device: Device, event: Event) -> None:
-        """A device's observer (any thread): a reset is carried out on the loop, after the reply."""
+    def observe(self, device: Device) -> None:
+        """Carry out `device`'s resets from now on."""
+        device.observe(lambda _: self.on_reset(device), Reset)
+
+    def on_reset(self, device: Device) -> None:
+        """A device's observer of its `Reset` events (any thread): the reset is carried out on the
+        loop, after the reply."""
         loop = self.loop
-        if type(event.detail) is DeviceReset and loop is not None:
+        if loop is not None:
             loop.call_soon_threadsafe(self._begin, device)
 
     def _begin(self, device: Device) -> None:
@@ -74,12 +77,12 @@ class FarmResets:
         if timer is not None:
             timer.cancel()
         if due is not None and self.loop is not None:
-            delay_s = os_wait_s((due - time.monotonic_ns()) / 1e9)
+            delay_s = os_wait_s((due - device.clock()) / 1e9)
             self.timers[device.name] = self.loop.call_later(delay_s, self._end, device)
 
     def _end(self, device: Device) -> None:
         self.timers.pop(device.name, None)
-        if not device.end_reset(time.monotonic_ns()):
+        if not device.end_reset():
             self._arm_end(device)  # the timer came a little early: wait for the deadline itself
             return
         if self.loop is not None and device.faults.listens and not self.listeners.listening(device.name):

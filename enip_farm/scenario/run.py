@@ -15,6 +15,7 @@ from typing import Any, Protocol
 
 from enip_farm.config import FarmConfig
 from enip_farm.device.device import Device
+from enip_farm.device.events import ScenarioStep
 from enip_farm.device.faults import Fault, FaultType
 from enip_farm.device.signals import SignalMap
 from enip_farm.scenario.model import (
@@ -151,12 +152,12 @@ class _Run:
 
     def _line(self, step: Step, now: int, text: str) -> None:
         """A progress line; the step in the recording's side file (the farm's `mark`) and in the event
-        log of each device it touches (the dashboard's events), as "scenario step"."""
+        log of each device it touches (the dashboard's events), as a `ScenarioStep` event."""
         line = f"{step.label}: {text}"
         self.say(f"{(now - self.start) / 1e9:8.3f} s  {line}")
         self.farm.mark(line)
         for device in _devices_of(self.farm, step):
-            self.farm.devices[device].record("scenario step", line, now)
+            self.farm.devices[device].record(ScenarioStep(line), now)
 
     async def carry_out(self, step: Step, now: int) -> None:
         action = step.action

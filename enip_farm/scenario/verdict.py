@@ -8,7 +8,8 @@ from collections.abc import Mapping
 from dataclasses import asdict, dataclass, field
 from typing import Any
 
-from enip_farm.device.events import Event
+from enip_farm.cip.connection_events import ConnectionOpened, ConnectionTimedOut
+from enip_farm.device.events import Event, ImageChanged
 from enip_farm.device.signals import SignalMap
 from enip_farm.scenario.model import (
     OPERATORS,
@@ -32,9 +33,14 @@ class Recording:
     started: dict[int, int] = field(default_factory=dict)
     ended: dict[int, int] = field(default_factory=dict)
 
-    def of_kind(self, kind: str, devices: tuple[str, ...], since: int | None = None) -> list[Event]:
-        return [e for e in self.events if e.kind == kind and e.device in devices
+    def of_type(self, cls: type, devices: tuple[str, ...], since: int | None = None) -> list[Event]:
+        """The events of class `cls` of these devices (from `since`)."""
+        return [e for e in self.events if isinstance(e.detail, cls) and e.device in devices
                 and (since is None or e.monotonic_ns >= since)]
+
+    def of_kind(self, kind: str, devices: tuple[str, ...]) -> list[Event]:
+        """The events of these devices whose wire kind is `kind` (the scenario's `count(KIND)`)."""
+        return [e for e in self.events if e.kind == kind and e.device in devices]
 
 
 @dataclass
@@ -138,7 +144,7 @@ def _judge(expectation: Expectation, recording: Recording, signals: Mapping[str,
             return verdict(when - since <= check.bound_ns, f"after {_ms(when - since)} (bound {_ms(check.bound_ns)})")
         late = {}
         for device in check.devices:
-            opened = recording.of_kind("connection opened", (device,), since)
+            opened = recording.of_type(ConnectionOpened, (device,), since)
             late[device] = opened[0].monotonic_ns - since if opened else None
         missing = [d for d, t in late.items() if t is None]
         if missing:
@@ -147,7 +153,7 @@ def _judge(expectation: Expectation, recording: Recording, signals: Mapping[str,
         return verdict(late[worst] <= check.bound_ns,  # type: ignore[operator]
                        f"last {worst} after {_ms(late[worst])} (bound {_ms(check.bound_ns)})")  # type: ignore[arg-type]
     if isinstance(check, NoTimeouts):
-        found = recording.of_kind("connection timed out", check.devices)
+        found = recording.of_type(ConnectionTimedOut, check.devices)
         return verdict(not found, "none" if not found else f"{len(found)}: " + ", ".join(
             sorted({e.device for e in found})))
     assert isinstance(check, EventCount)
@@ -160,7 +166,7 @@ def first_true(condition: Condition, since: int, recording: Recording, signals: 
     signal = signals.lookup(condition.signal)
     role = signal.role
     image = recording.images[condition.device][role]
-    changes = [e for e in recording.events if e.kind == "image changed" and e.device == condition.device
+    changes = [e for e in recording.events if isinstance(e.detail, ImageChanged) and e.device == condition.device
                and e.detail.role == role]
     for event in changes:
         if event.monotonic_ns > since:

@@ -14,21 +14,24 @@ from __future__ import annotations
 import socket
 import time
 
-from enip_farm.cip.admission import Originator
 from enip_farm.cip.budget import CyclicBudget
 from enip_farm.config import BUDGET_UTILISATION
 from enip_farm.device.device import Device
 from enip_farm.device.profile import DeviceProfile
-from enip_farm.protocol.cip import ClassCode
-from enip_farm.protocol.commands import SocketAddress
+from enip_farm.protocol.cip import ClassCode, Service, decode_reply, encode_request
+from enip_farm.protocol.commands import SocketAddress, encode_sockaddr
 from enip_farm.protocol.connection import (
     ConnectionTriad,
     ConnectionType,
     ForwardOpenRequest,
     NetworkParameters,
+    decode_forward_open_reply,
+    encode_forward_open,
     encode_io_packet,
 )
-from enip_farm.protocol.epath import LogicalType, encode_logical
+from enip_farm.protocol.cpf import CpfItem, ItemType
+from enip_farm.protocol.epath import LogicalType, encode_logical, encode_request_path
+from enip_farm.protocol.session import MessageContext
 from enip_farm.server.batch import Datagrams
 from enip_farm.server.implicit import CyclicIoThread, DeviceIo
 
@@ -44,7 +47,8 @@ _HOST = "127.0.0.1"
 
 def _scratch_connection(profile: DeviceProfile, port: int) -> tuple[Device, int] | None:
     """A device of this profile (no sockets of its own) with one exclusive-owner connection whose
-    originator is 127.0.0.1 and whose T->O goes to 127.0.0.1:`port`: its O->T id."""
+    originator is 127.0.0.1 and whose T->O goes to 127.0.0.1:`port`, opened by a Forward Open
+    through the device's own explicit messaging: its O->T id."""
     output, inputs = profile.assembly("output"), profile.assembly("input")
     if output is None or inputs is None or profile.safety is not None:
         return None
@@ -59,10 +63,14 @@ def _scratch_connection(profile: DeviceProfile, port: int) -> tuple[Device, int]
                                  _RPI_NS // 1000,
                                  NetworkParameters(False, ConnectionType.POINT_TO_POINT, 2, False, 2 + inputs.size),
                                  0x01, path)
-    with device.lock:
-        opened = device.table.forward_open(request, Originator(_HOST, SocketAddress("0.0.0.0", port)), 0)
-    connection = getattr(opened, "connection", None)
-    return (device, connection.o_t_id) if connection is not None else None
+    message = encode_request(Service.FORWARD_OPEN, encode_request_path(ClassCode.CONNECTION_MANAGER, 1),
+                             encode_forward_open(request))
+    t_o = CpfItem(ItemType.SOCKADDR_T_O, encode_sockaddr(SocketAddress("0.0.0.0", port)))
+    reply, _ = device.handle_unconnected(message, MessageContext(_HOST, None, (t_o,), 0))
+    answer = decode_reply(reply)
+    if answer.general_status != 0:
+        return None
+    return device, decode_forward_open_reply(answer.data).o_t_connection_id
 
 
 def _pair_cost_ns(profiles: list[DeviceProfile]) -> tuple[float, float] | None:

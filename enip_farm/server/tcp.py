@@ -27,8 +27,8 @@ import struct
 import time
 
 from enip_farm.device.device import Device
+from enip_farm.device.events import EncapsulationIgnored, EncapsulationRefused, TcpClosed, TcpConnected, TcpInactive
 from enip_farm.device.faults import DROP, Disconnect
-from enip_farm.protocol.encapsulation import command_name, describe_encapsulation_status
 from enip_farm.protocol.session import EncapsulationSession
 from enip_farm.server.limits import TcpLimits
 from enip_farm.server.waits import os_wait_s
@@ -85,7 +85,7 @@ class EncapsulationProtocol(asyncio.Protocol):
         self.connections.add(self)
         device.counters["tcp_connections"] += 1
         device.tcp_open += 1
-        device.record("tcp connected", f"{peer[0]}:{peer[1]}" if peer else "")
+        device.record(TcpConnected(f"{peer[0]}:{peer[1]}" if peer else ""))
         self._arm_inactivity(device.encapsulation_inactivity_timeout_s or _RECHECK_S)
         end = device.faults.on_tcp_connection()
         if end is not None:
@@ -174,12 +174,10 @@ class EncapsulationProtocol(asyncio.Protocol):
         session = self.session
         peer = self._peer_text()
         for command, status in session.refusals:  # type: ignore[union-attr]
-            self.device.record("encapsulation refused", f"{command_name(command)} from {peer}: encapsulation status "
-                               f"{describe_encapsulation_status(status)}")
+            self.device.record(EncapsulationRefused(command, peer, status))
         session.refusals.clear()  # type: ignore[union-attr]
         for command, status in session.ignored:  # type: ignore[union-attr]
-            self.device.record("encapsulation ignored", f"{command_name(command)} from {peer} carried status "
-                               f"0x{status:08X}; a request's status must be 0 (Vol. 2, 2-3.5): no reply")
+            self.device.record(EncapsulationIgnored(command, peer, status))
         session.ignored.clear()  # type: ignore[union-attr]
 
     def _peer_text(self) -> str:
@@ -240,8 +238,7 @@ class EncapsulationProtocol(asyncio.Protocol):
             self._arm_inactivity(timeout_s - idle_s)
             return
         self.device.counters["tcp_inactivity_closed"] += 1
-        self.device.record("tcp inactive", f"{self._peer[0]}:{self._peer[1]}: no whole request for {timeout_s} s, "
-                           "closed (TCP/IP attribute 13)" if self._peer else "")
+        self.device.record(TcpInactive(f"{self._peer[0]}:{self._peer[1]}" if self._peer else "", timeout_s))
         self._closed_by_us = True
         self.transport.close()
 
@@ -262,9 +259,8 @@ class EncapsulationProtocol(asyncio.Protocol):
         if self.session is not None:
             self.session.connection_lost(time.monotonic_ns())
         self.connections.discard(self)
-        who = "the farm" if self._closed_by_us else "the client"
-        self.device.record("tcp closed", f"{self._peer_text()} closed by {who} after "
-                           f"{(time.monotonic_ns() - self._opened_at) / 1e9:.1f} s")
+        self.device.record(TcpClosed(self._peer_text(), not self._closed_by_us,
+                                     (time.monotonic_ns() - self._opened_at) / 1e9))
         if self.device.recorder is not None:
             self.device.recorder.tcp_closed(self, by_client=not self._closed_by_us)
         self.transport = None
