@@ -32,7 +32,7 @@ steps:
   - set: {r2-io1.DI3: 1}
 expect:
   - io1.DO5 == 0 within 400 ms of step cut
-  - io1 reconnected within 1 s of end of step cut
+  - io1 reconnected within 3 s of end of step cut
   - no connection timed out outside io1
   - count(connection timed out, io1) == 1
 """
@@ -114,7 +114,8 @@ def test_a_link_down_scenario_passes_with_what_the_scanner_did(cell) -> None:
     result = farm.run_scenario(path, progress=lines.append)
     assert result.status == "passed", result.table()
     within, reconnected, quiet, count = result.verdicts
-    assert within.passed and 150 <= float(within.figure.split()[1]) <= 400  # the module's watchdog: 160 ms
+    # the module's watchdog: 160 ms after the scanner's last O->T, which came at most a few RPIs before the cut
+    assert within.passed and 0 < float(within.figure.split()[1]) <= 400
     assert reconnected.passed and quiet.figure == "none" and count.figure == "1 connection timed out"
     assert [step.state for step in result.steps] == ["done", "done"]
     assert 0.3 <= result.steps[0].started_s < 0.3 + 0.1 and result.duration_s >= 2.5
