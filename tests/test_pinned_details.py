@@ -8,6 +8,7 @@ from __future__ import annotations
 import math
 import socket
 import struct
+import time
 
 import pytest
 from pycomm3 import ClassCode as PeerClassCode
@@ -46,8 +47,9 @@ from enip_farm.protocol.epath import ElectronicKey, LogicalSegment, LogicalType,
 from enip_farm.protocol.session import MessageContext
 from enip_farm.protocol.status import ExtendedStatus as X
 from enip_farm.server.batch import SO_TIMESTAMPNS, Datagrams, wall_stamp
-from enip_farm.server.implicit import Lag
+from enip_farm.server.implicit import CyclicIoThread, Lag
 from enip_farm.server.waits import os_wait_s
+from tests.helpers import wait_for
 from tests.test_safety import ORIGINATOR as SAFETY_ORIGINATOR
 from tests.test_safety import make_table as safety_make_table
 from tests.test_safety import safety_open
@@ -442,3 +444,18 @@ def test_the_fallback_receive_reads_what_waits_and_passes_over_empty_unknown_and
     finally:
         for sock in sockets:
             sock.close()
+
+
+def test_the_io_thread_runs_only_while_alive_not_stopping_and_turning() -> None:
+    """`running` (the supervision's question): each of the three must hold (mutants let a stalled
+    or an unstarted thread count as running)."""
+    thread = CyclicIoThread()
+    assert thread.running(thread.turned_at) is False  # not started, though it "turned" just now
+    thread.start()
+    try:
+        assert wait_for(lambda: thread.running(time.monotonic_ns()))
+        turned = thread.turned_at
+        assert thread.running(turned + 5 * S - 1) and not thread.running(turned + 5 * S + 1_000_000_000)
+    finally:
+        thread.stop()
+    assert thread.running(thread.turned_at) is False
