@@ -17,6 +17,7 @@ from typing import ClassVar
 from enip_farm.cip.admission import Originator
 from enip_farm.cip.connection import Connection
 from enip_farm.cip.connection_policy import Refusal
+from enip_farm.cip.report import EndWord
 from enip_farm.protocol.connection import ForwardOpenRequest
 from enip_farm.protocol.status import describe_status
 
@@ -71,6 +72,8 @@ class ConnectionEnded(OfConnection):
     """A connection closed, whatever closed it (the subclasses say what)."""
 
     __slots__ = ()
+    #: How the report words this end (cip/report.py `EndWord`); None: by the close's reason.
+    ends: ClassVar[EndWord | None] = None
 
 
 class ConnectionClosed(ConnectionEnded, kind="connection closed"):
@@ -83,12 +86,14 @@ class ConnectionTimedOut(ConnectionEnded, kind="connection timed out"):
     """Its supervision deadline came (Vol. 1, 3-4.4.9; a Safety Validator's for CIP Safety)."""
 
     __slots__ = ()
+    ends = "timeout"
 
 
 class ConnectionFaulted(ConnectionEnded, kind="connection faulted"):
     """A CIP Safety connection its Safety Validator faulted (Vol. 5, 2-4.6)."""
 
     __slots__ = ()
+    ends = "safety fault"
 
 
 class SafeState(OfConnection, kind="safe state"):

@@ -275,7 +275,7 @@ class ConnectionTable:
                 output.data[:] = bytes(len(output.data))
         self._events.append(ended(now, connection, reason))
         if connection.measure is not None:
-            connection.measure.end(now, end_word(ended.kind, reason), reason)
+            connection.measure.end(now, end_word(ended.ends, reason), reason)
             self.ended.append(connection)
             host = connection.originator_host
             if reason == "forward close" and not any(c.originator_host == host for c in self.connections.values()):
