@@ -23,11 +23,11 @@ from enip_farm.protocol.status import describe_status
 
 
 @dataclass(frozen=True, slots=True)
-class ConnectionEvent:
-    """Something that happened to a device's connections at `at` (ns)."""
+class Worded:
+    """The base of a typed event (these and device/events.py's): the wire's `kind`, given by each
+    class (`class X(Base, kind="...")`), and its `text`."""
 
-    at: int
-    kind: ClassVar[str] = ""  # the wire's "kind", given by each class: `class X(Base, kind="...")`
+    kind: ClassVar[str] = ""
 
     def __init_subclass__(cls, kind: str = "") -> None:
         if kind:  # (no super(): dataclass(slots=True) makes a new class, object's takes nothing)
@@ -37,6 +37,13 @@ class ConnectionEvent:
     def text(self) -> str:
         """The wire's "detail": one line on what happened."""
         raise NotImplementedError
+
+
+@dataclass(frozen=True, slots=True)
+class ConnectionEvent(Worded):
+    """Something that happened to a device's connections at `at` (ns)."""
+
+    at: int
 
 
 @dataclass(frozen=True, slots=True)
