@@ -200,6 +200,15 @@ class PowerLost(Happened, kind="power lost"):
 
 
 @dataclass(frozen=True, slots=True)
+class SelfTestDone(Happened, kind="self test done"):
+    """After its boot the module's self test ended: Identity attribute 8 goes from 1 to 3 (operational)."""
+
+    @property
+    def text(self) -> str:
+        return "operational"
+
+
+@dataclass(frozen=True, slots=True)
 class PowerReturned(Happened, kind="power returned"):
     boot_s: float  # how long it boots, not answering
 
