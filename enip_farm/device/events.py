@@ -203,9 +203,7 @@ class PowerLost(Happened, kind="power lost"):
 class SelfTestDone(Happened, kind="self test done"):
     """After its boot the module's self test ended: Identity attribute 8 goes from 1 to 3 (operational)."""
 
-    @property
-    def text(self) -> str:
-        return "operational"
+    text = "operational"
 
 
 @dataclass(frozen=True, slots=True)
