@@ -65,9 +65,8 @@ PACKAGES: dict[str, Package] = {
          "tests/test_safety_multicast.py", "tests/test_report_unit.py", VARY, PINNED)),
     "device-faults": Package(  # the faults and the farm's fault timers
         ("enip_farm/device/faults.py", "enip_farm/device/fault_kinds.py", "enip_farm/device/fault_type.py",
-         "enip_farm/farm/farm.py"),
-        ("tests/test_device.py", VARY, PINNED, "tests/test_control.py"),
-        {"enip_farm/farm/farm.py": ("inject_fault", "_arm_fault_end", "clear_faults", "_cancel_timer")}),
+         "enip_farm/farm/faulting.py"),
+        ("tests/test_device.py", VARY, PINNED, "tests/test_control.py")),
     "device-cyclic": Package(  # one device's class-1 path: cyclic I/O, its lock, its target
         ("enip_farm/device/cyclic.py", "enip_farm/device/guard.py", "enip_farm/device/target.py"),
         ("tests/test_device.py", "tests/test_reset_effect.py", VARY, PINNED, "tests/test_report_unit.py",
@@ -83,19 +82,18 @@ NAMED: tuple[tuple[str, str, str, str, tuple[str, ...]], ...] = (
      "not 0 < (sequence - last) & 0xFFFFFFFF < _HALF", "not 0 < (sequence - last) < _HALF", (VARY,)),
     ("timeout from the T->O RPI", "enip_farm/cip/connection.py",
      "self.timeout_ns = self.o_t_rpi * 1000", "self.timeout_ns = self.t_o_rpi * 1000", (VARY,)),
-    ("a fault lasts 3x its duration_s", "enip_farm/farm/farm.py",
-     "+ fault.duration_ns / 1e9)", "+ 3 * fault.duration_ns / 1e9)", (VARY,)),
-    ("a fault lasts 1/4 of its duration_s", "enip_farm/farm/farm.py",
-     "+ fault.duration_ns / 1e9)", "+ fault.duration_ns / 4e9)", (VARY,)),
+    ("a fault lasts 3x its duration_s", "enip_farm/farm/faulting.py",
+     "loop.time() + fault.duration_ns / 1e9", "loop.time() + 3 * fault.duration_ns / 1e9", (VARY,)),
+    ("a fault lasts 1/4 of its duration_s", "enip_farm/farm/faulting.py",
+     "loop.time() + fault.duration_ns / 1e9", "loop.time() + fault.duration_ns / 4e9", (VARY,)),
     ("delay drawn from [max, 4 max]", "enip_farm/device/fault_kinds.py",
      "random.uniform(self.delay_ms, self.max_delay_ms)", "random.uniform(self.max_delay_ms, 4 * self.max_delay_ms)",
      (VARY,)),
     ("the first watchdog undercuts the timeout", "enip_farm/cip/connection.py",
      "self.opened_at + max(self.timeout_ns, self.first_watchdog_ns)",
      "self.opened_at + (self.first_watchdog_ns or self.timeout_ns)", (VARY,)),
-    ("a fault set again keeps the old end timer", "enip_farm/farm/farm.py",
-     "        self._cancel_timer(name, fault.name)\n        device.faults.set(", "        device.faults.set(",
-     (VARY,)),
+    ("a fault set again keeps the old end timer", "enip_farm/farm/faulting.py",
+     "            self._forget(name, fault.name)\n            previous", "            previous", (VARY,)),
 )
 
 

@@ -385,3 +385,14 @@ def test_whatever_an_originator_sends_is_measured_and_adds_up(packets, api) -> N
     if i.count:
         assert 0 <= i.min_ns <= i.p50_ns <= i.p99_ns <= i.max_ns <= i.longest_silence_ns
     assert json.dumps(figures.as_dict())
+
+
+@settings(max_examples=300, deadline=None)
+@given(st.integers(0, 10**14), st.integers(1, 10**10))
+def test_a_bucket_in_ns_is_the_bucket_in_thousandths_of_the_api(interval, api) -> None:
+    from bisect import bisect_left
+    m = OriginatorMeasure(api, T0)
+    m.o_t(T0, 1, 1)
+    m.o_t(T0 + interval, 2, 2)
+    assert m.counts.index(1) == bisect_left(BUCKETS_PERMILLE, interval * 1000 // api)
+    assert m.late == (1 if interval >= 2 * api else 0)

@@ -37,14 +37,15 @@ BOUNDS_API = tuple(b / 1000 for b in BUCKETS_PERMILLE)
 RECENT_RUN_IDLE = 16
 _HALF = 0x80000000
 _NO_MIN = 1 << 63  # no interval yet
+_LATE_FROM = BUCKETS_PERMILLE.index(1999) + 1  # the first bucket of intervals of 2 API or more
 
 
 class OriginatorMeasure:
     """The measurement of one connection's O->T stream. `o_t` is the per-packet hook."""
 
-    __slots__ = ("api_ns", "opened_at", "asked", "counts", "total_ns", "_min_ns", "max_ns", "late", "last_at",
+    __slots__ = ("api_ns", "opened_at", "asked", "counts", "total_ns", "_min_ns", "max_ns", "_bounds_ns", "last_at",
                  "first_at", "last_sequence", "last_count", "packets", "lost", "gaps", "repeats", "stale", "cip_same",
-                 "cip_skipped", "run", "transitions", "recent", "ended_at", "ended", "end_reason", "_late_ns")
+                 "cip_skipped", "run", "transitions", "recent", "ended_at", "ended", "end_reason")
 
     def __init__(self, api_ns: int, opened_at: int, asked: ForwardOpenAsked | None = None) -> None:
         self.api_ns = max(api_ns, 1)
@@ -54,8 +55,10 @@ class OriginatorMeasure:
         self.total_ns = 0
         self._min_ns = _NO_MIN
         self.max_ns = 0
-        self.late = 0
-        self._late_ns = 2 * self.api_ns
+        # each bucket's bound in ns: an interval is in bucket i when interval * 1000 // api <= its bound
+        # in thousandths (so one of 2 API, 2000 thousandths, is past the 1999 bucket: the late ones)
+        api = self.api_ns
+        self._bounds_ns = tuple(-(-(b + 1) * api // 1000) - 1 for b in BUCKETS_PERMILLE)
         self.last_at = 0
         self.first_at: int | None = None
         self.last_sequence: int | None = None
@@ -90,14 +93,12 @@ class OriginatorMeasure:
             interval = at - self.last_at
             if interval < 0:
                 interval = 0
-            self.counts[bisect_left(BUCKETS_PERMILLE, interval * 1000 // self.api_ns)] += 1
+            self.counts[bisect_left(self._bounds_ns, interval)] += 1
             self.total_ns += interval
             if interval > self.max_ns:
                 self.max_ns = interval
             if interval < self._min_ns:
                 self._min_ns = interval
-            if interval >= self._late_ns:
-                self.late += 1
             step = (count - self.last_count) & 0xFFFF
             if step != 1:
                 if step == 0:
@@ -111,6 +112,11 @@ class OriginatorMeasure:
         self.last_at = at
         self.packets += 1
         return True
+
+    @property
+    def late(self) -> int:
+        """Intervals of 2 API or more: those past the 1999 thousandths bucket."""
+        return sum(self.counts[_LATE_FROM:])
 
     @property
     def intervals(self) -> int:

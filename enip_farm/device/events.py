@@ -202,6 +202,13 @@ class PowerLost(Happened, kind="power lost"):
 
 
 @dataclass(frozen=True, slots=True)
+class SelfTestDone(Happened, kind="self test done"):
+    """After its boot the module's self test ended: Identity attribute 8 goes from 1 to 3 (operational)."""
+
+    text = "operational"
+
+
+@dataclass(frozen=True, slots=True)
 class PowerReturned(Happened, kind="power returned"):
     boot_s: float  # how long it boots, not answering
 
