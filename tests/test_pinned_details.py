@@ -47,7 +47,7 @@ from enip_farm.protocol.epath import ElectronicKey, LogicalSegment, LogicalType,
 from enip_farm.protocol.session import MessageContext
 from enip_farm.protocol.status import ExtendedStatus as X
 from enip_farm.server.batch import SO_TIMESTAMPNS, Datagrams, wall_stamp
-from enip_farm.server.implicit import CyclicIoThread, Lag
+from enip_farm.server.implicit import CyclicIoThread, DeviceIo, Lag
 from enip_farm.server.waits import os_wait_s
 from tests.helpers import wait_for
 from tests.test_safety import ORIGINATOR as SAFETY_ORIGINATOR
@@ -459,3 +459,26 @@ def test_the_io_thread_runs_only_while_alive_not_stopping_and_turning() -> None:
     finally:
         thread.stop()
     assert thread.running(thread.turned_at) is False
+
+
+def test_a_devices_io_endpoint_counts_unicast_multicast_and_failures_and_unhooks_only_itself() -> None:
+    """T->O to a multicast group counts as non-unicast (a mutant read the port as the address),
+    a failed send once (a mutant twice); closing unhooks the device's timer only if it is its own."""
+    device, thread = _dsqc1030(), CyclicIoThread()
+    try:
+        endpoint = DeviceIo(device, None, thread)  # type: ignore[arg-type]  # its socket is the thread's business
+        assert device.timer_moved == endpoint._timer_moved
+        endpoint.send(b"\x00" * 20, (PEER, 2222))
+        endpoint.send(b"\x00" * 20, ("239.192.1.0", 2222))
+        endpoint.send(b"\x00" * 20, ("239.192.1.0", 2222))
+        endpoint.send_failed()
+        counters = device.io_traffic
+        assert (counters.out_ucast, counters.out_nucast, counters.out_octets, counters.out_errors) == (1, 2, 60, 1)
+        assert device.counters["t_o_send_errors"] == 1
+        newer = DeviceIo(device, None, thread)  # type: ignore[arg-type]
+        endpoint.close()
+        assert device.timer_moved == newer._timer_moved
+        newer.close()
+        assert device.timer_moved is None
+    finally:
+        thread.stop()
