@@ -7,12 +7,6 @@ bench_cyclic.py adds.
     python bench/bench_device_pair.py                      # constant O->T data, as cyclic_originator.c sends
     python bench/bench_device_pair.py --changing           # outputs that change with every O->T
     PYTHONPATH=/other/tree python bench/bench_device_pair.py   # the same against another checkout
-
-On a busy machine, count instructions instead of time (deterministic; the difference of two runs
-is the cost of N2 - N1 pairs):
-
-    PYTHONHASHSEED=0 valgrind --tool=callgrind --callgrind-out-file=/dev/null \\
-        python bench/bench_device_pair.py --pairs 1000 --rounds 1   # and --pairs 5000
 """
 
 from __future__ import annotations
