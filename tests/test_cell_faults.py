@@ -25,6 +25,7 @@ from tests.test_implicit import forward_close, forward_open
 pytestmark = pytest.mark.integration
 RPI_MS = 10
 BOOT_S = 1.5
+SELF_TEST_S = 1.0
 
 
 def rack(enip_farm, http: bool = False, **device):
@@ -82,7 +83,7 @@ def test_a_power_loss_of_a_rack_silences_every_member_and_the_forward_open_waits
         r1.set(DI3=1)
         r2.device.write_image("output", lambda image: image.__setitem__(0, 0xFF))
         assert wait_for(lambda: r1.device.connections)
-        assert farm.inject("rack2", "power-loss", boot_time_s=BOOT_S) == ("r1", "r2")
+        assert farm.inject("rack2", "power-loss", boot_time_s=BOOT_S, self_test_s=SELF_TEST_S) == ("r1", "r2")
         for handle in (r1, r2):  # every member at once, its state gone
             assert handle.device.connections == {} and handle.outputs == bytes(len(handle.outputs))
             assert [e.kind for e in handle.events("power lost")] == ["power lost"]
@@ -104,8 +105,13 @@ def test_a_power_loss_of_a_rack_silences_every_member_and_the_forward_open_waits
                 time.sleep(0.02)
         answered_after = time.monotonic() - cleared_at
         assert status == 0 and BOOT_S <= answered_after <= BOOT_S + 10
-        assert [e.kind for e in r1.events() if e.kind in ("power returned", "reset done")] == [
-            "power returned", "reset done"]
+        with RawClient(r1.address) as after_boot:  # answering, still self testing, then operational
+            after_boot.register()
+            assert after_boot.get(1, 1, 8).data == b"\x01"
+            assert wait_for(lambda: after_boot.get(1, 1, 8).data == b"\x03", timeout=SELF_TEST_S + 10)
+            assert time.monotonic() - cleared_at >= BOOT_S + SELF_TEST_S
+        assert [e.kind for e in r1.events() if e.kind in ("power returned", "reset done", "self test done")] == [
+            "power returned", "reset done", "self test done"]
         assert wait_for(lambda: list_identity_answered(r2.address))
     finally:
         enip.stopIO()

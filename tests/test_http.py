@@ -126,7 +126,8 @@ def test_the_fault_kinds_are_listed_with_their_parameters(enip_farm) -> None:
     assert {name: sorted(schema["properties"]) for name, schema in schemas.items()} == {
         "delay": ["delay_ms", "duration_s", "max_delay_ms"], "drop": ["duration_s"], "close": ["duration_s"],
         "reset": ["duration_s"], "offline": ["duration_s"], "status": ["duration_s", "service", "status"],
-        "stop-io": ["duration_s"], "identity": ["duration_s"], "power-loss": ["boot_time_s", "duration_s"],
+        "stop-io": ["duration_s"], "identity": ["duration_s"],
+        "power-loss": ["boot_time_s", "duration_s", "self_test_s"],
         "link-down": ["duration_s"], "address-conflict": ["duration_s", "phase", "remote_mac"],
         "flapping-link": ["count", "duration_s", "duty", "max_s", "min_s", "period_s", "random", "seed"],
         "wrong-module": ["duration_s", "major_revision", "minor_revision", "product_code"],

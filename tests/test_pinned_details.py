@@ -8,6 +8,7 @@ from __future__ import annotations
 import math
 import socket
 import struct
+import time
 
 import pytest
 from pycomm3 import ClassCode as PeerClassCode
@@ -46,8 +47,9 @@ from enip_farm.protocol.epath import ElectronicKey, LogicalSegment, LogicalType,
 from enip_farm.protocol.session import MessageContext
 from enip_farm.protocol.status import ExtendedStatus as X
 from enip_farm.server.batch import SO_TIMESTAMPNS, Datagrams, wall_stamp
-from enip_farm.server.implicit import Lag
+from enip_farm.server.implicit import CyclicIoThread, DeviceIo, Lag
 from enip_farm.server.waits import os_wait_s
+from tests.helpers import wait_for
 from tests.test_safety import ORIGINATOR as SAFETY_ORIGINATOR
 from tests.test_safety import make_table as safety_make_table
 from tests.test_safety import safety_open
@@ -442,3 +444,41 @@ def test_the_fallback_receive_reads_what_waits_and_passes_over_empty_unknown_and
     finally:
         for sock in sockets:
             sock.close()
+
+
+def test_the_io_thread_runs_only_while_alive_not_stopping_and_turning() -> None:
+    """`running` (the supervision's question): each of the three must hold (mutants let a stalled
+    or an unstarted thread count as running)."""
+    thread = CyclicIoThread()
+    assert thread.running(thread.turned_at) is False  # not started, though it "turned" just now
+    thread.start()
+    try:
+        assert wait_for(lambda: thread.running(time.monotonic_ns()))
+        turned = thread.turned_at
+        assert thread.running(turned + 5 * S - 1) and not thread.running(turned + 5 * S + 1_000_000_000)
+    finally:
+        thread.stop()
+    assert thread.running(thread.turned_at) is False
+
+
+def test_a_devices_io_endpoint_counts_unicast_multicast_and_failures_and_unhooks_only_itself() -> None:
+    """T->O to a multicast group counts as non-unicast (a mutant read the port as the address),
+    a failed send once (a mutant twice); closing unhooks the device's timer only if it is its own."""
+    device, thread = _dsqc1030(), CyclicIoThread()
+    try:
+        endpoint = DeviceIo(device, None, thread)  # type: ignore[arg-type]  # its socket is the thread's business
+        assert device.timer_moved == endpoint._timer_moved
+        endpoint.send(b"\x00" * 20, (PEER, 2222))
+        endpoint.send(b"\x00" * 20, ("239.192.1.0", 2222))
+        endpoint.send(b"\x00" * 20, ("239.192.1.0", 2222))
+        endpoint.send_failed()
+        counters = device.io_traffic
+        assert (counters.out_ucast, counters.out_nucast, counters.out_octets, counters.out_errors) == (1, 2, 60, 1)
+        assert device.counters["t_o_send_errors"] == 1
+        newer = DeviceIo(device, None, thread)  # type: ignore[arg-type]
+        endpoint.close()
+        assert device.timer_moved == newer._timer_moved
+        newer.close()
+        assert device.timer_moved is None
+    finally:
+        thread.stop()

@@ -11,6 +11,7 @@ import time
 
 import pytest
 
+from tests.helpers import wait_for
 from tests.test_cm_ethernetip import cm_python, originator, safety_args  # noqa: F401 (fixtures)
 
 pytestmark = pytest.mark.system
@@ -46,6 +47,8 @@ def test_stale_messages_stand_still_for_the_originator(enip_farm, originator) ->
     farm["s1"].set(DI3=1)
     assert scanner.wait("rx", data="0400")["data"] == "0400"
     farm.inject("s1", "safety-stale")
+    tamper = farm.device("s1").faults.safety_tamper
+    assert wait_for(lambda: tamper.kept)  # the message that will stand still, taken before the input changes
     before = _stats(scanner)["rx"]
     farm["s1"].set(DI12=1)
     time.sleep(0.3)

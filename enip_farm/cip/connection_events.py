@@ -17,16 +17,17 @@ from typing import ClassVar
 from enip_farm.cip.admission import Originator
 from enip_farm.cip.connection import Connection
 from enip_farm.cip.connection_policy import Refusal
+from enip_farm.cip.report import EndWord
 from enip_farm.protocol.connection import ForwardOpenRequest
 from enip_farm.protocol.status import describe_status
 
 
 @dataclass(frozen=True, slots=True)
-class ConnectionEvent:
-    """Something that happened to a device's connections at `at` (ns)."""
+class Worded:
+    """The base of a typed event (these and device/events.py's): the wire's `kind`, given by each
+    class (`class X(Base, kind="...")`), and its `text`."""
 
-    at: int
-    kind: ClassVar[str] = ""  # the wire's "kind", given by each class: `class X(Base, kind="...")`
+    kind: ClassVar[str] = ""
 
     def __init_subclass__(cls, kind: str = "") -> None:
         if kind:  # (no super(): dataclass(slots=True) makes a new class, object's takes nothing)
@@ -36,6 +37,13 @@ class ConnectionEvent:
     def text(self) -> str:
         """The wire's "detail": one line on what happened."""
         raise NotImplementedError
+
+
+@dataclass(frozen=True, slots=True)
+class ConnectionEvent(Worded):
+    """Something that happened to a device's connections at `at` (ns)."""
+
+    at: int
 
 
 @dataclass(frozen=True, slots=True)
@@ -71,6 +79,8 @@ class ConnectionEnded(OfConnection):
     """A connection closed, whatever closed it (the subclasses say what)."""
 
     __slots__ = ()
+    #: How the report words this end (cip/report.py `EndWord`); None: by the close's reason.
+    ends: ClassVar[EndWord | None] = None
 
 
 class ConnectionClosed(ConnectionEnded, kind="connection closed"):
@@ -83,12 +93,14 @@ class ConnectionTimedOut(ConnectionEnded, kind="connection timed out"):
     """Its supervision deadline came (Vol. 1, 3-4.4.9; a Safety Validator's for CIP Safety)."""
 
     __slots__ = ()
+    ends = "timeout"
 
 
 class ConnectionFaulted(ConnectionEnded, kind="connection faulted"):
     """A CIP Safety connection its Safety Validator faulted (Vol. 5, 2-4.6)."""
 
     __slots__ = ()
+    ends = "safety fault"
 
 
 class SafeState(OfConnection, kind="safe state"):

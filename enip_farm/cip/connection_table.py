@@ -106,6 +106,9 @@ class ConnectionTable:
         self.connections: dict[int, Connection] = {}  # by O->T connection id
         self._by_triad: dict[ConnectionTriad, Connection] = {}
         self._events: list[ConnectionEvent] = []
+        #: The events not yet popped, read only (the device transaction asks whether there are any
+        #: without a call: the same list, never replaced).
+        self.pending_events: list[ConnectionEvent] = self._events
         self._outbox: list[Datagram] = []  # to send at once (CIP Safety time coordination): datagrams_to_send
         self.packets = IoPackets(assemblies, policy, self.counters, self.connections, self._events, self._outbox,
                                  self.close)  # the bookkeeping of each class-1 packet
@@ -275,7 +278,7 @@ class ConnectionTable:
                 output.data[:] = bytes(len(output.data))
         self._events.append(ended(now, connection, reason))
         if connection.measure is not None:
-            connection.measure.end(now, end_word(ended.kind, reason), reason)
+            connection.measure.end(now, end_word(ended.ends, reason), reason)
             self.ended.append(connection)
             host = connection.originator_host
             if reason == "forward close" and not any(c.originator_host == host for c in self.connections.values()):

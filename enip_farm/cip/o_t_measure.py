@@ -216,12 +216,11 @@ def forward_open_asked(request: ForwardOpenRequest, timeout_ns: int, expected_o_
         b"".join(configuration) if configuration else None)
 
 
-def end_word(kind: str, reason: str) -> EndWord:
-    """How a connection ended, from its event's kind (cip/connection_events.py) and reason."""
-    if kind == "connection timed out":
-        return "timeout"
-    if kind == "connection faulted":
-        return "safety fault"
+def end_word(ended: EndWord | None, reason: str) -> EndWord:
+    """How a connection ended: the word its end event's class gives (`ConnectionEnded.ends`,
+    cip/connection_events.py), or else the word of its close's reason."""
+    if ended is not None:
+        return ended
     if reason == "forward close":
         return "forward close"
     if reason == "TCP connection closed":

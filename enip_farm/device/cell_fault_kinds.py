@@ -3,7 +3,8 @@ each as a real network or module shows it, one class each (device/fault_type.py 
 device/fault_kinds.py lists every kind). A group fault sets one of these on every member at once.
 
 - power-loss: TCP refused (open connections silent, reset when the power returns), UDP and class 1
-  silent; the module's state is lost and it boots for `boot_time_s` when the power returns.
+  silent; the module's state is lost and it boots for `boot_time_s` when the power returns, then
+  answers self testing (Identity state 1) for `self_test_s`, then operational (3).
 - link-down: TCP, UDP and class 1 silent both ways (nothing received, nothing sent); the module keeps
   its state and its own watchdogs time its connections out.
 - flapping-link: link-down in its down phases.
@@ -68,12 +69,15 @@ class PowerLoss(Silent):
     boot_time_s: float = Field(2.0, ge=0, le=3600, description="s of silence after the power returns, before the "
                                "module answers (unverified default: a DSQC module's boot time is not published)")
 
-    @field_validator("boot_time_s", mode="before")
+    self_test_s: float = Field(0.5, ge=0, le=3600, description="s after the boot that the module answers self "
+                               "testing (Identity attribute 8 = 1) before it is operational (unverified default)")
+
+    @field_validator("boot_time_s", "self_test_s", mode="before")
     @classmethod
-    def _boot(cls, value: Any) -> Any:
-        checked = number("boot_time_s", value)
+    def _boot(cls, value: Any, info: Any) -> Any:
+        checked = number(info.field_name, value)
         if not 0 <= checked <= 3600:
-            raise FaultError("boot_time_s", f"must be 0..3600 s, got {value!r}", value)
+            raise FaultError(info.field_name, f"must be 0..3600 s, got {value!r}", value)
         return checked
 
     def listens(self) -> bool:
@@ -83,7 +87,7 @@ class PowerLoss(Silent):
         device.lose_power(now)
 
     def on_clear(self, device: FaultedDevice, now: int) -> None:
-        device.restore_power(round(self.boot_time_s * 1e9), now)
+        device.restore_power(round(self.boot_time_s * 1e9), now, round(self.self_test_s * 1e9))
 
 
 class LinkDown(Silent):

@@ -41,10 +41,11 @@ class CyclicIo:
         if self.faults.io_stopped:
             self.counters["o_t_dropped_io_stopped"] += 1
             return False
-        if self.window.active:
+        if self.window.deadline is not None:  # resetting (`ResetWindow.active`, without the call)
             self.counters["o_t_dropped_resetting"] += 1
             return False
-        send = self._tampered(send)
+        if self.faults.safety_tamper is not None:
+            send = self._tampered(send)
         path = self.faults.impairment
         if path is not None:  # a degraded link: the datagram may be lost, held, doubled
             if path.from_device is not None:
@@ -76,7 +77,8 @@ class CyclicIo:
         """Supervise the connections at `now` and hand `send` the T->O packets due by `now` (or by
         `horizon`, the end of the I/O thread's turn), after the lock; the next time something is due."""
         guard, table = self.guard, self.table
-        send = self._tampered(send)
+        if self.faults.safety_tamper is not None:
+            send = self._tampered(send)
         path = self.faults.impairment
         if path is not None:  # a degraded link: what it held is due now, and what is sent goes through it
             if path.from_device is not None:
@@ -107,10 +109,8 @@ class CyclicIo:
         return _earliest(timer, path.next_due()) if path is not None else timer
 
     def _tampered(self, send: SendDatagram) -> SendDatagram:
-        """`send` behind a safety fault's tampering (device/safety_faults.py), if one is set."""
+        """`send` behind the safety fault's tampering (device/safety_faults.py) that is set."""
         tamper = self.faults.safety_tamper
-        if tamper is None:
-            return send
         data, coordination = self.guard.read(lambda: tamper.streams(self.table.connections.values()))
         return tamper.through(send, data, coordination)
 

@@ -144,8 +144,9 @@ class Device:
 
     @property
     def identity_state(self) -> int:
-        """Identity attribute 8 and ListIdentity's state: 1 (self testing) while resetting, else 3."""
-        return STATE_SELF_TESTING if self.reset_window.active else STATE_OPERATIONAL
+        """Identity attribute 8 and ListIdentity's state: 1 (self testing) while resetting and in the self
+        test after a power loss's boot (device/hardware.py), else 3."""
+        return STATE_SELF_TESTING if self.reset_window.active or self.hardware.self_testing else STATE_OPERATIONAL
 
     @property
     def product_code(self) -> int:

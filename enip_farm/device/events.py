@@ -22,6 +22,7 @@ from dataclasses import dataclass
 from types import MappingProxyType
 from typing import Any, ClassVar, NamedTuple, Protocol
 
+from enip_farm.cip.connection_events import Worded
 from enip_farm.cip.identity import ResetRequested
 from enip_farm.protocol.encapsulation import command_name, describe_encapsulation_status
 
@@ -67,18 +68,19 @@ class ImageChanged(NamedTuple):
 
 
 @dataclass(frozen=True, slots=True)
-class Happened:
-    """The base of the events below: the wire's `kind` given by each class (`class X(Happened, kind="...")`)."""
+class Happened(Worded):
+    """The base of the events below (not the connection table's): `class X(Happened, kind="...")`."""
 
-    kind: ClassVar[str] = ""
 
-    def __init_subclass__(cls, kind: str = "") -> None:
-        if kind:  # (no super(): dataclass(slots=True) makes a new class, object's takes nothing)
-            cls.kind = kind
+@dataclass(frozen=True, slots=True)
+class Told(Happened):
+    """An event that is one line of words (a scenario's step, why an address is still taken)."""
+
+    line: str
 
     @property
     def text(self) -> str:
-        raise NotImplementedError
+        return self.line
 
 
 @dataclass(frozen=True, slots=True)
@@ -200,6 +202,13 @@ class PowerLost(Happened, kind="power lost"):
 
 
 @dataclass(frozen=True, slots=True)
+class SelfTestDone(Happened, kind="self test done"):
+    """After its boot the module's self test ended: Identity attribute 8 goes from 1 to 3 (operational)."""
+
+    text = "operational"
+
+
+@dataclass(frozen=True, slots=True)
 class PowerReturned(Happened, kind="power returned"):
     boot_s: float  # how long it boots, not answering
 
@@ -224,30 +233,18 @@ class AddressConflict(Happened, kind="address conflict"):
 
 
 @dataclass(frozen=True, slots=True)
-class ScenarioStep(Happened, kind="scenario step"):
+class ScenarioStep(Told, kind="scenario step"):
     """A scenario's step began or ended (scenario/run.py): its label and what it did."""
 
-    line: str
-
-    @property
-    def text(self) -> str:
-        return self.line
-
 
 @dataclass(frozen=True, slots=True)
-class AddressStillTaken(Happened, kind="address still taken"):
+class AddressStillTaken(Told, kind="address still taken"):
     """An address-conflict fault cleared, but the device's address is not its own again: why."""
 
-    reason: str
-
-    @property
-    def text(self) -> str:
-        return self.reason
-
 
 @dataclass(frozen=True, slots=True)
-class LinkDown(Happened, kind="link down"):
-    """A flapping fault's down phase: its effects on for `for_s`."""
+class LinkPhase(Happened):
+    """A flapping fault's phase: its effects on (`LinkDown`) or off (`LinkUp`) for `for_s`."""
 
     fault: str
     for_s: float
@@ -258,15 +255,13 @@ class LinkDown(Happened, kind="link down"):
 
 
 @dataclass(frozen=True, slots=True)
-class LinkUp(Happened, kind="link up"):
-    """A flapping fault's up phase: its effects off for `for_s`."""
+class LinkDown(LinkPhase, kind="link down"):
+    pass
 
-    fault: str
-    for_s: float
 
-    @property
-    def text(self) -> str:
-        return f"{self.fault}: for {self.for_s:.3f} s"
+@dataclass(frozen=True, slots=True)
+class LinkUp(LinkPhase, kind="link up"):
+    pass
 
 
 @dataclass(frozen=True, slots=True)

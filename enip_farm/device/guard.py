@@ -45,7 +45,8 @@ class Transaction:
     router's answered requests) and `emit`s its own events; what it has to send, it returns, and
     its caller sends after the with statement."""
 
-    __slots__ = ("guard", "now", "images", "before_output", "before_input", "requests", "emitted")
+    __slots__ = ("guard", "now", "images", "before_output", "before_input", "requests", "emitted", "_pending",
+                 "_release")
 
     def __init__(self, guard: DeviceGuard) -> None:
         self.guard = guard
@@ -55,6 +56,8 @@ class Transaction:
         self.before_input: bytes = b""
         self.requests: list[Handled] | tuple[()] = ()
         self.emitted: list[DeviceEvent] = []
+        self._pending = guard.table.pending_events  # the table's events not yet popped (never replaced)
+        self._release = guard.lock.release
 
     def watch(self, images: int) -> None:
         """Compare these images too, from now on (their copies before are taken now). Image changes
@@ -77,15 +80,16 @@ class Transaction:
         return self
 
     def __exit__(self, exc_type: object, exc: object, traceback: object) -> None:
+        if self._pending or self.images or self.requests or self.emitted:
+            self._end()
+        else:
+            self._release()  # the per-packet path, mostly: nothing to tell
+
+    def _end(self) -> None:
         guard = self.guard
-        table = guard.table
-        pending, images = table.has_events, self.images
-        if not (pending or images or self.requests or self.emitted):
-            guard.lock.release()  # the per-packet path, mostly: nothing to tell
-            return
-        now, requests, emitted = self.now, self.requests, self.emitted
+        now, requests, emitted, images = self.now, self.requests, self.emitted, self.images
         try:
-            connections = table.pop_events() if pending else ()
+            connections = guard.table.pop_events() if self._pending else ()
             changes = []
             if images:  # the watched images (`watch`: they exist) that changed
                 output, inputs = guard.output, guard.input
@@ -99,7 +103,7 @@ class Transaction:
             if emitted:
                 self.emitted = []
         finally:
-            guard.lock.release()
+            self._release()
         if requests or connections or changes or emitted:
             guard.publish(now, requests, connections, changes, emitted)
 

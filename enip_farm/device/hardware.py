@@ -17,7 +17,7 @@ from __future__ import annotations
 import socket
 import struct
 
-from enip_farm.device.events import AddressConflict, PowerLost, PowerReturned
+from enip_farm.device.events import AddressConflict, PowerLost, PowerReturned, SelfTestDone
 from enip_farm.device.guard import DeviceGuard
 from enip_farm.device.objects import ObjectModel
 from enip_farm.device.reset import ResetWindow
@@ -36,6 +36,8 @@ class ModuleHardware:
         self.sessions = sessions
         self.window = window
         self.powered = True
+        self.self_test_ns = 0  # after the boot now under way: how long the self test lasts
+        self.self_testing = False  # answering, but Identity attribute 8 says self testing
 
     def lose_power(self, now: int) -> None:
         """The supply is gone at `now`: the module's volatile state with it."""
@@ -53,13 +55,28 @@ class ModuleHardware:
             self.powered = False
             transaction.emit(PowerLost())
 
-    def restore_power(self, boot_ns: int, now: int) -> None:
-        """The supply is back at `now`: the module boots for `boot_ns` (its reset window), then answers."""
+    def restore_power(self, boot_ns: int, now: int, self_test_ns: int = 0) -> None:
+        """The supply is back at `now`: the module boots for `boot_ns` (its reset window), then answers,
+        self testing (Identity attribute 8 = 1) for `self_test_ns` before it is operational (the farm
+        times the phases: farm/resets.py)."""
         with self.guard.transaction(now) as transaction:
             self.window.resets += 1
             self.window.deadline = now + boot_ns
             self.powered = True
+            self.self_test_ns = self_test_ns
             transaction.emit(PowerReturned(boot_ns / 1e9))
+
+    def begin_self_test(self) -> int:
+        """The boot's silence is over: the self test (its length in ns; 0: none, operational at once)."""
+        length, self.self_test_ns = self.self_test_ns, 0
+        self.self_testing = length > 0
+        return length
+
+    def end_self_test(self, now: int | None = None) -> None:
+        """The self test is over at `now` (None: the device's clock): operational."""
+        if self.self_testing:
+            self.self_testing = False
+            self.guard.record(SelfTestDone(), now)
 
     def address_conflict(self, activity: int, remote_mac: bytes, silent: bool) -> None:
         """Another host claims the module's address (its ARP reply, RFC 826, is the ARP PDU attribute 11

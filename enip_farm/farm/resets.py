@@ -85,8 +85,16 @@ class FarmResets:
         if not device.end_reset():
             self._arm_end(device)  # the timer came a little early: wait for the deadline itself
             return
+        self_test_ns = device.hardware.begin_self_test()
+        if self_test_ns and self.loop is not None:  # answering, self testing, then operational
+            self.timers[f"{device.name} self test"] = self.loop.call_later(
+                os_wait_s(self_test_ns / 1e9), self._self_tested, device)
         if self.loop is not None and device.faults.listens and not self.listeners.listening(device.name):
             self.spawn(self._listen_after_reset(device))
+
+    def _self_tested(self, device: Device) -> None:
+        self.timers.pop(f"{device.name} self test", None)
+        device.hardware.end_self_test()
 
     async def _listen_after_reset(self, device: Device) -> None:
         try:
