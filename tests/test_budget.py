@@ -187,9 +187,13 @@ def test_the_running_check_lowers_the_budget_to_the_cpu_per_datagram_it_sees() -
 
 
 def test_a_budget_set_below_its_ceiling_rises_to_it_once_the_thread_keeps_time() -> None:
-    """Measured on a busy machine: the share of a core it gave; the CPU figure is the ceiling."""
+    """Measured on a busy machine: the share of a core it gave; the CPU figure is the ceiling. Idle
+    seconds do not raise it (nothing shows the thread would keep time); a busy second on time does."""
     budget = CyclicBudget(0, "not started")
     budget.set(40_000, "measured at start: busy", ceiling=100_000)
+    for _ in range(CALM_SECONDS * 2):
+        budget.observe(1_000, 0, 0, 0)
+    assert (budget.datagrams_per_s, budget.source) == (40_000, "measured at start: busy")
     assert budget.reserve(30_000) is not None
     for _ in range(CALM_SECONDS):  # 30 000 taken and moved on 0.1 s of CPU (3.3 us each), on time
         budget.observe(100_000_000, 30_000, 1000, 0)
@@ -201,6 +205,21 @@ def test_a_second_with_few_datagrams_says_nothing() -> None:
     budget = CyclicBudget(100_000, "measured")
     budget.observe(900_000_000, MIN_DATAGRAMS - 1, 1000, 1000)  # expensive and late, but a few connections only
     assert (budget.datagrams_per_s, budget.lowered) == (100_000, 0)
+
+
+def test_a_budget_held_as_its_connections_closed_rises_again_while_idle() -> None:
+    """Held at what was taken in a late second, then everything closed: idle seconds count as on
+    time, and the budget is back at its start figure after CALM_SECONDS (not stuck at 0)."""
+    budget = CyclicBudget(100_000, "measured")
+    taken = budget.reserve(MIN_DATAGRAMS)
+    budget.release(taken)  # closed: 0 taken
+    budget.observe(100_000_000, MIN_DATAGRAMS, 100, 50)  # the closing second, late
+    assert budget.datagrams_per_s == 0
+    for _ in range(CALM_SECONDS - 1):
+        budget.observe(1_000, 0, 0, 0)
+    assert budget.datagrams_per_s == 0
+    budget.observe(1_000, 0, 0, 0)
+    assert (budget.datagrams_per_s, budget.source) == (100_000, "measured")
 
 
 def test_more_than_one_percent_of_turns_late_holds_the_budget_at_what_is_taken() -> None:

@@ -91,10 +91,12 @@ class CyclicBudget:
         moves fewer than it has taken). More than 1 % of the turns late: the budget is held at what
         is taken (nothing more admitted); else, with MIN_DATAGRAMS moved, it is what
         BUDGET_UTILISATION of a core carries at the CPU per datagram seen, when that is lower than
-        the figure; after CALM_SECONDS seconds on time it may rise again, up to the figure measured
-        at start."""
+        the figure; after CALM_SECONDS seconds on time it may rise again: up to the ceiling when busy,
+        to the start figure when idle (never stuck at what was taken when everything closed)."""
         with self._lock:
-            if cpu_ns <= 0 or max(datagrams, self.reserved) < MIN_DATAGRAMS:
+            if max(datagrams, self.reserved) < MIN_DATAGRAMS:  # little to do: on time, back to the start figure
+                self._calm += 1
+                self._rise(self._start, "")
                 return
             if late_turns * 100 > turns:
                 self._calm = 0
@@ -104,17 +106,21 @@ class CyclicBudget:
                 return
             self._calm += 1
             carried, cost = self._measured, ""
-            if datagrams >= MIN_DATAGRAMS:
+            if datagrams >= MIN_DATAGRAMS and cpu_ns > 0:
                 carried = round(BUDGET_UTILISATION * 1e9 * datagrams / cpu_ns, -2)
                 cost = f"{cpu_ns / datagrams / 1000:.2f} us of CPU per datagram in the I/O thread"
                 if carried < self.datagrams_per_s:
                     self._lower(carried, f"lowered running: {cost}, for {BUDGET_UTILISATION:.0%} of a core")
                     return
-            if self._calm >= CALM_SECONDS and self.datagrams_per_s < self._measured:
-                self.datagrams_per_s = min(self._measured, carried)
-                back = self.datagrams_per_s == self._measured == self._start
-                self.source = self._measured_source if back else (
-                    f"raised running: {cost or 'the I/O thread'}, {CALM_SECONDS} s on time")
+            self._rise(carried, cost)
+
+    def _rise(self, carried: float, cost: str) -> None:
+        """After CALM_SECONDS on time, up to what `carried` allows, never past the ceiling."""
+        if self._calm >= CALM_SECONDS and self.datagrams_per_s < min(self._measured, carried):
+            self.datagrams_per_s = min(self._measured, carried)
+            back = self.datagrams_per_s == self._start
+            self.source = self._measured_source if back else (
+                f"raised running: {cost or 'the I/O thread'}, {CALM_SECONDS} s on time")
 
     def _lower(self, datagrams_per_s: float, source: str) -> None:
         self.datagrams_per_s, self.source = float(datagrams_per_s), source
