@@ -125,9 +125,7 @@ class Reset(Happened, kind="reset"):
 class ResetDone(Happened, kind="reset done"):
     """The reset window ended: the device answers again."""
 
-    @property
-    def text(self) -> str:
-        return "answering again"
+    text = "answering again"
 
 
 @dataclass(frozen=True, slots=True)
@@ -196,9 +194,7 @@ class EncapsulationIgnored(Happened, kind="encapsulation ignored"):
 class PowerLost(Happened, kind="power lost"):
     """The module's supply is gone (device/hardware.py): its volatile state with it."""
 
-    @property
-    def text(self) -> str:
-        return "no answer on TCP, UDP or class 1; connections end without a close"
+    text = "no answer on TCP, UDP or class 1; connections end without a close"
 
 
 @dataclass(frozen=True, slots=True)
