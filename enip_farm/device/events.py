@@ -163,12 +163,17 @@ class TcpClosed(Happened, kind="tcp closed"):
 
 
 @dataclass(frozen=True, slots=True)
-class EncapsulationRefused(Happened, kind="encapsulation refused"):
-    """A request answered with an encapsulation error status (Vol. 2, 2-3.3)."""
+class OfEncapsulation(Happened):
+    """A request of `command` from `peer` whose encapsulation `status` the subclass tells."""
 
     command: int
     peer: str
     status: int
+
+
+@dataclass(frozen=True, slots=True)
+class EncapsulationRefused(OfEncapsulation, kind="encapsulation refused"):
+    """A request answered with an encapsulation error status (Vol. 2, 2-3.3)."""
 
     @property
     def text(self) -> str:
@@ -177,12 +182,8 @@ class EncapsulationRefused(Happened, kind="encapsulation refused"):
 
 
 @dataclass(frozen=True, slots=True)
-class EncapsulationIgnored(Happened, kind="encapsulation ignored"):
+class EncapsulationIgnored(OfEncapsulation, kind="encapsulation ignored"):
     """A request that carried a non-zero status: not answered (Vol. 2, 2-3.5)."""
-
-    command: int
-    peer: str
-    status: int
 
     @property
     def text(self) -> str:
