@@ -21,7 +21,7 @@ KINDS = frozenset({
     "safety timing fault", "fault injected", "fault cleared", "reset", "reset done", "wired", "tcp connected",
     "tcp closed", "tcp inactive", "encapsulation refused", "encapsulation ignored", "session registered",
     "session ended", "power lost", "power returned", "address conflict", "link down", "link up",
-    "address still taken", "scenario step"})
+    "address still taken", "scenario step", "self test done"})
 DEFINING = frozenset({"enip_farm/device/events.py", "enip_farm/cip/connection_events.py"})
 LOCK = re.compile(r"with [A-Za-z_.]*\.lock\b|\.lock\.acquire|\.locked\(|guard\.(publish|snapshot)\(")
 

@@ -15,7 +15,7 @@ import httpx
 import pytest
 
 from enip_farm.control.dashboard import WEB
-from tests.browser import browser_for_tests, open_page, page_errors, until
+from tests.browser import browser_for_tests, call, open_page, page_errors, until
 
 pytestmark = pytest.mark.system
 
@@ -23,28 +23,10 @@ DEADLINE_S = 30.0  # generous: conditions end the waits as soon as they hold
 THREE = {"devices": [{"name": "io1", "model": "DSQC1030"}, {"name": "io2", "model": "DSQC1030"},
                      {"name": "weld1", "model": "DSQC1030", "addons": ["DSQC1032"]}]}
 
-# execute_async_script(CALL, module, body, *args): imports dashboard/<module> and answers what
-# `body` (an async function's body over `m`, the module, and `args`) returns, or {error: text}.
-CALL = """
-const [module, body, ...rest] = arguments;
-const done = rest.pop();
-const run = new Function('m', 'args', `return (async () => { ${body} })();`);
-import(new URL('dashboard/' + module, document.baseURI).href)
-  .then(m => run(m, rest))
-  .then(value => done(value === undefined ? null : value), error => done({error: String(error)}));
-"""
-
-
 @pytest.fixture(scope="module")
 def browser() -> Iterator:
     with browser_for_tests() as driver:
         yield driver
-
-
-def call(driver: Any, module: str, body: str, *args: Any) -> Any:
-    value = driver.execute_async_script(CALL, module, body, *args)
-    assert not (isinstance(value, dict) and set(value) == {"error"}), value
-    return value
 
 
 def page(driver: Any, farm: Any, device: str = "io1", suffix: str = "") -> str:

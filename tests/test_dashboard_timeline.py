@@ -14,20 +14,11 @@ import pytest
 from pycomm3 import CIPDriver, Services
 
 from enip_farm.protocol.connection import decode_forward_open_reply, encode_io_packet
-from tests.browser import browser_for_tests, open_page, page_errors, until
+from tests.browser import browser_for_tests, call, open_page, page_errors, until
 from tests.helpers import RawClient, wait_for
 from tests.test_implicit import forward_close, forward_open
 
 pytestmark = pytest.mark.system
-
-CALL = """
-const [module, body, ...rest] = arguments;
-const done = rest.pop();
-const run = new Function('m', 'args', `return (async () => { ${body} })();`);
-import(new URL('dashboard/' + module, document.baseURI).href)
-  .then(m => run(m, rest))
-  .then(value => done(value === undefined ? null : value), error => done({error: String(error)}));
-"""
 
 MARKS = """return [...document.querySelectorAll('#inspect .mark')].map(m => [m.dataset.by, m.dataset.signals])"""
 STEPS = """return document.querySelector(`#inspect .trace[data-signal="${arguments[0]}"] .step`).getAttribute('d')"""
@@ -37,12 +28,6 @@ STEPS = """return document.querySelector(`#inspect .trace[data-signal="${argumen
 def browser() -> Iterator:
     with browser_for_tests() as driver:
         yield driver
-
-
-def call(driver, module: str, body: str, *args):
-    value = driver.execute_async_script(CALL, module, body, *args)
-    assert not (isinstance(value, dict) and set(value) == {"error"}), value
-    return value
 
 
 def test_the_timeline_button_shows_stimuli_and_writes_marked(enip_farm, browser) -> None:
