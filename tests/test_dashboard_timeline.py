@@ -55,6 +55,27 @@ def test_the_timeline_button_shows_stimuli_and_writes_marked(enip_farm, browser)
     assert page_errors(browser) == []
 
 
+STEP_MARKS = """return [...document.querySelectorAll('#inspect .mark.by-scenario')].map(
+  m => [m.dataset.step, m.querySelector('title').textContent])"""
+
+
+def test_a_running_scenarios_steps_are_marks_on_the_timeline(enip_farm, browser, tmp_path) -> None:
+    farm = enip_farm(name="io1", model="DSQC1030", http=True)
+    open_page(browser, f"http://127.0.0.1:{farm.http.port}/", "io1")
+    browser.find_element("css selector", ".card[data-device='io1'] button.inspect").click()
+    until(lambda: browser.execute_script("return document.querySelectorAll('#inspect .trace').length") == 32,
+          "the timeline's 32 rows (16 DI, 16 DO)")  # recording from now on
+    path = tmp_path / "steps.yaml"
+    path.write_text("steps:\n  - set: {io1.DI3: 1}\n  - at: 200 ms\n    id: second\n    set: {io1.DI4: 1}\n")
+    assert farm.run_scenario(path).status == "passed"
+    lines = [event.detail.line for event in farm["io1"].events("scenario step")]
+    assert len(lines) == 2 and "set io1.DI3=1" in lines[0] and lines[1].startswith("step 2 (second): ")
+    until(lambda: [step for step, _ in browser.execute_script(STEP_MARKS)] == lines,
+          lambda: f"a mark per step, got {browser.execute_script(STEP_MARKS)}")
+    assert all(title.endswith(f" s: {step}") for step, title in browser.execute_script(STEP_MARKS))
+    assert page_errors(browser) == []
+
+
 HISTOGRAM = """const block = document.querySelector('#inspect .measured');
 return block && {head: block.querySelector('.measured-head').textContent,
   counts: [...block.querySelectorAll('.bar')].map(b => Number(b.dataset.count)),
@@ -111,6 +132,14 @@ def test_the_drawing_modules(enip_farm, browser) -> None:
     assert drawn["steps"][1].endswith(" V17 H" + f"{x[3]:g}")  # 100 at the top of its 34 px row (17 + 0)
     assert drawn["marks"] == [["mark by-o-t", f"{x[1]:g}"], ["mark by-event", f"{x[2]:g}"]]
     assert drawn["height"] == str(14 + 3 + 34 + 3 + 18)
+    answer["steps"] = [{"at": 2, "text": "step 1: set io1.DI3=1"}]
+    stepped = call(browser, "timeline.js", """
+        const svg = m.draw(args[0], new Set(['AO1']));
+        return [...svg.querySelectorAll('.mark')].map(l => [l.getAttribute('class'), l.getAttribute('x1'),
+          l.getAttribute('y2'), l.dataset.step, l.querySelector('title').textContent]);""", answer)
+    x2 = round(drawn["label"] + 2 * scale, 3)  # across every row shown, whatever signals are kept
+    assert stepped == [["mark by-scenario", f"{x2:g}", "37", "step 1: set io1.DI3=1",
+                        "-8.000 s: step 1: set io1.DI3=1"]]
     intervals = {"api_ns": 10_000_000, "count": 6, "p50_ns": 10_000_000, "p99_ns": 30_000_000, "max_ns": 30_000_000,
                  "late": 1, "longest_silence_ns": 30_000_000,
                  "histogram": {"bounds_api": [0.5, 1, 2, 4], "counts": [0, 5, 0, 1, 0]}}
