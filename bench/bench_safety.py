@@ -26,6 +26,13 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
+from enip_farm.cip.connection_events import (  # noqa: E402
+    ConnectionFaulted,
+    ConnectionTimedOut,
+    SafeState,
+    SafetyCrcFault,
+    SafetyTimingFault,
+)
 from enip_farm.config import FarmConfig  # noqa: E402
 from enip_farm.farm.farm import Farm  # noqa: E402
 from tests.cm_ethernetip import CmOriginator, make_venv, node_address  # noqa: E402
@@ -81,14 +88,15 @@ def main() -> None:
             stats = originator.wait("stats", timeout=30)
             outputs = handle.outputs
             before = dict(handle.counters)
-            faults = [f"{e.monotonic_ns / 1e9 - start:.3f} s {e.kind}: {e.detail}" for e in handle.events()
-                      if e.kind.startswith("safety") or e.kind in ("connection faulted", "connection timed out")]
+            told = (SafetyCrcFault, SafetyTimingFault, ConnectionFaulted, ConnectionTimedOut)
+            faults = [f"{e.monotonic_ns / 1e9 - start:.3f} s {e.kind}: {e.text}" for e in handle.events()
+                      if isinstance(e.detail, told)]
             connections = [c for c in farm.devices["s1"].connections.values() if c.safety is not None]
             max_age = max((getattr(c.safety, "max_data_age", 0) for c in connections), default=0)
             originator.send(cmd="silent")
             silent = originator.wait("silent", timeout=30)
-            handle.wait_for(lambda io: bool(io.events("safe state")), timeout=10)
-            safe_state = handle.events("safe state")[-1]
+            handle.wait_for(lambda io: bool(io.events(SafeState)), timeout=10)
+            safe_state = handle.events(SafeState)[-1]
         finally:
             originator.close()
     report = {
@@ -105,7 +113,7 @@ def main() -> None:
         "t_o_period_at_originator": stats["rx_period"], "o_t_period_at_originator": stats["tx_period"],
         "o_t_max_data_age_ms": max_age * 0.128, "outputs_before_silence": outputs.hex(),
         "safe_state_after_last_message_ms": round((safe_state.monotonic_ns - silent["last_sent_ns"]) / 1e6, 3),
-        "safe_state_reason": safe_state.detail.split(": ", 1)[-1], "outputs_after": handle.outputs.hex(),
+        "safe_state_reason": safe_state.text.split(": ", 1)[-1], "outputs_after": handle.outputs.hex(),
     }
     print(json.dumps(report, indent=1))
 

@@ -94,6 +94,25 @@ new MutationObserver(records => {
 """
 
 
+# execute_async_script(MODULE_CALL, module, body, *args): imports dashboard/<module> and answers what
+# `body` (an async function's body over `m`, the module, and `args`) returns, or {error: text}.
+MODULE_CALL = """
+const [module, body, ...rest] = arguments;
+const done = rest.pop();
+const run = new Function('m', 'args', `return (async () => { ${body} })();`);
+import(new URL('dashboard/' + module, document.baseURI).href)
+  .then(m => run(m, rest))
+  .then(value => done(value === undefined ? null : value), error => done({error: String(error)}));
+"""
+
+
+def call(driver: Any, module: str, body: str, *args: Any) -> Any:
+    """What `body` answers over the dashboard's ES module `module` (MODULE_CALL); an error fails the test."""
+    value = driver.execute_async_script(MODULE_CALL, module, body, *args)
+    assert not (isinstance(value, dict) and set(value) == {"error"}), value
+    return value
+
+
 def installed() -> bool:
     return Path(CHROMIUM).exists() and Path(CHROMEDRIVER).exists()
 

@@ -13,7 +13,8 @@ import os
 import socket
 import subprocess
 import tempfile
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterator, Mapping
+from types import MappingProxyType
 from typing import Any
 
 import pytest
@@ -34,9 +35,9 @@ os.environ.setdefault("HYPOTHESIS_STORAGE_DIRECTORY", os.path.join(tempfile.gett
 # namespace, a Docker engine). On CI (.ci/run exports CI=1) every skip fails instead, so the suite
 # cannot shrink unnoticed when an install step breaks, except the skips below: what CI can never
 # have, matched by a part of the skip's reason, each with why. The summary prints them.
-CI_MAY_SKIP: dict[str, str] = {
-}
-_allowed_skips: list[tuple[str, str]] = []  # (test, reason) skipped on CI under CI_MAY_SKIP
+CI_MAY_SKIP: Mapping[str, str] = MappingProxyType({
+})
+_ALLOWED_SKIPS = pytest.StashKey[list[tuple[str, str]]]()  # (test, reason) skipped on CI under CI_MAY_SKIP
 
 
 def _skip_reason(report: pytest.TestReport | pytest.CollectReport) -> str:
@@ -45,12 +46,12 @@ def _skip_reason(report: pytest.TestReport | pytest.CollectReport) -> str:
     return reason.removeprefix("Skipped: ")
 
 
-def _fail_skip_on_ci(report: pytest.TestReport | pytest.CollectReport) -> None:
+def _fail_skip_on_ci(config: pytest.Config, report: pytest.TestReport | pytest.CollectReport) -> None:
     if not os.environ.get("CI") or not report.skipped or hasattr(report, "wasxfail"):
         return
     reason = _skip_reason(report)
     if any(part in reason for part in CI_MAY_SKIP):
-        _allowed_skips.append((report.nodeid, reason))
+        config.stash.setdefault(_ALLOWED_SKIPS, []).append((report.nodeid, reason))
         return
     report.outcome = "failed"
     report.longrepr = (f"skipped on CI (CI={os.environ['CI']}): {reason}\nCI must have what this test needs "
@@ -60,13 +61,13 @@ def _fail_skip_on_ci(report: pytest.TestReport | pytest.CollectReport) -> None:
 @pytest.hookimpl(hookwrapper=True)
 def pytest_runtest_makereport(item: pytest.Item, call: pytest.CallInfo) -> Iterator[None]:
     outcome = yield
-    _fail_skip_on_ci(outcome.get_result())
+    _fail_skip_on_ci(item.config, outcome.get_result())
 
 
 @pytest.hookimpl(hookwrapper=True)
 def pytest_make_collect_report(collector: pytest.Collector) -> Iterator[None]:
     outcome = yield
-    _fail_skip_on_ci(outcome.get_result())
+    _fail_skip_on_ci(collector.config, outcome.get_result())
 
 
 def pytest_terminal_summary(terminalreporter: Any) -> None:
@@ -76,7 +77,7 @@ def pytest_terminal_summary(terminalreporter: Any) -> None:
     terminalreporter.section("skips allowed on CI (tests/conftest.py CI_MAY_SKIP)")
     for part, why in CI_MAY_SKIP.items() or {"(none)": "every skip fails on CI"}.items():
         write(f"{part}: {why}")
-    for nodeid, reason in _allowed_skips:
+    for nodeid, reason in terminalreporter.config.stash.get(_ALLOWED_SKIPS, []):
         write(f"skipped {nodeid}: {reason}")
 
 

@@ -222,6 +222,35 @@ def test_a_wrong_module_shows_another_identity_until_put_back(enip_farm) -> None
         assert client.get(1, 1, 4).data == bytes(r1.device.profile.revision)
 
 
+def test_a_wrong_module_with_other_sizes_refuses_the_scanners_forward_open_until_put_back(enip_farm) -> None:
+    farm = rack(enip_farm)
+    r1 = farm["r1"]
+    code = r1.device.profile.product_code
+    farm.inject("r1", "wrong-module", input_size=4, output_size=8)  # the DSQC1030's are 2 and 2
+    assert r1.device.identity_item().product_code == code  # sizes given: the identity stays
+    enip, conn, status = scanner(r1.address)  # the ethernetip scanner, the module's own sizes (2 and 2)
+    assert status == 0x0127  # general status 0x01: invalid O->T size
+    with RawClient(r1.address) as client:
+        client.register()
+        refused = client.request(forward_open(o_t_size=8, t_o_size=4)[0])  # 2 + 4 + 2, 2 + 2: the right module's
+        assert (refused.general_status, refused.additional_status) == (0x01, (0x0127, 14))  # 2 + 4 + 8
+        refused = client.request(forward_open(o_t_size=14, t_o_size=4)[0])
+        assert (refused.general_status, refused.additional_status) == (0x01, (0x0128, 6))  # 2 + 4
+        farm.inject("r1", "wrong-module", input_size=4)  # another one, only its inputs differ: O->T fits
+        refused = client.request(forward_open(o_t_size=8, t_o_size=4)[0])
+        assert (refused.general_status, refused.additional_status) == (0x01, (0x0128, 6))
+        farm.clear("r1")
+        message, triad = forward_open(o_t_size=8, t_o_size=4)
+        assert client.request(message).general_status == 0  # put back: the sizes match again
+        assert client.request(forward_close(triad)).general_status == 0
+    enip, conn, status = scanner(r1.address)
+    try:
+        assert status == 0
+    finally:
+        conn.stopProduce()
+        enip.stopIO()
+
+
 def test_a_group_fault_over_http_sets_every_member_and_clears_them(enip_farm) -> None:
     farm = rack(enip_farm, http=True)
     base = f"http://127.0.0.1:{farm.http.port}"

@@ -360,7 +360,8 @@ def test_serve_talks(free_address: AddressPool, tmp_path: Path) -> None:
             f"with --api {api}"]
         assert len(banner) == 4 and re.fullmatch(
             r"cyclic I/O budget: [\d ]+ datagrams/s per worker \([\d ]+ connections at RPI 10 ms; measured at start: "
-            r"[\d.]+ us of CPU per O->T/T->O pair, for 50% of a core\)", banner[3]), banner[3]
+            r"[\d.]+ us of CPU per O->T/T->O pair, for (50% of a core|the \d+% of a core the machine gave while "
+            r"measuring \(50% once the I/O thread keeps time\))\)", banner[3]), banner[3]  # busy: the share it got
         with RawClient(address) as client:
             client.register()
             client.request(forward_open(rpi=1_000)[0])

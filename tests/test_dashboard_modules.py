@@ -15,7 +15,7 @@ import httpx
 import pytest
 
 from enip_farm.control.dashboard import WEB
-from tests.browser import browser_for_tests, open_page, page_errors, until
+from tests.browser import browser_for_tests, call, open_page, page_errors, until
 
 pytestmark = pytest.mark.system
 
@@ -23,28 +23,10 @@ DEADLINE_S = 30.0  # generous: conditions end the waits as soon as they hold
 THREE = {"devices": [{"name": "io1", "model": "DSQC1030"}, {"name": "io2", "model": "DSQC1030"},
                      {"name": "weld1", "model": "DSQC1030", "addons": ["DSQC1032"]}]}
 
-# execute_async_script(CALL, module, body, *args): imports dashboard/<module> and answers what
-# `body` (an async function's body over `m`, the module, and `args`) returns, or {error: text}.
-CALL = """
-const [module, body, ...rest] = arguments;
-const done = rest.pop();
-const run = new Function('m', 'args', `return (async () => { ${body} })();`);
-import(new URL('dashboard/' + module, document.baseURI).href)
-  .then(m => run(m, rest))
-  .then(value => done(value === undefined ? null : value), error => done({error: String(error)}));
-"""
-
-
 @pytest.fixture(scope="module")
 def browser() -> Iterator:
     with browser_for_tests() as driver:
         yield driver
-
-
-def call(driver: Any, module: str, body: str, *args: Any) -> Any:
-    value = driver.execute_async_script(CALL, module, body, *args)
-    assert not (isinstance(value, dict) and set(value) == {"error"}), value
-    return value
 
 
 def page(driver: Any, farm: Any, device: str = "io1", suffix: str = "") -> str:
@@ -235,6 +217,37 @@ def test_faults_panel_offers_the_farms_kinds_and_injects_and_clears(enip_farm, b
     until(lambda: browser.find_element("id", "message").text == "io1: power cycled, answering again in 0.5 s",
           "the power cycle said")
     assert page_errors(browser) == []
+
+
+# Each control of each shown card: [device, its class, inside its card (the card clips: overflow
+# hidden), the topmost element at its centre is the control itself].
+CONTROLS_REACHABLE = """
+return [...document.querySelectorAll('.card')].flatMap(card => {
+  const box = card.getBoundingClientRect();
+  return [...card.querySelectorAll('button, input, select')].map(control => {
+    const r = control.getBoundingClientRect();
+    const inside = r.width > 0 && r.height > 0 && r.left >= box.left && r.right <= box.right
+      && r.top >= box.top && r.bottom <= box.bottom;
+    const top = document.elementFromPoint(r.left + r.width / 2, r.top + r.height / 2);
+    return [card.dataset.device, control.className, inside, !!top && control.contains(top)];
+  });
+});
+"""
+
+
+def test_every_cards_controls_lie_inside_the_card(enip_farm, browser) -> None:
+    """The fault form wraps rather than pushing inject and power cycle out of the card, whatever the
+    longest fault kind's name (the select is as wide as it), on each model's card."""
+    farm = enip_farm({"devices": [{"name": "weld1", "model": "DSQC1030", "addons": ["DSQC1031", "DSQC1032"]},
+                                  {"name": "safety1", "model": "DSQC1042"}]}, http=True)  # one row, in view
+    base = page(browser, farm, "weld1")
+    until(lambda: shown_cards(browser) == ["safety1", "weld1"], "the two cards")
+    until(lambda: browser.execute_script("return document.querySelectorAll('.card .fault-kind option').length")
+          == 2 * len(httpx.get(base + "fault-kinds", timeout=DEADLINE_S).json()), "the kinds offered")
+    controls = browser.execute_script(CONTROLS_REACHABLE)
+    assert sorted({kind for _, kind, _, _ in controls}) == [
+        "fault-duration", "fault-kind", "fault-param", "inject", "inspect", "power-cycle"]
+    assert [control for control in controls if not (control[2] and control[3])] == []
 
 
 def test_event_log_shows_the_events_and_filters_by_a_click(enip_farm, browser) -> None:

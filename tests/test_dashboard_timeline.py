@@ -14,20 +14,11 @@ import pytest
 from pycomm3 import CIPDriver, Services
 
 from enip_farm.protocol.connection import decode_forward_open_reply, encode_io_packet
-from tests.browser import browser_for_tests, open_page, page_errors, until
+from tests.browser import browser_for_tests, call, open_page, page_errors, until
 from tests.helpers import RawClient, wait_for
 from tests.test_implicit import forward_close, forward_open
 
 pytestmark = pytest.mark.system
-
-CALL = """
-const [module, body, ...rest] = arguments;
-const done = rest.pop();
-const run = new Function('m', 'args', `return (async () => { ${body} })();`);
-import(new URL('dashboard/' + module, document.baseURI).href)
-  .then(m => run(m, rest))
-  .then(value => done(value === undefined ? null : value), error => done({error: String(error)}));
-"""
 
 MARKS = """return [...document.querySelectorAll('#inspect .mark')].map(m => [m.dataset.by, m.dataset.signals])"""
 STEPS = """return document.querySelector(`#inspect .trace[data-signal="${arguments[0]}"] .step`).getAttribute('d')"""
@@ -37,12 +28,6 @@ STEPS = """return document.querySelector(`#inspect .trace[data-signal="${argumen
 def browser() -> Iterator:
     with browser_for_tests() as driver:
         yield driver
-
-
-def call(driver, module: str, body: str, *args):
-    value = driver.execute_async_script(CALL, module, body, *args)
-    assert not (isinstance(value, dict) and set(value) == {"error"}), value
-    return value
 
 
 def test_the_timeline_button_shows_stimuli_and_writes_marked(enip_farm, browser) -> None:
@@ -67,6 +52,27 @@ def test_the_timeline_button_shows_stimuli_and_writes_marked(enip_farm, browser)
     assert browser.execute_script(STEPS, "DI1").count(" V") == 0
     browser.find_element("id", "inspect-close").click()
     until(lambda: not browser.execute_script("return document.getElementById('inspect').open"), "closed")
+    assert page_errors(browser) == []
+
+
+STEP_MARKS = """return [...document.querySelectorAll('#inspect .mark.by-scenario')].map(
+  m => [m.dataset.step, m.querySelector('title').textContent])"""
+
+
+def test_a_running_scenarios_steps_are_marks_on_the_timeline(enip_farm, browser, tmp_path) -> None:
+    farm = enip_farm(name="io1", model="DSQC1030", http=True)
+    open_page(browser, f"http://127.0.0.1:{farm.http.port}/", "io1")
+    browser.find_element("css selector", ".card[data-device='io1'] button.inspect").click()
+    until(lambda: browser.execute_script("return document.querySelectorAll('#inspect .trace').length") == 32,
+          "the timeline's 32 rows (16 DI, 16 DO)")  # recording from now on
+    path = tmp_path / "steps.yaml"
+    path.write_text("steps:\n  - set: {io1.DI3: 1}\n  - at: 200 ms\n    id: second\n    set: {io1.DI4: 1}\n")
+    assert farm.run_scenario(path).status == "passed"
+    lines = [event.detail.line for event in farm["io1"].events("scenario step")]
+    assert len(lines) == 2 and "set io1.DI3=1" in lines[0] and lines[1].startswith("step 2 (second): ")
+    until(lambda: [step for step, _ in browser.execute_script(STEP_MARKS)] == lines,
+          lambda: f"a mark per step, got {browser.execute_script(STEP_MARKS)}")
+    assert all(title.endswith(f" s: {step}") for step, title in browser.execute_script(STEP_MARKS))
     assert page_errors(browser) == []
 
 
@@ -126,6 +132,14 @@ def test_the_drawing_modules(enip_farm, browser) -> None:
     assert drawn["steps"][1].endswith(" V17 H" + f"{x[3]:g}")  # 100 at the top of its 34 px row (17 + 0)
     assert drawn["marks"] == [["mark by-o-t", f"{x[1]:g}"], ["mark by-event", f"{x[2]:g}"]]
     assert drawn["height"] == str(14 + 3 + 34 + 3 + 18)
+    answer["steps"] = [{"at": 2, "text": "step 1: set io1.DI3=1"}]
+    stepped = call(browser, "timeline.js", """
+        const svg = m.draw(args[0], new Set(['AO1']));
+        return [...svg.querySelectorAll('.mark')].map(l => [l.getAttribute('class'), l.getAttribute('x1'),
+          l.getAttribute('y2'), l.dataset.step, l.querySelector('title').textContent]);""", answer)
+    x2 = round(drawn["label"] + 2 * scale, 3)  # across every row shown, whatever signals are kept
+    assert stepped == [["mark by-scenario", f"{x2:g}", "37", "step 1: set io1.DI3=1",
+                        "-8.000 s: step 1: set io1.DI3=1"]]
     intervals = {"api_ns": 10_000_000, "count": 6, "p50_ns": 10_000_000, "p99_ns": 30_000_000, "max_ns": 30_000_000,
                  "late": 1, "longest_silence_ns": 30_000_000,
                  "histogram": {"bounds_api": [0.5, 1, 2, 4], "counts": [0, 5, 0, 1, 0]}}

@@ -135,8 +135,6 @@ def _cut(lines: int, then: str = "") -> str:
                "RobotWare ends with an entry's line: it looks cut short (a copy that stopped?): take the whole file "
                "again"),
     # cut between entries: after the blank line before Conveyor, the # line before a section, a section line
-    (_cut(15), "EIO.cfg:15: the file ends with a blank line, which comes before an entry, where RobotWare ends with "
-               "an entry's line: it looks cut short (a copy that stopped?): take the whole file again"),
     (_cut(26), "EIO.cfg:26: the file ends with a # line and no entry after it, where RobotWare ends with an entry's "
                "line: it looks cut short (a copy that stopped?): take the whole file again"),
     (_cut(27, "\n"), "EIO.cfg:27: the file ends with the section line LOCAL_DEVICE: and no entry after it, where "
@@ -147,6 +145,18 @@ def test_a_file_cut_short_is_refused_naming_its_last_line(text: str, error: str)
     with pytest.raises(CfgError) as raised:
         parse(text)
     assert str(raised.value) == error
+
+
+def test_a_file_ending_with_blank_lines_is_read_with_a_warning() -> None:
+    # cut after the blank line before Conveyor, or a whole file a hand edit left a blank line at the end of
+    cut = parse_cfg(_cut(15), "EIO.cfg")
+    assert [entry.attributes.get("Name") for entry in cut.entries] == [
+        entry.attributes.get("Name") for entry in parse_cfg(_cut(14), "EIO.cfg").entries]
+    assert cut.warnings == ("EIO.cfg:15: the file ends with a blank line, where RobotWare ends with an entry's line: "
+                            "if it was copied, check that the copy is whole (it may have stopped between entries)",)
+    assert parse_cfg(DATA.read_text() + "\n\n", "EIO.cfg").warnings[-1].startswith(
+        f"EIO.cfg:{len(DATA.read_text().splitlines()) + 2}: the file ends with a blank line")
+    assert parse_cfg(DATA.read_text(), "EIO.cfg").warnings == ()
 
 
 def test_whole_files_are_not_cut_short() -> None:

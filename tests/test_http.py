@@ -130,7 +130,7 @@ def test_the_fault_kinds_are_listed_with_their_parameters(enip_farm) -> None:
         "power-loss": ["boot_time_s", "duration_s", "self_test_s"],
         "link-down": ["duration_s"], "address-conflict": ["duration_s", "phase", "remote_mac"],
         "flapping-link": ["count", "duration_s", "duty", "max_s", "min_s", "period_s", "random", "seed"],
-        "wrong-module": ["duration_s", "major_revision", "minor_revision", "product_code"],
+        "wrong-module": ["duration_s", "input_size", "major_revision", "minor_revision", "output_size", "product_code"],
         "safety-crc": ["duration_s"], "safety-stale": ["duration_s"], "safety-time-coordination": ["duration_s"],
         "degraded-link": ["delay_ms", "direction", "duplicate", "duration_s", "jitter_ms", "loss", "reorder",
                           "reorder_ms", "seed"]}

@@ -31,9 +31,9 @@ def test_wrong_crcs_are_what_the_originator_counts_and_drops(enip_farm, originat
     assert _stats(scanner)["crc_faults"] == 0
     farm.inject("s1", "safety-crc")
     farm["s1"].set(DI12=1)
-    time.sleep(0.3)
+    # waits for the state, not a guessed time (a starved originator reads its datagrams late)
+    assert wait_for(lambda: _stats(scanner)["crc_faults"] >= 10, timeout=30)  # every message since, each refused
     stats = _stats(scanner)
-    assert stats["crc_faults"] >= 10  # every message since (RPI 10 ms), each refused
     assert all(event.get("data") != "0408" for event in scanner.seen if event["event"] == "rx")
     assert farm.device("s1").faults.safety_tamper.tampered >= stats["crc_faults"]
     farm.clear("s1")
@@ -50,10 +50,13 @@ def test_stale_messages_stand_still_for_the_originator(enip_farm, originator) ->
     tamper = farm.device("s1").faults.safety_tamper
     assert wait_for(lambda: tamper.kept)  # the message that will stand still, taken before the input changes
     before = _stats(scanner)["rx"]
-    farm["s1"].set(DI12=1)
-    time.sleep(0.3)
-    stats = _stats(scanner)
-    assert stats["rx"] - before >= 10 and stats["crc_faults"] == 0  # messages come, their CRCs valid
+    farm["s1"].set(DI12=1)  # in the input image when set() returns: every message produced since carries it
+    replaced = tamper.tampered
+    # waits for the states, not a guessed time (a starved originator reads its datagrams late): ten
+    # messages with the new input sent as the kept one, and ten more taken by the originator
+    assert wait_for(lambda: tamper.tampered - replaced >= 10, timeout=30)
+    assert wait_for(lambda: _stats(scanner)["rx"] - before >= 10, timeout=30)
+    assert _stats(scanner)["crc_faults"] == 0  # messages come, their CRCs valid
     assert all(event.get("data") != "0408" for event in scanner.seen if event["event"] == "rx")  # the same one
     farm.clear("s1")
     assert scanner.wait("rx", data="0408")["data"] == "0408"

@@ -118,6 +118,15 @@ def test_a_link_down_scenario_passes_with_what_the_scanner_did(cell) -> None:
     # the module's watchdog: 640 ms after the scanner's last O->T, which came at most a few RPIs before the cut
     assert within.passed and 0 < float(within.figure.split()[1]) <= 1000
     assert reconnected.passed and quiet.figure == "none" and count.figure == "1 connection timed out"
+    # judged from the report's reconnection (issue 27): the scanner's first O->T after its Forward
+    # Open, once io1 came back from the link-down (the fault's end)
+    io1 = next(d for d in farm.report().devices if d.device == "io1")
+    back = [r for r in io1.reconnections if r.after == "fault cleared"]
+    assert len(back) == 1 and back[0].originator == "127.0.0.1" and back[0].first_o_t_ns is not None
+    assert reconnected.figure.startswith("last io1 after ") and reconnected.figure.endswith(
+        f" (127.0.0.1: first O->T {back[0].first_o_t_after_ns / 1e6:.1f} ms, Forward Open "
+        f"{back[0].forward_open_after_ns / 1e6:.1f} ms after it came back) (bound 3000.0 ms)")
+    assert 0 < back[0].forward_open_after_ns <= back[0].first_o_t_after_ns
     assert [step.state for step in result.steps] == ["done", "done"]
     assert 0.3 <= result.steps[0].started_s < 0.3 + 0.1 and result.duration_s >= 3.5
     assert lines[0].endswith("step 1 (cut): link-down on io1 for 1.5 s") and "set r2-io1.DI3=1" in lines[1]

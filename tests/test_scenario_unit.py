@@ -7,13 +7,24 @@ import textwrap
 
 import pytest
 
+from enip_farm.cip.report import Reconnection
 from enip_farm.config import parse_config
 from enip_farm.device.build import build_profiles
 from enip_farm.device.catalogue import shipped_catalogue
 from enip_farm.device.signals import SignalMap
-from enip_farm.scenario.model import ClearAction, FaultAction, NoTimeouts, SetAction, WaitAction
+from enip_farm.scenario.model import (
+    ClearAction,
+    Expectation,
+    FaultAction,
+    NoTimeouts,
+    Reconnected,
+    Scenario,
+    SetAction,
+    WaitAction,
+)
 from enip_farm.scenario.parse import ScenarioError, duration_ns, parse_scenario, signal_check
 from enip_farm.scenario.schedule import Schedule, StepState
+from enip_farm.scenario.verdict import Recording, judge
 
 CONFIG = parse_config({"devices": [{"name": "io1", "address": "127.0.50.1", "model": "DSQC1030"},
                                    {"name": "r2-io{n}", "count": 2, "address": "127.0.50.11", "model": "DSQC1030"}],
@@ -206,3 +217,25 @@ def test_a_run_lasts_until_its_faults_and_its_expectations_have_had_their_time()
     schedule.end(1, 2_000 * MS)
     # the fault's 4 s, then 3 s for rack2 to reconnect after its end (the 100 ms of step 1 is shorter)
     assert horizon(scenario, schedule) == 2_000 * MS + 4_000 * MS + 3_000 * MS
+
+
+def test_reconnected_is_judged_from_the_reports_reconnections_first_o_t() -> None:
+    check = Reconnected("io1", ("io1",), 100_000_000, 1, end=True)
+    scenario = Scenario("s", "s.yaml", (), (Expectation("io1 reconnected within 100 ms of end of step 1", 7, check),))
+    ms = 1_000_000
+
+    def judged(*figures: Reconnection) -> tuple[bool, str]:
+        recording = Recording(0, {}, ended={1: 500 * ms}, reconnections={"io1": list(figures)})
+        verdict = judge(scenario, recording, {})[0]
+        return verdict.passed, verdict.figure
+
+    before = Reconnection("io1", "10.0.0.9", "timeout", -50 * ms, -40 * ms, -39 * ms)  # before the run: not this one
+    done = Reconnection("io1", "127.0.0.1", "fault cleared", 501 * ms, 560 * ms, 600 * ms)
+    assert judged(before, done) == (True, "last io1 after 100.0 ms (127.0.0.1: first O->T 99.0 ms, Forward "
+                                          "Open 59.0 ms after it came back) (bound 100.0 ms)")
+    late = Reconnection("io1", "127.0.0.1", "fault cleared", 501 * ms, 560 * ms, 600 * ms + 1)
+    assert judged(late)[0] is False  # the first O->T one ns past the bound, though the Forward Open was in time
+    no_o_t = Reconnection("io1", "127.0.0.1", "fault cleared", 501 * ms, 560 * ms, None)
+    waiting = Reconnection("io1", "127.0.0.2", "fault cleared", 501 * ms, None, None)
+    assert judged(no_o_t, waiting) == (False, "not reconnected: io1 (127.0.0.1, 127.0.0.2: no first O->T after "
+                                              "a Forward Open) (bound 100.0 ms)")

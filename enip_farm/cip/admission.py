@@ -103,10 +103,14 @@ class Admission:
     """The checks of one device: its assemblies, its policy and its identity (for keys)."""
 
     def __init__(self, assemblies: Mapping[str, AssemblyInstance], policy: ConnectionPolicy,
-                 identity: Callable[[], KeyIdentity], rng: random.Random | None = None) -> None:
+                 identity: Callable[[], KeyIdentity], rng: random.Random | None = None,
+                 sizes: Callable[[str, int], int] | None = None) -> None:
         self.assemblies = assemblies
         self.policy = policy
         self.identity = identity
+        #: The data size of an assembly ("input", "output") a Forward Open is checked against, from
+        #: its own (another module plugged in has others); None: the assemblies' own.
+        self.sizes = sizes
         self._rng = rng or random.SystemRandom()  # connection ids nobody can predict
         self._initial_rc_offset = 0  # CIP Safety: Initial_RC_Offset, one more per consuming connection
 
@@ -209,9 +213,11 @@ class Admission:
         _check_rpis(request, policy.rpi_min_us, policy.rpi_max_us)
         # O->T: sequence count, 32-bit run/idle header, data; heartbeats carry no data (header optional).
         owner = kind is ConnectionKind.EXCLUSIVE_OWNER
-        _check_o_t_size(request, SEQUENCE_COUNT_SIZE + RUN_IDLE_HEADER_SIZE + len(output.data) if owner  # type: ignore[union-attr]
-                        else SEQUENCE_COUNT_SIZE, SEQUENCE_COUNT_SIZE + RUN_IDLE_HEADER_SIZE if owner else None)
-        _check_t_o_size(request, SEQUENCE_COUNT_SIZE + len(inputs.data))  # modeless
+        sized = self.sizes or (lambda role, size: size)
+        header = SEQUENCE_COUNT_SIZE + RUN_IDLE_HEADER_SIZE
+        _check_o_t_size(request, header + sized("output", len(output.data)) if owner  # type: ignore[union-attr]
+                        else SEQUENCE_COUNT_SIZE, header if owner else None)
+        _check_t_o_size(request, SEQUENCE_COUNT_SIZE + sized("input", len(inputs.data)))  # modeless
         return self._open_io(request, originator, now, connections, taken_ids, kind, consuming, producing,
                              o_t_run_idle_header=owner)
 

@@ -97,11 +97,12 @@ class ConnectionTable:
 
     def __init__(self, assemblies: Mapping[str, AssemblyInstance], policy: ConnectionPolicy,
                  identity: Callable[[], KeyIdentity], counters: Counter[str] | None = None,
-                 rng: random.Random | None = None, budget: CyclicBudget | None = None) -> None:
+                 rng: random.Random | None = None, budget: CyclicBudget | None = None,
+                 sizes: Callable[[str, int], int] | None = None) -> None:
         self.assemblies = assemblies
         self.budget = budget
         self.policy = policy
-        self.admission = Admission(assemblies, policy, identity, rng)
+        self.admission = Admission(assemblies, policy, identity, rng, sizes)
         self.counters: Counter[str] = counters if counters is not None else Counter()
         self.connections: dict[int, Connection] = {}  # by O->T connection id
         self._by_triad: dict[ConnectionTriad, Connection] = {}

@@ -4,7 +4,8 @@ of the device over the last N seconds as steps, with each image change marked by
 answered at the same instant), a connection event's kind (e.g. `connection timed out`: the outputs
 fell to their fault state), or `stimulus` (the input image, set by the test through the Python or
 HTTP API, or by the wiring). A test that forces outputs through the API shows as `o->t`: the farm
-cannot tell the two apart without a source on the image change.
+cannot tell the two apart without a source on the image change. A running scenario's steps
+(`scenario step` events of the devices a step touches) come as `steps`, each with its line.
 
 Recording is lazy: a device's changes are kept from the first time its timeline is asked for (the
 dashboard asks when a timeline is opened), at most `MAX_CHANGES` of them and none older than
@@ -20,7 +21,7 @@ from collections.abc import Mapping
 from typing import Any
 
 from enip_farm.device.device import Device
-from enip_farm.device.events import Event, ImageChanged, RequestHandled
+from enip_farm.device.events import Event, ImageChanged, RequestHandled, ScenarioStep
 from enip_farm.device.signals import SignalMap
 
 MAX_CHANGES = 4096  # per device
@@ -36,6 +37,7 @@ class DeviceRecorder:
         self.since_ns = now_ns
         self.signals = SignalMap(device.profile)
         self.changes: deque[tuple[int, str, bytes, bytes, str]] = deque(maxlen=MAX_CHANGES)
+        self.steps: deque[tuple[int, str]] = deque(maxlen=MAX_CHANGES)  # a scenario's steps: (when, line)
         self._last: tuple[int, Any] = (-1, None)  # the last other event: (when, what)
         self.unobserve = device.observe(self.observe)
 
@@ -43,6 +45,8 @@ class DeviceRecorder:
         change = event.detail
         if not isinstance(change, ImageChanged):
             self._last = (event.monotonic_ns, change)
+            if isinstance(change, ScenarioStep):
+                self.steps.append((event.monotonic_ns, change.line))
             return
         if change.role == "input":
             by = "stimulus"
@@ -78,7 +82,8 @@ class DeviceRecorder:
                 "recording_since": self.since_ns / 1e9, "seconds": seconds,
                 "signals": [{"name": info.name, "type": info.type, "role": info.role, "values": traces[info.name]}
                             for info in listing],
-                "marks": marks}
+                "marks": marks,
+                "steps": [{"at": at / 1e9, "text": line} for at, line in list(self.steps) if start <= at <= now_ns]}
 
 
 class Timelines:

@@ -10,7 +10,8 @@ device/fault_kinds.py lists every kind). A group fault sets one of these on ever
 - flapping-link: link-down in its down phases.
 - address-conflict: probe: the address given up (as link-down); ongoing: defended (served); the TCP/IP
   object's attributes 1 and 11 say so if SelectAcd (attribute 10) is 1.
-- wrong-module: another product code or revision (ListIdentity, Identity, electronic keys).
+- wrong-module: another product code or revision (ListIdentity, Identity, electronic keys), other
+  assembly sizes (a Forward Open's size check: 0x01/0x0127 O->T, 0x0128 T->O, as for any wrong size).
 - safety-crc, safety-stale, safety-time-coordination (a CIP Safety target, the DSQC1042): its
   safe-input messages with a wrong CRC, or standing still (the same time stamp), or no time
   coordination answers to the originator's pings (device/safety_faults.py).
@@ -170,14 +171,19 @@ class AddressConflict(FaultType):
 
 class WrongModule(FaultType):
     name = "wrong-module"
-    summary = "another module is plugged in: its product code and/or revision until put back (keys stop matching)"
+    summary = ("another module is plugged in: its product code, revision and/or assembly sizes until put back "
+               "(keys and Forward Open sizes stop matching)")
 
     product_code: int | None = Field(None, ge=0, le=0xFFFF, description="the other module's product code "
                                      "(none given and no revision: the module's own + 1)")
     major_revision: int | None = Field(None, ge=1, le=0x7F, description="the other module's major revision")
     minor_revision: int | None = Field(None, ge=0, le=0xFF, description="the other module's minor revision")
+    input_size: int | None = Field(None, ge=0, le=505, description="the other module's input assembly size "
+                                   "(bytes; its T->O data)")
+    output_size: int | None = Field(None, ge=0, le=505, description="the other module's output assembly size "
+                                    "(bytes; its O->T data)")
 
-    @field_validator("product_code", "major_revision", "minor_revision", mode="before")
+    @field_validator("product_code", "major_revision", "minor_revision", "input_size", "output_size", mode="before")
     @classmethod
     def _integers(cls, value: Any, info: Any) -> Any:
         if value is not None and (isinstance(value, bool) or not isinstance(value, int)):
@@ -187,11 +193,16 @@ class WrongModule(FaultType):
     def on_product_code(self, code: int) -> int:
         if self.product_code is not None:
             return self.product_code
-        return code if self.major_revision or self.minor_revision is not None else (code + 1) & 0xFFFF
+        others = (self.major_revision, self.minor_revision, self.input_size, self.output_size)
+        return code if any(value is not None for value in others) else (code + 1) & 0xFFFF
 
     def on_revision(self, revision: tuple[int, int]) -> tuple[int, int]:
         return (self.major_revision or revision[0],
                 revision[1] if self.minor_revision is None else self.minor_revision)
+
+    def on_assembly_size(self, role: str, size: int) -> int:
+        other = {"input": self.input_size, "output": self.output_size}.get(role)
+        return size if other is None else other
 
 
 class DegradedLink(FaultType):

@@ -62,7 +62,7 @@ class Device:
         objects = build_objects(profile, self.counters, budget, product_code=lambda: self.product_code,
                                 revision=lambda: self.revision,
                                 identity_state=lambda: self.identity_state, resetting=lambda: self.resetting,
-                                forced_status=self.faults.forced_status)
+                                forced_status=self.faults.forced_status, assembly_size=self.faults.assembly_size)
         self.assemblies, self.table, self.router, self.link = (objects.assemblies, objects.table, objects.router,
                                                                objects.link)
         self._tcpip = objects.tcpip

@@ -125,9 +125,7 @@ class Reset(Happened, kind="reset"):
 class ResetDone(Happened, kind="reset done"):
     """The reset window ended: the device answers again."""
 
-    @property
-    def text(self) -> str:
-        return "answering again"
+    text = "answering again"
 
 
 @dataclass(frozen=True, slots=True)
@@ -165,12 +163,17 @@ class TcpClosed(Happened, kind="tcp closed"):
 
 
 @dataclass(frozen=True, slots=True)
-class EncapsulationRefused(Happened, kind="encapsulation refused"):
-    """A request answered with an encapsulation error status (Vol. 2, 2-3.3)."""
+class OfEncapsulation(Happened):
+    """A request of `command` from `peer` whose encapsulation `status` the subclass tells."""
 
     command: int
     peer: str
     status: int
+
+
+@dataclass(frozen=True, slots=True)
+class EncapsulationRefused(OfEncapsulation, kind="encapsulation refused"):
+    """A request answered with an encapsulation error status (Vol. 2, 2-3.3)."""
 
     @property
     def text(self) -> str:
@@ -179,12 +182,8 @@ class EncapsulationRefused(Happened, kind="encapsulation refused"):
 
 
 @dataclass(frozen=True, slots=True)
-class EncapsulationIgnored(Happened, kind="encapsulation ignored"):
+class EncapsulationIgnored(OfEncapsulation, kind="encapsulation ignored"):
     """A request that carried a non-zero status: not answered (Vol. 2, 2-3.5)."""
-
-    command: int
-    peer: str
-    status: int
 
     @property
     def text(self) -> str:
@@ -196,9 +195,7 @@ class EncapsulationIgnored(Happened, kind="encapsulation ignored"):
 class PowerLost(Happened, kind="power lost"):
     """The module's supply is gone (device/hardware.py): its volatile state with it."""
 
-    @property
-    def text(self) -> str:
-        return "no answer on TCP, UDP or class 1; connections end without a close"
+    text = "no answer on TCP, UDP or class 1; connections end without a close"
 
 
 @dataclass(frozen=True, slots=True)

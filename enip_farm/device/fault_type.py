@@ -1,8 +1,8 @@
 """What every fault kind is: a pydantic model of its parameters, their checks, and its effects as
 hooks that the paths of the farm call generically (device/faults.py gathers them per device).
 
-A kind overrides only the hooks it needs; each default is "no effect". `on_reply` and
-`on_product_code` are asked on every use; the others when a fault is set or cleared (device/faults.py
+A kind overrides only the hooks it needs; each default is "no effect". `on_reply`, `on_product_code`,
+`on_revision` and `on_assembly_size` are asked on every use; the others when a fault is set or cleared (device/faults.py
 keeps their answers for the fast paths), so their answer depends on the parameters, not on the moment:
 
 | hook | called by | returns |
@@ -15,6 +15,7 @@ keeps their answers for the fast paths), so their answer depends on the paramete
 | `listens()` | the farm: TCP 44818 listens while every active fault says so | False: no listener |
 | `on_product_code(code)` | the Identity object's product code (electronic keys) | the code shown |
 | `on_revision(revision)` | the Identity object's revision (electronic keys) | the revision shown |
+| `on_assembly_size(role, size)` | a Forward Open's size checks (cip/admission.py), per assembly role | the data size |
 | `hears()` | server/tcp.py, per read | False: requests are not received (no power, no link) |
 | `phases()` | the farm, on inject | (down s, up s) pairs: the effects come and go (a flapping link) |
 | `impairment()` | device/faults.py, when set | a DegradedPath the class-1 datagrams go through |
@@ -154,6 +155,9 @@ class FaultType(BaseModel):
 
     def on_revision(self, revision: tuple[int, int]) -> tuple[int, int]:
         return revision
+
+    def on_assembly_size(self, role: str, size: int) -> int:
+        return size
 
     def hears(self) -> bool:
         return True

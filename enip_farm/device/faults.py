@@ -154,6 +154,13 @@ class DeviceFaults:
                 revision = fault.on_revision(revision)
         return revision
 
+    def assembly_size(self, role: str, size: int) -> int:
+        """The data size of assembly `role` ("input", "output") a Forward Open is checked against."""
+        for name, fault in list(self.active.items()):
+            if name not in self.suspended:
+                size = fault.on_assembly_size(role, size)
+        return size
+
     def describe(self, now: int) -> list[dict[str, Any]]:
         """Each active fault's `parameters` and how long it has been on at `now` (`age_s`)."""
         return [{**fault.parameters(), "age_s": round((now - self.started_ns.get(name, now)) / 1e9, 3)}

@@ -47,11 +47,13 @@ class ObjectModel:
 def build_objects(profile: DeviceProfile, counters: Counter[str], budget: CyclicBudget | None, *,
                   product_code: Callable[[], int], identity_state: Callable[[], int],
                   revision: Callable[[], tuple[int, int]] | None = None,
-                  resetting: Callable[[], bool], forced_status: dict[int, int]) -> ObjectModel:
+                  resetting: Callable[[], bool], forced_status: dict[int, int],
+                  assembly_size: Callable[[str, int], int] | None = None) -> ObjectModel:
     """The objects of the device `profile` describes. `counters`: the device's (the connection table
     counts into them); `budget`: the cyclic I/O budget its connections share (None: no limit);
     `product_code`, `identity_state`, `resetting`: what the Identity object and the Safety Supervisor
-    read as they answer; `forced_status`: the router's injected statuses (a `status` fault)."""
+    read as they answer; `forced_status`: the router's injected statuses (a `status` fault);
+    `assembly_size`: the assembly sizes Forward Opens are checked against (a `wrong-module` fault)."""
     writable = profile.implicit.explicit_output_writes_while_owned
     shown_revision = revision or (lambda: profile.revision)
     assemblies = {spec.role: AssemblyInstance(spec.instance_id, spec.size, spec.settable, writable)
@@ -63,7 +65,8 @@ def build_objects(profile: DeviceProfile, counters: Counter[str], budget: Cyclic
     def key_identity() -> KeyIdentity:
         return KeyIdentity(profile.vendor_id, profile.device_type, product_code(), shown_revision())
 
-    table = ConnectionTable(assemblies, _policy(profile), key_identity, counters, budget=budget)
+    table = ConnectionTable(assemblies, _policy(profile), key_identity, counters, budget=budget,
+                            sizes=assembly_size)
     tcpip = TcpIpInterfaceObject(address=profile.address, netmask=profile.netmask, gateway=profile.gateway,
                                  host_name=profile.host_name,
                                  inactivity_timeout_s=profile.encapsulation_inactivity_timeout_s,

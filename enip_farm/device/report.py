@@ -10,13 +10,13 @@ from typing import Any
 
 from enip_farm.bounds import BoundsConfig, ResolvedBounds, resolve
 from enip_farm.cip.connection import Connection
-from enip_farm.cip.report import ConnectionFigures, DeviceReport, FarmReport, ReactionFigures
+from enip_farm.cip.report import ConnectionFigures, DeviceReport, FarmReport, ReactionFigures, Reconnection
 from enip_farm.cip.verdicts import judge_connection, judge_reaction, judge_reconnection
 from enip_farm.config import FarmConfig
 from enip_farm.device.device import Device
 
 TestBounds = BoundsConfig | Mapping[str, Any] | None
-__all__ = ["FarmReport", "TestBounds", "device_bounds", "device_report", "farm_report"]
+__all__ = ["FarmReport", "TestBounds", "device_bounds", "device_report", "farm_report", "reconnection_figures"]
 
 
 def device_bounds(config: FarmConfig, name: str, *tests: TestBounds) -> ResolvedBounds:
@@ -31,6 +31,11 @@ def device_bounds(config: FarmConfig, name: str, *tests: TestBounds) -> Resolved
 def connection_figures(device: Device, connection: Connection, now: int) -> ConnectionFigures:
     return connection.measure.figures(now, device.name, connection.originator_host, connection.o_t_id,  # type: ignore[union-attr]
                                       connection.t_o_id, connection.kind.value)
+
+
+def reconnection_figures(device: Device) -> list[Reconnection]:
+    """The device's reconnections (cip/reconnection.py), as its report has them; under its lock."""
+    return device.guard.read(lambda: device.table.reconnections.figures(device.name))
 
 
 def device_report(device: Device, now: int, bounds: ResolvedBounds) -> DeviceReport:

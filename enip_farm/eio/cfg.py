@@ -12,10 +12,11 @@ Parsing keeps every section and attribute it does not know (the importer decides
 only lines that fit none of the shapes above are errors, each naming the file and the line.
 
 A file cut short is refused (`cut_short`): the files RobotWare and its tools write end with their
-last entry's last line and a line break (every public EIO.cfg, and tests/data/EIO.cfg), so a file
-that ends inside a line (no final line break), on a continuation (`\\`), or after a blank line, a
-`#` line or a section line (the separators that come before an entry) was cut. A file cut exactly
-after an entry's line break looks whole: nothing in the format tells it apart.
+last entry's last line and a line break (the public EIO.cfg files seen, and tests/data/EIO.cfg), so
+a file that ends inside a line (no final line break), on a continuation (`\\`), or after a `#` line
+or a section line (the separators that come before an entry) was cut. A file that ends with blank
+lines may have been cut between entries or edited by hand: it is read, with a warning that says so.
+A file cut exactly after an entry's line break looks whole: nothing in the format tells it apart.
 """
 
 from __future__ import annotations
@@ -135,6 +136,8 @@ def parse_cfg(text: str, source: str = "<cfg>") -> CfgFile:
     cut = cut_short(text, lines, source)
     if cut:
         errors.append(cut)
+    elif (blank := trailing_blank(lines, source)) is not None:
+        warnings.append(blank)
     if errors:
         raise CfgError("\n".join(errors))
     return CfgFile(source, lines[first].strip(), header["domain"], tuple(entries), sections,  # type: ignore[index]
@@ -155,11 +158,19 @@ def cut_short(text: str, lines: list[str], source: str) -> str | None:
         what = "a line that continues (\\) on a line that is not there"
     elif stripped == "#" or _SECTION.match(stripped):
         what = f"{'a # line' if stripped == '#' else 'the section line ' + stripped} and no entry after it"
-    elif last < len(lines) - 1 and _HEADER.match(stripped) is None:
-        last, what = len(lines) - 1, "a blank line, which comes before an entry"
     else:
         return None
     return f"{source}:{last + 1}: the file ends with {what}, where RobotWare ends with an entry's line: {advice}"
+
+
+def trailing_blank(lines: list[str], source: str) -> str | None:
+    """A warning where the file ends with blank lines after its last entry (cut between entries, or
+    a hand edit: both happen), or None."""
+    last = max((i for i, line in enumerate(lines) if line.strip()), default=0)
+    if last == len(lines) - 1 or _HEADER.match(lines[last].strip()) is not None:
+        return None
+    return (f"{source}:{len(lines)}: the file ends with a blank line, where RobotWare ends with an entry's line: "
+            "if it was copied, check that the copy is whole (it may have stopped between entries)")
 
 
 def _attributes(parts: list[tuple[int, str]], source: str, errors: list[str],

@@ -269,24 +269,35 @@ def create_router(config: FarmConfig, slices: list[FarmConfig], finder: Finder, 
             gauge.add_metric([str(index)], 1.0 if state else 0.0)
         return Response(merge_metrics(texts, labels, [gauge]), media_type="text/plain; version=0.0.4; charset=utf-8")
 
-    async def state(request: Request) -> Response:
-        names = asked(request)
-        if isinstance(names, Response):
-            return names
+    async def ask_parts(request: Request, path: str, names: list[str]
+                        ) -> tuple[set[str], list[Part], list[tuple[Part, Any]]] | Response:
+        """GET `path` of every part up that serves one of `names` (none: every device), at once: the
+        names wanted, the parts serving them, and (part, JSON) of those that answered 200; a part's
+        other answer is the reply (one that did not answer counts as down)."""
         await refresh(force=True)
         wanted = set(names) if names else set(view.owner)
         parts = [part for part in view.parts if wanted & set(part.devices)]
         up = [part for part in parts if part.up]
-        replies = await asyncio.gather(*(client().get(f"{part.endpoint}/state", headers=headers_of(request), params=[
+        replies = await asyncio.gather(*(client().get(f"{part.endpoint}/{path}", headers=headers_of(request), params=[
             ("device", name) for name in names if name in part.devices]) for part in up), return_exceptions=True)
-        merged: list[dict[str, Any]] = []
-        answered = set()
+        answers: list[tuple[Part, Any]] = []
         for part, reply in zip(up, replies, strict=True):
             if isinstance(reply, httpx.Response) and reply.status_code == 200:
-                merged.extend({**device, **view.marks(part, True)} for device in reply.json())
-                answered.add(part.index)
+                answers.append((part, reply.json()))
             elif isinstance(reply, httpx.Response):
                 return response_of(reply)
+        return wanted, parts, answers
+
+    async def state(request: Request) -> Response:
+        names = asked(request)
+        if isinstance(names, Response):
+            return names
+        asking = await ask_parts(request, "state", names)
+        if isinstance(asking, Response):
+            return asking
+        wanted, parts, answers = asking
+        merged = [{**device, **view.marks(part, True)} for part, listing in answers for device in listing]
+        answered = {part.index for part, _ in answers}
         for part in parts:
             if part.index not in answered:
                 merged.extend(view.down_state(name, part) for name in part.devices if name in wanted)
@@ -298,23 +309,16 @@ def create_router(config: FarmConfig, slices: list[FarmConfig], finder: Finder, 
         names = asked(request)
         if isinstance(names, Response):
             return names
-        await refresh(force=True)
-        wanted = set(names) if names else set(view.owner)
-        parts = [part for part in view.parts if wanted & set(part.devices)]
-        up = [part for part in parts if part.up]
-        replies = await asyncio.gather(*(client().get(f"{part.endpoint}/report", headers=headers_of(request), params=[
-            ("device", name) for name in names if name in part.devices]) for part in up), return_exceptions=True)
-        answers, answered = [], set()
-        for part, reply in zip(up, replies, strict=True):
-            if isinstance(reply, httpx.Response) and reply.status_code == 200:
-                answers.append((reply.json(), view.marks(part, True)))
-                answered.add(part.index)
-            elif isinstance(reply, httpx.Response):
-                return response_of(reply)
+        asking = await ask_parts(request, "report", names)
+        if isinstance(asking, Response):
+            return asking
+        wanted, parts, answers = asking
+        answered = {part.index for part, _ in answers}
         down = [down_device(name, view.marks(part, False)) for part in parts if part.index not in answered
                 for name in part.devices if name in wanted]
         position = {name: i for i, name in enumerate(names)} if names else view.order
-        return JSONResponse(merge_reports(answers, down, position))
+        return JSONResponse(merge_reports([(report, view.marks(part, True)) for part, report in answers], down,
+                                          position))
 
     async def events(request: Request) -> Response:
         names = asked(request)

@@ -102,7 +102,9 @@ class SignalWithin:
 
 @dataclass(frozen=True)
 class Reconnected:
-    """TARGET reconnected within BOUND of step S: every device of it opens a class-1 connection again."""
+    """TARGET reconnected within BOUND of step S: every device of it has its class-1 connections back
+    (each originator it lost: its first O->T after its next accepted Forward Open, as the report
+    measures a reconnection; where no originator was lost, a class-1 connection opened)."""
 
     target: str
     devices: tuple[str, ...]

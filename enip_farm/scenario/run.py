@@ -17,6 +17,7 @@ from enip_farm.config import FarmConfig
 from enip_farm.device.device import Device
 from enip_farm.device.events import ScenarioStep
 from enip_farm.device.faults import Fault, FaultType
+from enip_farm.device.report import reconnection_figures
 from enip_farm.device.signals import SignalMap
 from enip_farm.scenario.model import (
     ClearAction,
@@ -94,6 +95,7 @@ async def run_scenario(farm: ScenarioFarm, scenario: Scenario, progress: Callabl
     for number, step in schedule.steps.items():  # a fault's step ends when its duration does
         if isinstance(step.action, FaultAction) and step.action.duration_ns and number in schedule.started:
             recording.ended[number] = schedule.started[number] + step.action.duration_ns
+    recording.reconnections = {name: reconnection_figures(farm.devices[name]) for name in scenario.devices}
     verdicts = judge(scenario, recording, {name: farm[name].signals for name in scenario.devices})
     if status == "passed" and (any(not v.passed for v in verdicts) or any(
             state is not StepState.DONE for state in schedule.state.values())):

@@ -9,6 +9,7 @@ from dataclasses import asdict, dataclass, field
 from typing import Any
 
 from enip_farm.cip.connection_events import ConnectionOpened, ConnectionTimedOut
+from enip_farm.cip.report import Reconnection
 from enip_farm.device.events import Event, ImageChanged
 from enip_farm.device.signals import SignalMap
 from enip_farm.scenario.model import (
@@ -32,6 +33,9 @@ class Recording:
     events: list[Event] = field(default_factory=list)
     started: dict[int, int] = field(default_factory=dict)
     ended: dict[int, int] = field(default_factory=dict)
+    #: Each device's reconnection figures at the end (cip/reconnection.py, the report's): when each
+    #: originator's Forward Open and first O->T came after the device came back.
+    reconnections: dict[str, list[Reconnection]] = field(default_factory=dict)
 
     def of_type(self, cls: type, devices: tuple[str, ...], since: int | None = None) -> list[Event]:
         """The events of class `cls` of these devices (from `since`)."""
@@ -142,16 +146,16 @@ def _judge(expectation: Expectation, recording: Recording, signals: Mapping[str,
             if when is None:
                 return verdict(False, f"never (bound {_ms(check.bound_ns)})")
             return verdict(when - since <= check.bound_ns, f"after {_ms(when - since)} (bound {_ms(check.bound_ns)})")
-        late = {}
+        late, how = {}, {}
         for device in check.devices:
-            opened = recording.of_type(ConnectionOpened, (device,), since)
-            late[device] = opened[0].monotonic_ns - since if opened else None
+            late[device], how[device] = _reconnected(recording, device, since)
         missing = [d for d, t in late.items() if t is None]
         if missing:
-            return verdict(False, f"not reconnected: {', '.join(missing)} (bound {_ms(check.bound_ns)})")
+            return verdict(False, f"not reconnected: {', '.join(f'{d}{how[d]}' for d in missing)} "
+                                  f"(bound {_ms(check.bound_ns)})")
         worst = max(late, key=lambda d: late[d])  # type: ignore[arg-type, return-value]
         return verdict(late[worst] <= check.bound_ns,  # type: ignore[operator]
-                       f"last {worst} after {_ms(late[worst])} (bound {_ms(check.bound_ns)})")  # type: ignore[arg-type]
+                       f"last {worst} after {_ms(late[worst])}{how[worst]} (bound {_ms(check.bound_ns)})")  # type: ignore[arg-type]
     if isinstance(check, NoTimeouts):
         found = recording.of_type(ConnectionTimedOut, check.devices)
         return verdict(not found, "none" if not found else f"{len(found)}: " + ", ".join(
@@ -159,6 +163,28 @@ def _judge(expectation: Expectation, recording: Recording, signals: Mapping[str,
     assert isinstance(check, EventCount)
     count = len(recording.of_kind(check.kind, check.devices))
     return verdict(OPERATORS[check.op](count, check.count), f"{count} {check.kind}")
+
+
+def _reconnected(recording: Recording, device: str, since: int) -> tuple[int | None, str]:
+    """When `device` was reconnected after `since` (ns after it) and how that was measured. From the
+    report's reconnection figures where the run has them (each originator expected back: its first
+    O->T after its next accepted Forward Open, the last originator's), else from the first
+    "connection opened" event."""
+    figures = [r for r in recording.reconnections.get(device, ()) if r.since_ns >= recording.start_ns
+               and (r.forward_open_ns is None or r.forward_open_ns >= since)]
+    if not figures:
+        opened = recording.of_type(ConnectionOpened, (device,), since)
+        return (opened[0].monotonic_ns - since, "") if opened else (None, "")
+    first: dict[str, Reconnection] = {}
+    for figure in figures:  # the done ones come first, oldest first: an originator's first one
+        first.setdefault(figure.originator, figure)
+    waiting = [o for o, r in first.items() if r.first_o_t_ns is None]
+    if waiting:
+        return None, f" ({', '.join(waiting)}: no first O->T after a Forward Open)"
+    last = max(first.values(), key=lambda r: r.first_o_t_ns)  # type: ignore[arg-type, return-value]
+    return last.first_o_t_ns - since, (  # type: ignore[operator]
+        f" ({last.originator}: first O->T {_ms(last.first_o_t_after_ns)}, Forward Open "  # type: ignore[arg-type]
+        f"{_ms(last.forward_open_after_ns)} after it came back)")  # type: ignore[arg-type]
 
 
 def first_true(condition: Condition, since: int, recording: Recording, signals: SignalMap) -> int | None:

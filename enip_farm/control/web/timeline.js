@@ -2,7 +2,8 @@
 // a signal, digital ones as steps between low and high, analog ones as steps scaled to their range
 // in the window; a vertical mark at each image change, coloured by who made it (`o->t` the
 // controller's class-1 data, `explicit` its requests, `stimulus` the test's inputs, anything else a
-// connection event such as a timeout), its title saying when, by whom and which signals.
+// connection event such as a timeout), its title saying when, by whom and which signals; a running
+// scenario's steps (`answer.steps`) as marks across every row, each titled with its line.
 
 import { fixed, svg } from './svg.js';
 
@@ -49,6 +50,12 @@ export function draw(answer, only = null) {
       class: `mark ${MARK_CLASS[mark.by] || 'by-event'}`, x1: at, x2: at, y1: 0, y2: top,
       'data-by': mark.by, 'data-signals': mark.signals.join(','),
     }, `${(mark.at - answer.now).toFixed(3)} s: ${mark.by} ${mark.signals.join(', ')}`));
+  }
+  for (const step of answer.steps || []) {
+    const at = fixed(x(step.at));
+    root.appendChild(svg('line', {
+      class: 'mark by-scenario', x1: at, x2: at, y1: 0, y2: top, 'data-by': 'scenario step', 'data-step': step.text,
+    }, `${(step.at - answer.now).toFixed(3)} s: ${step.text}`));
   }
   const axis = svg('text', { x: LABEL, y: height - 4, class: 'axis' });
   axis.textContent = `${fixed(span)} s to now`;
