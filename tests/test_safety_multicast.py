@@ -286,8 +286,8 @@ def test_three_originators_consume_the_farms_multicast_safe_inputs(free_address,
         pid = Seeds.of(75, farm.device("s").profile.serial_number, instance)
         validator_type = clients[0].get(0x3A, instance, 2)
         assert validator_type.general_status == 0 and validator_type.data == b"\x02"  # producer, multicast
+        farm["s"].set(DI1=1, DI12=1)  # before joining: every message the receivers get carries it
         receivers = [stack.enter_context(_multicast_receiver(group)) for _ in hosts]
-        farm["s"].set(DI1=1, DI12=1)
 
         sequence = iter(range(1, 1_000_000))
         last_ping: list[int | None] = [None]
