@@ -88,13 +88,15 @@ class _Clock:
 
 
 class _Epoll:
-    """The I/O thread's epoll: records each poll's timeout and stops the thread after `turns`."""
+    """The I/O thread's epoll: records each poll's timeout, waits it out on the clock, stops the
+    thread after `turns`."""
 
-    def __init__(self, thread: CyclicIoThread, turns: int) -> None:
-        self.thread, self.turns, self.timeouts = thread, turns, []
+    def __init__(self, thread: CyclicIoThread, turns: int, clock: _Clock) -> None:
+        self.thread, self.turns, self.clock, self.timeouts = thread, turns, clock, []
 
     def poll(self, timeout: float) -> list:
         self.timeouts.append(timeout)
+        self.clock.sleep(timeout)  # nothing comes: it waits the whole timeout
         if len(self.timeouts) >= self.turns:
             self.thread._stopping = True
         return []
@@ -116,7 +118,7 @@ def _turns(monkeypatch, clock: _Clock, dues: list[int], turns: int) -> tuple[Cyc
     real = thread._epoll
     try:
         monkeypatch.setattr(implicit, "time", clock)
-        fake = thread._epoll = _Epoll(thread, turns)
+        fake = thread._epoll = _Epoll(thread, turns, clock)
         overloads: list[tuple[int, int]] = []
         thread._overloaded = lambda lag_ns, now: overloads.append((lag_ns, now))
         turns: list[int] = []
@@ -152,3 +154,24 @@ def test_a_wake_up_100_ms_ahead_is_one_poll_of_99_ms_and_nothing_served(monkeypa
     thread, epoll, (overloads, (endpoint,), turns) = _turns(monkeypatch, clock, [T0 + 100 * MS], 1)
     assert epoll.timeouts == [pytest.approx(0.098, abs=1e-9)]
     assert endpoint.served == [] and turns == [] and overloads == []
+
+
+def test_an_o_t_reaches_a_device_without_an_output_image() -> None:
+    """Where the guard holds no output image (a model without an output assembly: input-only
+    connections, whose O->T are heartbeats), an O->T is taken and nothing reads the missing image
+    (a mutant of `old is not None and output.data != old` read `None.data` and raised)."""
+    device = _dsqc1030()
+    connection = _open(device)
+    device.guard.output = None  # as such a model builds it (device/guard.py: `assemblies.get("output")`)
+    packet = encode_io_packet(connection.o_t_id, 1, 1, RUN + bytes(len(device.outputs)))
+    assert device.receive_io(packet, (PEER, 2222), T0 + MS, lambda *a: None, T0 + MS) is True
+
+
+def test_the_lag_of_the_last_whole_second_rolls_over_at_an_on_time_turn(monkeypatch) -> None:
+    """A turn 3 ms late in one second, then one on time in the next: the worst of the last whole
+    second is 3 ms (the lag was told only of late turns, and kept 0 until the next late one)."""
+    due = T0 + 1_500 * MS
+    thread, _, (overloads, (early, later), turns) = _turns(monkeypatch, _Clock(T0 + 3 * MS), [T0, due], 8)
+    assert early.served == [T0 + 3 * MS] and len(later.served) == 1 and due - MS <= later.served[0] <= due
+    assert turns == [3 * MS, later.served[0] - due] and overloads == []
+    assert (thread.lag.worst_ns, thread.lag.overloads) == (3 * MS, 0)

@@ -235,9 +235,10 @@ class CyclicIoThread(threading.Thread):
                             endpoint.take(data, host, port, now, received_at or now)
             horizon = now + turn_ns  # what falls due before the next turn is served in this one
             if heap and heap[0][0] <= horizon:
-                running.turn(now - heap[0][0])
-                if heap[0][0] < now and lag.observe(now - heap[0][0], now):
-                    self._overloaded(now - heap[0][0], now)
+                late = now - heap[0][0]  # <= 0 on time: the lag still starts its next second (worst_ns)
+                running.turn(late)
+                if lag.observe(late, now):
+                    self._overloaded(late, now)
                 due = []
                 while heap and heap[0][0] <= horizon:
                     when, _, endpoint = heapq.heappop(heap)
