@@ -6,7 +6,6 @@ and the test's stimuli marked: control/timeline.py)."""
 from __future__ import annotations
 
 import dataclasses
-import time
 from collections.abc import Callable
 from typing import Annotated, Any
 
@@ -49,4 +48,5 @@ def mount_measured(app: FastAPI, timelines: Timelines, known: Callable[[str], st
         whom: `o->t` (class-1 data), `explicit` (a request), `stimulus` (inputs set through the API),
         or the connection event that changed the outputs (e.g. `connection timed out`). A device's
         changes are recorded from the first time its timeline is asked for (`recording_since`)."""
-        return timelines.timeline(known(name), seconds, time.monotonic_ns())
+        name = known(name)
+        return timelines.timeline(name, seconds, timelines.devices[name].clock())

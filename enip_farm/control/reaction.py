@@ -9,7 +9,6 @@ stimulus stays set at the end, as the test set it."""
 
 from __future__ import annotations
 
-import time
 from collections.abc import Callable, Mapping
 
 from enip_farm.cip.report import ReactionFigures
@@ -80,7 +79,7 @@ def _once(source: DeviceHandle, target: DeviceHandle, probe: ReactionProbe, name
     unsubscribe = target.device.observe(explicit, ImageChanged)
     unwatch = watch_flush(probe.flushed) if watch_flush is not None else None
     try:
-        written_at = time.monotonic_ns()
+        written_at = source.device.clock()
         source.set({name: value})
         produced = source.device.guard.read(lambda: bool(source.device.table.productions))
         if not produced:  # no T->O carries the inputs: an explicit reader could see it from now

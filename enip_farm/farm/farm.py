@@ -85,6 +85,7 @@ class Farm:
         self._profiles = profiles
         #: What this farm's cyclic I/O thread admits connections for (set at start: measured or configured).
         self.budget = CyclicBudget(DEFAULT_DATAGRAMS_PER_S, "not started")
+        self.clock = clock
         self.devices: dict[str, Device] = {p.name: Device(p, self.budget, clock) for p in profiles}
         self.handles: dict[str, DeviceHandle] = {name: DeviceHandle(self, d) for name, d in self.devices.items()}
         for device in self.devices.values():
@@ -113,7 +114,8 @@ class Farm:
             owner = owners.setdefault(str(entry.address), entry.name)
             if owner != entry.name:
                 self.address_owners[entry.name] = owner
-        self.faults = FarmFaults(self.devices, self.listeners, self.resets, self._spawn, lambda: self.running)
+        self.faults = FarmFaults(self.devices, self.listeners, self.resets, self._spawn, lambda: self.running,
+                                 clock)
         for device in self.devices.values():
             self.resets.observe(device)
         self.loop: asyncio.AbstractEventLoop | None = None
@@ -265,7 +267,7 @@ class Farm:
         """The report on the controller under test (cip/report.py: `as_dict()` for JSON): every
         device's class-1 connections as measured, its reconnections and the reactions measured,
         judged against the bounds (the configuration's, then `bounds`, a test's own)."""
-        return farm_report(self.config, self.devices.values(), time.monotonic_ns(), list(self.reactions), bounds)
+        return farm_report(self.config, self.devices.values(), self.clock(), list(self.reactions), bounds)
 
     def reaction(self, set: SignalValue, expect: SignalValue, timeout: float = 1.0, repeat: int = 1,
                  reset: int | float | None = None, bounds: TestBounds = None, name: str | None = None
@@ -317,7 +319,7 @@ class Farm:
         """Run a scenario (a file or a parsed one) on the running farm, from another thread, and return
         its result (`passed`, `verdicts`, `table()`); whatever it set is undone when it ends."""
         parsed = scenario if isinstance(scenario, Scenario) else self.load_scenario(scenario)
-        return self.run(run_scenario(self, parsed, progress), timeout)
+        return self.run(run_scenario(self, parsed, progress, self.clock), timeout)
 
     def mark(self, text: str) -> None:
         """A scenario's step, in the recording's side file (`--record FILE`: FILE.steps, a line of wall-clock

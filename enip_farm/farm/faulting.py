@@ -12,7 +12,6 @@ reset, as a rebooted stack answers their next segment, and listens again when it
 from __future__ import annotations
 
 import asyncio
-import time
 from collections.abc import Callable, Coroutine, Iterable, Iterator, Mapping
 from typing import Any
 
@@ -28,12 +27,14 @@ class FarmFaults:
     """The faults of the farm's devices: set, timed, flapped and cleared on the farm's loop."""
 
     def __init__(self, devices: Mapping[str, Device], listeners: Listeners, resets: FarmResets,
-                 spawn: Callable[[Coroutine[Any, Any, Any]], None], running: Callable[[], bool]) -> None:
+                 spawn: Callable[[Coroutine[Any, Any, Any]], None], running: Callable[[], bool],
+                 clock: Callable[[], int]) -> None:
         self.devices = devices
         self.listeners = listeners
         self.resets = resets
         self.spawn = spawn
         self.running = running
+        self.clock = clock  # the farm's: when a fault was set or cleared
         self.timers: dict[tuple[str, str], asyncio.TimerHandle] = {}
         self.flaps: dict[tuple[str, str], asyncio.Task] = {}
         self.off_network: set[str] = set()  # configured onto another device's address (duplicate_address)
@@ -49,7 +50,7 @@ class FarmFaults:
     async def inject(self, names: Iterable[str], fault: FaultType) -> None:
         """Switch `fault` on for every device of `names` at once (one `now`, one turn of the loop)."""
         loop = asyncio.get_running_loop()
-        now = time.monotonic_ns()
+        now = self.clock()
         end = None if fault.duration_ns is None else loop.time() + fault.duration_ns / 1e9
         for name in names:
             device = self.devices[name]
@@ -105,7 +106,7 @@ class FarmFaults:
         the fault took the power). A device configured onto another's address keeps its conflict."""
         device = self.devices[name]
         faults = device.faults
-        now = time.monotonic_ns()
+        now = self.clock()
         kinds = [k for k in faults.active if kind is None or k == kind]
         if name in self.off_network and "address-conflict" in kinds:
             kinds.remove("address-conflict")
