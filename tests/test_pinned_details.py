@@ -199,10 +199,12 @@ def test_elementary_type_codes_are_pycomm3s() -> None:
 def test_the_message_router_class_get_attributes_all_is_1_4_5_6_7() -> None:
     """Vol. 1, 5-5.3 and 4-4.1: revision, optional attributes and services, highest class and
     instance attribute ids, in that order, each as Get Attribute Single answers it (a mutant
-    answered 1, 4, 5, 7)."""
+    answered 1, 4, 5, 7; another 2, 4, 5, 6, 7: max instance is 1 as the revision is, so the test
+    sets a revision other than 1)."""
     config = parse_config({"devices": [{"name": "d", "address": "127.0.0.1", "model": "DSQC1030"}]})
     (profile,) = build_profiles(config, shipped_catalogue())
     router = Device(profile).router
+    router.revision = 3  # not 1, which max instance (attribute 2) also is
 
     def ask(service: int, attribute: int | None = None) -> MessageRouterReply:
         request = encode_request(service, encode_request_path(ClassCode.MESSAGE_ROUTER, 0, attribute))
@@ -211,6 +213,7 @@ def test_the_message_router_class_get_attributes_all_is_1_4_5_6_7() -> None:
     every = ask(Service.GET_ATTRIBUTES_ALL)
     assert every.general_status == 0
     assert every.data == b"".join(ask(Service.GET_ATTRIBUTE_SINGLE, a).data for a in (1, 4, 5, 6, 7))
+    assert every.data[:2] == b"\x03\x00"
 
 
 IDENTITY = KeyIdentity(75, 7, 1030, (2, 5))

@@ -125,8 +125,9 @@ class DeviceFaults:
             self._tampered_by = tampering
             self.safety_tamper = tampering.safety_tamper() if tampering is not None else None
         self._replies = tuple(f for f in faults if type(f).on_reply is not FaultType.on_reply)
-        ends = {fault.on_tcp_connection() for fault in faults} - {None}
-        self._disconnect = Disconnect.RESET if Disconnect.RESET in ends else ends.pop() if ends else None
+        # a list in the faults' order, not a set: the choice never rests on a hash order (issue 32)
+        ends = [end for end in (fault.on_tcp_connection() for fault in faults) if end is not None]
+        self._disconnect = Disconnect.RESET if Disconnect.RESET in ends else ends[0] if ends else None
 
     def on_reply(self) -> int | None:
         """Nanoseconds to hold this turn's TCP replies back (in order after the ones held before), or
