@@ -43,6 +43,7 @@ ROOT = Path(__file__).resolve().parent.parent
 EQUIVALENTS = ROOT / "bench" / "mutation-equivalents.md"
 VARY = "tests/test_values_that_vary.py"
 PINNED = "tests/test_pinned_details.py"  # what the mutants that survived showed no test pinned
+PATHS = "tests/test_pinned_paths.py"  # the same, for the class-1 path and the I/O thread's heap
 
 
 @dataclass(frozen=True)
@@ -70,10 +71,10 @@ PACKAGES: dict[str, Package] = {
     "device-cyclic": Package(  # one device's class-1 path: cyclic I/O, its lock, its target
         ("enip_farm/device/cyclic.py", "enip_farm/device/guard.py", "enip_farm/device/target.py"),
         ("tests/test_device.py", "tests/test_reset_effect.py", VARY, PINNED, "tests/test_report_unit.py",
-         "tests/test_implicit.py", "tests/test_report.py")),
+         "tests/test_implicit.py", "tests/test_report.py", PATHS)),
     "server-class1": Package(  # the I/O thread and its sockets
         ("enip_farm/server/implicit.py", "enip_farm/server/batch.py", "enip_farm/server/waits.py"),
-        ("tests/test_implicit.py", "tests/test_batch.py", PINNED, "tests/test_supervision.py")),
+        ("tests/test_implicit.py", "tests/test_batch.py", PINNED, "tests/test_supervision.py", PATHS)),
 }
 
 #: The six mutations issue 32 found surviving: (name, module, the code, the mutated code, tests).
