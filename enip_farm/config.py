@@ -163,14 +163,14 @@ class DeviceConfig(_Strict):
     mac: str | None = Field(None, description="default: 02:00 followed by the address's four bytes")
     host_name: str = ""
     implicit: ImplicitConfig = ImplicitConfig()
-    encapsulation_inactivity_timeout_s: int = Field(
-        120, ge=0, le=3600, description="TCP/IP object attribute 13: a TCP connection with no whole request "
-        "for this long is closed (0 = never)")
+    encapsulation_inactivity_timeout_s: int = Field(120, ge=0, le=3600, description=(
+        "TCP/IP object attribute 13: a TCP connection with no whole request for this long is closed (0 = never)"))
     limits: LimitsConfig = LimitsConfig()
     reset_time_s: float = Field(
         1.0, ge=0, le=3600, allow_inf_nan=False, description="Identity Reset: how long the device does not "
         "answer (no TCP listener, UDP dropped) after it has replied, as a module restarts")
     duplicate_address: bool = Field(False, description="on an earlier device's address: ACD finds it taken")
+    select_acd: bool = Field(False, description="TCP/IP attribute 10 out of box: ACD on (ABB's: UNVERIFIED)")
     signals: list[SignalConfig] = Field([], description="named signals (RobotWare EIO_SIGNAL) beside DI1.., DO1..")
     safety: SafetyConfig = SafetyConfig()
     bounds: BoundsConfig = Field(BoundsConfig(), description="the report's bounds for this device, over the cell's")

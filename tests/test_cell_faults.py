@@ -177,28 +177,66 @@ def test_random_flapping_is_repeatable_by_its_seed() -> None:
         Fault("address-conflict", remote_mac="nope")
 
 
-def test_an_address_conflict_fills_in_the_tcpip_objects_attributes_when_acd_is_selected(enip_farm) -> None:
+def test_with_acd_off_an_address_conflict_is_not_detected_and_the_module_keeps_answering(enip_farm) -> None:
+    """SelectAcd 0 (the farm's default, unverified for ABB's modules): in neither phase does the module
+    detect the conflict: attributes 1 and 11 stay as they were and it goes on answering (Vol. 2, 5-4)."""
     farm = rack(enip_farm)
     r1 = farm["r1"]
     with RawClient(r1.address) as client:
         client.register()
-        farm.inject("r1", "address-conflict", remote_mac="02:00:00:00:00:fe")
-        assert client.get(0xF5, 1, 11).data == bytes(35)  # SelectAcd 0: nothing detected
-        farm.clear("r1")
-        assert client.set(0xF5, 1, 10, b"\x01").general_status == 0
+        assert client.get(0xF5, 1, 10).data == b"\x00"
+        for phase in ("ongoing", "probe"):
+            farm.inject("r1", "address-conflict", remote_mac="02:00:00:00:00:fe", phase=phase)
+            assert client.get(0xF5, 1, 11).data == bytes(35)  # nothing detected
+            assert client.get(0xF5, 1, 1).data == (0x01).to_bytes(4, "little")  # no AcdStatus, no AcdFault
+            assert client.get(1, 1, 1).data == (75).to_bytes(2, "little") and list_identity_answered(r1.address)
+            assert [f["kind"] for f in farm["r1"].faults] == ["address-conflict"]
+            farm.clear("r1")
+        assert [e.text for e in farm["r1"].events("address conflict")] == [
+            "with 02:00:00:00:00:fe: not detected (SelectAcd, TCP/IP attribute 10, is 0)"] * 2
+
+
+def test_with_acd_on_an_address_conflict_fills_in_attributes_1_and_11_and_a_probe_gives_the_address_up(
+        enip_farm) -> None:
+    farm = rack(enip_farm, select_acd=True)  # the configured out-of-box SelectAcd
+    r1 = farm["r1"]
+    mac = bytes.fromhex("0200000000fe")
+    ip = socket.inet_aton(r1.address)
+    arp = bytes.fromhex("0001 0800 06 04 0002") + mac + ip + r1.device.profile.mac + ip
+    with RawClient(r1.address) as client:
+        client.register()
+        assert client.get(0xF5, 1, 10).data == b"\x01"
+        assert client.get(0xF5, 1, 11).data == bytes(35)
         farm.inject("r1", "address-conflict", remote_mac="02:00:00:00:00:fe")  # ongoing: defended
         assert client.get(0xF5, 1, 1).data == (0x01 | 0x40).to_bytes(4, "little")  # AcdStatus
-        mac = bytes.fromhex("0200000000fe")
-        ip = socket.inet_aton(r1.address)
-        own = r1.device.profile.mac
-        arp = bytes.fromhex("0001 0800 06 04 0002") + mac + ip + own + ip
         assert client.get(0xF5, 1, 11).data == b"\x02" + mac + arp
+        assert list_identity_answered(r1.address)
         farm.clear("r1")
         assert client.get(0xF5, 1, 1).data == (0x01).to_bytes(4, "little")
         farm.inject("r1", "address-conflict", phase="probe")  # the address given up: silent
         assert unanswered(client) and not list_identity_answered(r1.address)
         farm.clear("r1")
-        assert client.get(0xF5, 1, 11).data[0] == 1  # the last conflict kept: found while probing
+        assert client.get(0xF5, 1, 11).data == b"\x01" + mac + arp  # the last conflict kept: found while probing
+        assert client.get(0xF5, 1, 1).data == (0x01).to_bytes(4, "little")
+    assert [e.text for e in farm["r1"].events("address conflict")] == [
+        "with 02:00:00:00:00:fe: address defended", "with 02:00:00:00:00:fe: address given up"]
+
+
+def test_acd_set_on_by_a_client_is_what_the_next_conflict_follows(enip_farm) -> None:
+    farm = rack(enip_farm)
+    r1 = farm["r1"]
+    with RawClient(r1.address) as client:
+        client.register()
+        assert client.set(0xF5, 1, 10, b"\x01").general_status == 0
+        assert client.get(0xF5, 1, 10).data == b"\x01"
+        farm.inject("r1", "address-conflict", phase="probe")
+        assert unanswered(client) and not list_identity_answered(r1.address)
+        farm.clear("r1")
+        assert client.get(0xF5, 1, 11).data[:7] == b"\x01" + bytes.fromhex("0200000000fe")
+        assert client.set(0xF5, 1, 10, b"\x00").general_status == 0
+        farm.inject("r1", "address-conflict", phase="probe", remote_mac="02:00:00:00:00:aa")
+        assert client.get(0xF5, 1, 11).data[:7] == b"\x01" + bytes.fromhex("0200000000fe")  # as it was
+        assert client.get(0xF5, 1, 1).data == (0x01).to_bytes(4, "little")
 
 
 def test_a_wrong_module_shows_another_identity_until_put_back(enip_farm) -> None:

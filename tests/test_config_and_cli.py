@@ -40,7 +40,8 @@ def _write(tmp_path: Path, text: str) -> Path:
         ("devices:\n  - {name: io1, address: 127.0.0.3, model: DSQC1030, colour: red}\n",
          ":2: device 'io1' (devices[0]), colour: unknown key; the keys here: name, address, count, model, addons, "
          "identity, assemblies, writable_inputs, netmask, gateway, mac, host_name, implicit, "
-         "encapsulation_inactivity_timeout_s, limits, reset_time_s, duplicate_address, signals, safety, bounds, extra"),
+         "encapsulation_inactivity_timeout_s, limits, reset_time_s, duplicate_address, select_acd, signals, "
+         "safety, bounds, extra"),
         ("devices:\n  - {name: io1, address: 127.0.0.3, model: DSQC1030, identity: {vendor_id: 70000}}\n",
          ":2: device 'io1' (devices[0]), identity.vendor_id: Input should be less than or equal to 65535"),
         ("devices:\n  - {name: a, address: 127.0.0.3, model: DSQC1030}\n"

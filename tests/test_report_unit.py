@@ -142,8 +142,10 @@ def test_the_table_measures_by_the_kernel_time_and_sees_what_it_drops() -> None:
 
 
 @pytest.mark.parametrize(("how", "word"), [("close", "forward close"), ("timeout", "timeout"),
-                                           ("session", "closed"), ("reset", "device reset")])
+                                           ("session", "closed"), ("reset", "device reset"),
+                                           ("reason text only", "closed")])
 def test_how_a_connection_ended(how: str, word: str) -> None:
+    """The word comes from the end's class or the typed `ends`, never from the reason's text."""
     table = make_table(first_watchdog_ms=0)
     connection = open_owner(table, rpi_us=10_000).connection
     if how == "close":
@@ -152,6 +154,8 @@ def test_how_a_connection_ended(how: str, word: str) -> None:
         table.handle_timer(T0 + connection.timeout_ns)
     elif how == "session":
         table.close(connection, "its producing connection closed", T0 + MS)
+    elif how == "reset":
+        table.close(connection, "identity reset (type 0)", T0 + MS, ends="device reset")
     else:
         table.close(connection, "identity reset (type 0)", T0 + MS)
     assert connection.measure.ended == word

@@ -147,3 +147,13 @@ def test_a_time_coordination_reply_is_sent_after_the_lock_is_released() -> None:
     assert device.receive_io(encode_class0_packet(connection.o_t_id, 1, idle), (ORIGINATOR.host, 2222),
                              T0 + 5 * MS, _lock_free_send(device, sent))
     assert len(sent) == 1 and device.counters["safety_time_coordination_sent"] == 1
+
+
+def test_an_identity_reset_ends_its_connections_as_device_reset_in_the_report() -> None:
+    """The report's word is the typed `ends` the reset passes, not a match on the reason's text."""
+    device = make_device()
+    assert ask(device, CLASS1).general_status == 0
+    (connection,) = device.connections.values()
+    assert ask(device, encode_request(0x05, RESET_PATH, b"\x00"), now=T0 + MS).general_status == 0
+    assert not device.connections
+    assert (connection.measure.ended, connection.measure.end_reason) == ("device reset", "identity reset (type 0)")

@@ -47,9 +47,9 @@ from enip_farm.cip.connection_path import KeyIdentity
 from enip_farm.cip.connection_policy import ConnectionPolicy, Refusal, SafetyOpen
 from enip_farm.cip.io_packets import DROP_REASONS, Datagram, IoPackets
 from enip_farm.cip.io_schedule import IoSchedule
-from enip_farm.cip.o_t_measure import OriginatorMeasure, end_word, forward_open_asked
+from enip_farm.cip.o_t_measure import OriginatorMeasure, forward_open_asked
 from enip_farm.cip.reconnection import Reconnections
-from enip_farm.cip.report import ReconnectAfter
+from enip_farm.cip.report import EndWord, ReconnectAfter
 from enip_farm.protocol.commands import SocketAddress, encode_sockaddr
 from enip_farm.protocol.connection import ConnectionTriad, ForwardOpenRequest
 from enip_farm.protocol.cpf import ItemType
@@ -239,7 +239,7 @@ class ConnectionTable:
         """Close the connection of this triad; None if there is none (0x0107). `host`: who asked."""
         connection = self._by_triad.get(triad)
         if connection is not None:
-            self.close(connection, "forward close", now)
+            self.close(connection, "forward close", now, ends="forward close")
         else:
             self._events.append(ConnectionRefused(now, (
                 f"Forward Close from {host or '?'}: "
@@ -255,11 +255,13 @@ class ConnectionTable:
     def session_closed(self, session: object, now: int) -> None:
         """The TCP connection of a session ended: its class-3 connections end with it."""
         for connection in [c for c in self.connections.values() if c.owner is session]:
-            self.close(connection, "TCP connection closed", now)
+            self.close(connection, "TCP connection closed", now, ends="tcp gone")
 
     def close(self, connection: Connection, reason: str, now: int,
-              ended: type[ConnectionEnded] = ConnectionClosed) -> None:
-        """Close a connection; `ended` says how (a timeout or a fault applies the fault state)."""
+              ended: type[ConnectionEnded] = ConnectionClosed, ends: EndWord = "closed") -> None:
+        """Close a connection; `ended` says how (a timeout or a fault applies the fault state), and
+        the report's word for it: the class's (`ConnectionEnded.ends`), else `ends`. `reason`: text only."""
+        word = ended.ends or ends
         if connection.closed:
             return
         connection.closed = True
@@ -279,10 +281,10 @@ class ConnectionTable:
                 output.data[:] = bytes(len(output.data))
         self._events.append(ended(now, connection, reason))
         if connection.measure is not None:
-            connection.measure.end(now, end_word(ended.ends, reason), reason)
+            connection.measure.end(now, word, reason)
             self.ended.append(connection)
             host = connection.originator_host
-            if reason == "forward close" and not any(c.originator_host == host for c in self.connections.values()):
+            if word == "forward close" and not any(c.originator_host == host for c in self.connections.values()):
                 self.reconnections.left(host)
         if connection.kind is ConnectionKind.SAFETY_OUTPUT:  # whatever ends it: the safe state
             output = self.assemblies["output"]

@@ -215,16 +215,3 @@ def forward_open_asked(request: ForwardOpenRequest, timeout_ns: int, expected_o_
         request.large, request.transport_class, _TRIGGERS.get(request.production_trigger, "reserved"), key,
         b"".join(configuration) if configuration else None)
 
-
-def end_word(ended: EndWord | None, reason: str) -> EndWord:
-    """How a connection ended: the word its end event's class gives (`ConnectionEnded.ends`,
-    cip/connection_events.py), or else the word of its close's reason."""
-    if ended is not None:
-        return ended
-    if reason == "forward close":
-        return "forward close"
-    if reason == "TCP connection closed":
-        return "tcp gone"
-    if reason.startswith("identity reset"):
-        return "device reset"
-    return "closed"

@@ -11,8 +11,8 @@ attributes 1-13 from the device's own address and configuration.
 | 7 | safety network number | a CIP Safety target's SNN, read-only; else 0x14 (six zero bytes in Get Attributes All) |
 | 8 | TTL value (USINT) | settable 1-255, default 1 |
 | 9 | multicast configuration | the device's T->O group: allocation 0 (CIP algorithm) or 1 (configured); read-only |
-| 10 | SelectAcd (BOOL) | settable 0/1, default 0: whether the module detects an address conflict |
-| 11 | last conflict detected | ACD activity, remote MAC, ARP PDU (35 bytes): zeros until an `address-conflict` fault |
+| 10 | SelectAcd (BOOL) | settable 0/1, out of box `select_acd` (default 0, unverified): ACD on |
+| 11 | last conflict detected | ACD activity, remote MAC, ARP PDU (35 bytes): zeros until a conflict detected |
 | 12 | EtherNet/IP Quick Connect (BOOL) | settable 0/1, default 0 (stored) |
 | 13 | encapsulation inactivity timeout (UINT, s) | settable 0-3600, default 120 (server/tcp.py applies it) |
 
@@ -96,17 +96,17 @@ class TcpIpSettings:
 
     __slots__ = ("configuration_control", "host_name", "ttl", "select_acd", "quick_connect", "inactivity_timeout_s")
 
-    def __init__(self, host_name: str, inactivity_timeout_s: int) -> None:
+    def __init__(self, host_name: str, inactivity_timeout_s: int, select_acd: int = 0) -> None:
         self.configuration_control = CONTROL_STATIC
         self.host_name = host_name
         self.ttl = 1
-        self.select_acd = 0
+        self.select_acd = select_acd
         self.quick_connect = 0
         self.inactivity_timeout_s = inactivity_timeout_s
 
     def copy(self) -> TcpIpSettings:
-        settings = TcpIpSettings(self.host_name, self.inactivity_timeout_s)
-        settings.ttl, settings.select_acd, settings.quick_connect = self.ttl, self.select_acd, self.quick_connect
+        settings = TcpIpSettings(self.host_name, self.inactivity_timeout_s, self.select_acd)
+        settings.ttl, settings.quick_connect = self.ttl, self.quick_connect
         settings.configuration_control = self.configuration_control
         return settings
 
@@ -118,11 +118,11 @@ class TcpIpInterfaceObject(CipClass):
     class_get_all = (1, 2, 3, 4, 5, 6, 7)
 
     def __init__(self, *, address: str, netmask: str, gateway: str, host_name: str,
-                 inactivity_timeout_s: int = 120, multicast_group: str = "0.0.0.0",
+                 inactivity_timeout_s: int = 120, select_acd: bool = False, multicast_group: str = "0.0.0.0",
                  multicast_configured: bool = False, safety_network_number: bytes | None = None) -> None:
         super().__init__()
         self.capability = _CAPABILITY
-        self._out_of_box = TcpIpSettings(host_name, inactivity_timeout_s)
+        self._out_of_box = TcpIpSettings(host_name, inactivity_timeout_s, int(select_acd))
         self.settings = self._out_of_box.copy()
         interface_configuration = (
             ip_udint(address) + ip_udint(netmask) + ip_udint(gateway)

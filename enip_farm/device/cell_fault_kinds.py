@@ -130,13 +130,24 @@ class FlappingLink(LinkDown):
 
 
 class AddressConflict(FaultType):
+    """Another host claims the module's address (RFC 826). What the module does follows its SelectAcd
+    (TCP/IP attribute 10, Vol. 2, 5-4.3.2.10), read as the fault is set:
+
+    - 1 (ACD on): it detects the conflict; attribute 11 records it, attribute 1 says AcdStatus (and
+      AcdFault in the probe phase); probe: it gives the address up (silent); ongoing: it defends it.
+    - 0 (ACD off): it detects nothing; attributes 1 and 11 stay as they were and it keeps answering in
+      both phases. The fault then changes nothing the module itself can see (on a real network the
+      other host would answer some of the traffic meant for it; the farm does not model that host)."""
+
     name = "address-conflict"
-    summary = ("another host claims the module's address (ACD, TCP/IP attributes 1 and 11 if SelectAcd): "
-               "probe: the module gives the address up (silent); ongoing: it defends it and goes on")
+    summary = ("another host claims the module's address: with SelectAcd (TCP/IP attribute 10) 1 the module "
+               "detects it (attributes 1 and 11), probe: gives the address up (silent), ongoing: defends it; "
+               "with SelectAcd 0 it detects nothing and keeps answering")
 
     remote_mac: str = Field("02:00:00:00:00:fe", description="the other host's MAC address")
     phase: Literal["probe", "ongoing"] = Field("ongoing", description="probe: found as the module came up; "
                                                 "ongoing: another host appeared while it ran")
+    _given_up: bool = PrivateAttr(False)  # set by on_set: probe phase and the module detected the conflict
 
     @field_validator("remote_mac", mode="before")
     @classmethod
@@ -147,7 +158,8 @@ class AddressConflict(FaultType):
 
     @property
     def silent(self) -> bool:
-        return self.phase == "probe"
+        """The module gave the address up (known once the fault is set on it)."""
+        return self._given_up
 
     def hears(self) -> bool:
         return not self.silent
@@ -162,8 +174,8 @@ class AddressConflict(FaultType):
         return not self.silent
 
     def on_set(self, device: FaultedDevice, now: int) -> None:
-        device.address_conflict(_ACTIVITY[self.phase], bytes.fromhex(re.sub("[:-]", "", self.remote_mac)),
-                                self.silent)
+        self._given_up = device.address_conflict(
+            _ACTIVITY[self.phase], bytes.fromhex(re.sub("[:-]", "", self.remote_mac)), self.phase == "probe")
 
     def on_clear(self, device: FaultedDevice, now: int) -> None:
         device.conflict_resolved()

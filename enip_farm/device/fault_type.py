@@ -23,7 +23,8 @@ keeps their answers for the fast paths), so their answer depends on the paramete
 | `on_set(device, now)` / `on_clear(device, now)` | the farm, as the fault is set and cleared | None |
 
 `on_set` and `on_clear` act on the device itself (`FaultedDevice`: a power loss loses its state, an
-address conflict fills in the TCP/IP object's attribute 11); they run on the farm's loop.
+address conflict fills in the TCP/IP object's attribute 11); they run on the farm's loop, before the
+fault's other hooks are asked (what `on_set` finds may decide them: an address conflict that ACD detects).
 
 Parameter problems are `FaultError`s (a ValueError naming the field), raised by the model's own
 validators; `Fault(kind, **params)` (device/faults.py) hands them on unwrapped.
@@ -89,7 +90,7 @@ class FaultedDevice(Protocol):
 
     def restore_power(self, boot_ns: int, now: int, self_test_ns: int = 0) -> None: ...
 
-    def address_conflict(self, activity: int, remote_mac: bytes, silent: bool) -> None: ...
+    def address_conflict(self, activity: int, remote_mac: bytes, probing: bool) -> bool: ...
 
     def conflict_resolved(self) -> None: ...
 

@@ -78,14 +78,16 @@ class ModuleHardware:
             self.self_testing = False
             self.guard.record(SelfTestDone(), now)
 
-    def address_conflict(self, activity: int, remote_mac: bytes, silent: bool) -> None:
+    def address_conflict(self, activity: int, remote_mac: bytes, probing: bool) -> bool:
         """Another host claims the module's address (its ARP reply, RFC 826, is the ARP PDU attribute 11
-        keeps); `silent`: the module gives the address up."""
+        keeps); `probing`: found as the module came up. True: the module gives the address up (it
+        detected the conflict, SelectAcd 1, while probing); with SelectAcd 0 it detects nothing and keeps it."""
         ip = socket.inet_aton(self.address)
         arp_pdu = struct.pack("!HHBBH6s4s6s4s", 1, 0x0800, 6, 4, 2, remote_mac, ip, self.mac, ip)
         with self.guard.transaction() as transaction:
-            detected = self.objects.tcpip.conflict_detected(activity, remote_mac, arp_pdu, silent)
-            transaction.emit(AddressConflict(remote_mac, detected, silent))
+            detected = self.objects.tcpip.conflict_detected(activity, remote_mac, arp_pdu, probing)
+            transaction.emit(AddressConflict(remote_mac, detected, detected and probing))
+        return detected and probing
 
     def conflict_resolved(self) -> None:
         with self.guard.transaction():

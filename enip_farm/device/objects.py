@@ -68,7 +68,7 @@ def build_objects(profile: DeviceProfile, counters: Counter[str], budget: Cyclic
     table = ConnectionTable(assemblies, _policy(profile), key_identity, counters, budget=budget,
                             sizes=assembly_size)
     tcpip = TcpIpInterfaceObject(address=profile.address, netmask=profile.netmask, gateway=profile.gateway,
-                                 host_name=profile.host_name,
+                                 host_name=profile.host_name, select_acd=profile.select_acd,
                                  inactivity_timeout_s=profile.encapsulation_inactivity_timeout_s,
                                  multicast_group=profile.multicast_group,
                                  multicast_configured=profile.multicast_configured,

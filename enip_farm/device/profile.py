@@ -74,6 +74,7 @@ class DeviceProfile:
     replay: tuple = ()  # (service, path, data, reply) of a learned profile
     routing: Routing = Routing()  # Multiple Service Packet and Unconnected Send to itself, or 0x08
     reset_time_s: float = 1.0  # Identity Reset: how long the device does not answer
+    select_acd: bool = False  # TCP/IP attribute 10 out of box: ACD on (unverified for ABB's modules)
     multicast_configured: bool = False  # the multicast group comes from the configuration
     signals: tuple[NamedSignal, ...] = ()  # named signals (EIO_SIGNAL), beside DI1.., DO1..
     safety: SafetyProfile | None = None  # a CIP Safety target: its assemblies are safety assemblies
@@ -196,6 +197,7 @@ def resolve(config: DeviceConfig, catalogue: Catalogue) -> DeviceProfile:
         signals=tuple(named_signal(signal) for signal in config.signals),
         routing=model.effective_routing,
         reset_time_s=config.reset_time_s,
+        select_acd=config.select_acd,
         multicast_configured=config.implicit.multicast_group is not None,
         safety=safety,
         connections=model.connections,

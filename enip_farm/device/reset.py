@@ -76,7 +76,7 @@ class Resets:
         objects = self.objects
         table = objects.table
         for connection in list(table.connections.values()):
-            table.close(connection, f"identity reset (type {kind})", now)
+            table.close(connection, f"identity reset (type {kind})", now, ends="device reset")
         for role in ("output", "configuration"):  # power-up state; the inputs are the field's
             assembly = objects.assemblies.get(role)
             if assembly is not None:

@@ -58,9 +58,9 @@ class FarmFaults:
             previous = device.faults.active.get(fault.name)
             if previous is not None:
                 previous.on_clear(device.hardware, now)
-            device.faults.set(fault, now)
             device.record(FaultInjected(fault.parameters()), now)
-            fault.on_set(device.hardware, now)
+            fault.on_set(device.hardware, now)  # first: what it finds may decide its hooks (ACD)
+            device.faults.set(fault, now)
             ends = fault.on_tcp_connection()
             if ends is not None or (not fault.listens() and fault.hears()):
                 self.listeners.close_connections(device, ends or Disconnect.CLOSE)
