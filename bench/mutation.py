@@ -67,7 +67,7 @@ PACKAGES: dict[str, Package] = {
     "device-faults": Package(  # the faults and the farm's fault timers
         ("enip_farm/device/faults.py", "enip_farm/device/fault_kinds.py", "enip_farm/device/fault_type.py",
          "enip_farm/farm/faulting.py"),
-        ("tests/test_device.py", VARY, PINNED, "tests/test_control.py")),
+        ("tests/test_device.py", VARY, PINNED, "tests/test_control.py", "tests/test_pinned_faults.py")),
     "device-cyclic": Package(  # one device's class-1 path: cyclic I/O, its lock, its target
         ("enip_farm/device/cyclic.py", "enip_farm/device/guard.py", "enip_farm/device/target.py"),
         ("tests/test_device.py", "tests/test_reset_effect.py", VARY, PINNED, "tests/test_report_unit.py",
