@@ -71,7 +71,7 @@ PACKAGES: dict[str, Package] = {
     "device-cyclic": Package(  # one device's class-1 path: cyclic I/O, its lock, its target
         ("enip_farm/device/cyclic.py", "enip_farm/device/guard.py", "enip_farm/device/target.py"),
         ("tests/test_device.py", "tests/test_reset_effect.py", VARY, PINNED, "tests/test_report_unit.py",
-         "tests/test_implicit.py", "tests/test_report.py", PATHS)),
+         "tests/test_implicit.py", "tests/test_report.py", PATHS, "tests/test_pinned_impaired.py")),
     "server-class1": Package(  # the I/O thread and its sockets
         ("enip_farm/server/implicit.py", "enip_farm/server/batch.py", "enip_farm/server/waits.py"),
         ("tests/test_implicit.py", "tests/test_batch.py", PINNED, "tests/test_supervision.py", PATHS)),
