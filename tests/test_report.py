@@ -16,7 +16,7 @@ from enip_farm.protocol.connection import decode_forward_open_reply, encode_io_p
 from tests.helpers import RawClient, wait_for
 from tests.test_implicit import _scanner, forward_close, forward_open
 
-pytestmark = pytest.mark.integration
+pytestmark = [pytest.mark.integration, pytest.mark.class1_paths]  # both class-1 paths
 MS = 1_000_000
 
 
