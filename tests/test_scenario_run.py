@@ -7,10 +7,10 @@ import asyncio
 import threading
 import time
 
-import ethernetip
 import pytest
 
 from enip_farm.scenario.run import run_scenario
+from tests.scanners import Scanner, start_scanner
 from tests.test_cell_faults import list_identity_answered
 
 pytestmark = pytest.mark.integration
@@ -48,24 +48,16 @@ class Controller:
         self.address = self.device.profile.address
         self.stopped = threading.Event()
         self.opens = 0
-        self.enip = None
-        self.conn = None
+        self.scan: Scanner | None = None
         self.thread = threading.Thread(target=self.run, daemon=True)
         self.thread.start()
 
     def open(self) -> None:
-        enip = ethernetip.EtherNetIP(self.address)
-        conn = enip.explicit_conn(self.address)
-        assert conn.registerSession() == 0
-        enip.registerAssembly(ethernetip.EtherNetIP.ENIP_IO_TYPE_INPUT, 2, 101, conn)
-        outputs = enip.registerAssembly(ethernetip.EtherNetIP.ENIP_IO_TYPE_OUTPUT, 2, 100, conn)
-        outputs[4] = True  # DO5
-        enip.startIO(udp_port=0)
-        if conn.sendFwdOpenReq(101, 100, 1, torpi=10, otrpi=10, multiplier=4,
-                               originator_udp_port=enip.originator_udp_port) == 0:
-            conn.produce()
+        self.scan = scan = start_scanner(self.address)
+        scan.outputs[4] = True  # DO5
+        if scan.forward_open(10, 4) == 0:
+            scan.conn.produce()
             self.opens += 1
-        self.enip, self.conn = enip, conn
 
     def run(self) -> None:
         deadline = time.monotonic() + 60
@@ -77,10 +69,8 @@ class Controller:
         self.close()
 
     def close(self) -> None:
-        if self.conn is not None:
-            self.conn.stopProduce()
-        if self.enip is not None:
-            self.enip.stopIO()
+        if self.scan is not None:
+            self.scan.stop()
 
     def stop(self) -> None:
         self.stopped.set()
