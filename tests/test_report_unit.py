@@ -18,7 +18,8 @@ from enip_farm.cip.reconnection import KEPT, Reconnections
 from enip_farm.cip.report import FAIL, PASS, TOO_SHORT, FarmReport, ReactionFigures
 from enip_farm.cip.verdicts import judge_connection, judge_reaction, judge_reconnection, verdict
 from enip_farm.config import parse_config
-from enip_farm.device.report import device_bounds
+from enip_farm.device import report as device_report_module
+from enip_farm.device.report import CellBounds, device_bounds
 from enip_farm.protocol.connection import ConnectionType
 from enip_farm.protocol.epath import ElectronicKey, encode_electronic_key
 from tests.test_connection_table import MS, ORIGINATOR, T0, make_table, o_t, open_owner, request
@@ -319,6 +320,26 @@ def test_bounds_levels_defaults_cell_device_test_with_their_sources() -> None:
         resolve(("test", {"intervals_p99": 1}))
     with pytest.raises(ValidationError):
         BoundsConfig(lost=-1)
+
+
+def test_one_report_resolves_the_devices_without_bounds_of_their_own_once(monkeypatch) -> None:
+    """device/report.py: a report's bounds cost one resolution for every device without its own
+    (was one per device, each searching the configuration's devices: quadratic in devices)."""
+    config = parse_config({"bounds": {"lost": 3}, "devices": [
+        {"name": "io{n}", "count": 300, "model": "DSQC1030", "address": "127.0.1.1", "netmask": "255.0.0.0"},
+        {"name": "own", "model": "DSQC1030", "address": "127.0.9.1", "bounds": {"lost": 5}}]})
+    calls = []
+    monkeypatch.setattr(device_report_module, "resolve", lambda *levels: calls.append(levels) or resolve(*levels))
+    cell = CellBounds(config, {"late_intervals": 2})
+    resolved = {device.name: cell.of(device.name) for device in config.devices}
+    assert len(calls) == 2  # the devices' shared one, and "own"'s
+    assert all(resolved[f"io{n}"] is resolved["io1"] for n in range(1, 301))
+    assert [(resolved[name]["lost"], resolved[name]["late_intervals"]) for name in ("io300", "own")] == [(3, 2), (5, 2)]
+    assert resolved["own"].source("lost") == "device configuration (own)"
+    assert resolved["io7"].source("lost") == "cell configuration" and resolved["io7"].source("late_intervals") == "test"
+    reaction = cell.of("io7", {"late_intervals": 7, "lost": 9})  # a reaction's own: over the device's, under the test's
+    assert (reaction["lost"], reaction["late_intervals"], len(calls)) == (9, 2, 3)
+    assert device_bounds(config, "own", {"lost": 1})["lost"] == 1
 
 
 def test_reconnection_and_reaction_verdicts() -> None:
