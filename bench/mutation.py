@@ -14,8 +14,8 @@ with which tests, so that no mutant runs the whole suite and a run stays within 
 A mutant is killed (a test failed, or the tests ran past 3x their clean time), survived, or
 equivalent: a survivor whose key (module::definition::operator::line) bench/mutation-equivalents.md
 lists, with the reason no test can tell it from the real code. The score of a package is
-killed / (run - equivalent). `--named` runs the six mutations issue 32 found surviving, applied by
-hand (each must be killed). Not a CI step: it takes minutes.
+killed / (run - equivalent). `--named` runs the mutations issue 32 found surviving (NAMED: seven),
+applied by hand (each must be killed). Not a CI step: it takes minutes.
 
     python bench/mutation.py [--package cip --package protocol] [--sample 40] [--budget-s 600]
                              [--seed 32] [--omit-tests tests/test_x.py] [--json out.json]
@@ -77,7 +77,7 @@ PACKAGES: dict[str, Package] = {
         ("tests/test_implicit.py", "tests/test_batch.py", PINNED, "tests/test_supervision.py", PATHS)),
 }
 
-#: The six mutations issue 32 found surviving: (name, module, the code, the mutated code, tests).
+#: The mutations issue 32 found surviving: (name, module, the code, the mutated code, tests).
 NAMED: tuple[tuple[str, str, str, str, tuple[str, ...]], ...] = (
     ("stale check without & 0xFFFFFFFF", "enip_farm/cip/io_packets.py",
      "not 0 < (sequence - last) & 0xFFFFFFFF < _HALF", "not 0 < (sequence - last) < _HALF", (VARY,)),
@@ -255,7 +255,7 @@ def run_package(name: str, package: Package, args: argparse.Namespace, known: di
 
 
 def run_named(args: argparse.Namespace) -> list[dict]:
-    """Each of the six by hand: the tests must pass on the real code and fail on the mutant."""
+    """Each of NAMED by hand: the tests must pass on the real code and fail on the mutant."""
     scratch = scratch_copy()
     rows = []
     try:
@@ -288,7 +288,7 @@ def main() -> int:
     parser.add_argument("--budget-s", type=float, default=600, help="no new mutant after this long, per package")
     parser.add_argument("--seed", default="32")
     parser.add_argument("--omit-tests", action="append", default=[], help="a test file left out (the 'before')")
-    parser.add_argument("--named", action="store_true", help="the six mutations of issue 32, by hand")
+    parser.add_argument("--named", action="store_true", help=f"the {len(NAMED)} mutations of issue 32, by hand")
     parser.add_argument("--replay", type=Path, help="run only the survivors of this earlier --json")
     parser.add_argument("--json", type=Path, help="write the results here")
     args = parser.parse_args()

@@ -40,25 +40,14 @@ SCANNERS = ("ethernetip", "cm-ethernetip", "EIPScanner")
 
 def drive_ethernetip(host: str, rpi_ms: float, seconds: float) -> None:
     """The `ethernetip` scanner against `host` (run in its own process by `main`)."""
-    import ethernetip
+    from tests.scanners import scanner
 
-    enip = ethernetip.EtherNetIP(host)
-    conn = enip.explicit_conn(host)
-    assert conn.registerSession() == 0
-    enip.registerAssembly(ethernetip.EtherNetIP.ENIP_IO_TYPE_INPUT, 2, 101, conn)
-    enip.registerAssembly(ethernetip.EtherNetIP.ENIP_IO_TYPE_OUTPUT, 2, 100, conn)
-    enip.startIO(udp_port=0)
-    try:
-        status = conn.sendFwdOpenReq(101, 100, 1, torpi=round(rpi_ms), otrpi=round(rpi_ms), multiplier=2,  # whole ms
-                                     originator_udp_port=enip.originator_udp_port)
+    with scanner(host, forward_close=True) as scan:
+        status = scan.forward_open(round(rpi_ms), 2)  # whole ms
         if status != 0:
             raise SystemExit(f"Forward Open refused: {status}")
-        conn.produce()
+        scan.conn.produce()
         time.sleep(seconds)
-        conn.stopProduce()
-        conn.sendFwdCloseReq(101, 100, 1)
-    finally:
-        enip.stopIO()
 
 
 def run_ethernetip(host: str, rpi_ms: float, seconds: float) -> str:

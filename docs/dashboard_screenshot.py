@@ -14,7 +14,6 @@ import sys
 import time
 from pathlib import Path
 
-import ethernetip
 from pycomm3 import CIPDriver, Services
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
@@ -22,6 +21,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 from enip_farm.config import default_config_path, load_config  # noqa: E402
 from enip_farm.farm.farm import Farm  # noqa: E402
 from tests.browser import chromium, open_page  # noqa: E402
+from tests.scanners import scanner  # noqa: E402
 
 
 def main() -> None:
@@ -30,19 +30,12 @@ def main() -> None:
     args = parser.parse_args()
     farm = Farm(load_config(default_config_path()), http=("127.0.0.1", 0))
     with farm.running_in_thread(), chromium("--hide-scrollbars", window=(1500, 1000)) as driver:
-        enip = ethernetip.EtherNetIP(farm["io2"].address)  # a scanner owning io2's outputs
-        conn = enip.explicit_conn(farm["io2"].address)
-        try:
+        with scanner(farm["io2"].address) as scan:  # a scanner owning io2's outputs
             open_page(driver, f"{farm.http.url}/", "io1")
-            assert conn.registerSession() == 0
-            enip.registerAssembly(ethernetip.EtherNetIP.ENIP_IO_TYPE_INPUT, 2, 101, conn)
-            outputs = enip.registerAssembly(ethernetip.EtherNetIP.ENIP_IO_TYPE_OUTPUT, 2, 100, conn)
-            enip.startIO(udp_port=0)
-            assert conn.sendFwdOpenReq(101, 100, 1, torpi=10, otrpi=10, multiplier=2,
-                                       originator_udp_port=enip.originator_udp_port) == 0
+            assert scan.forward_open(10, 2) == 0
             for bit in (0, 3, 4, 9):
-                outputs[bit] = True
-            conn.produce()
+                scan.outputs[bit] = True
+            scan.conn.produce()
             farm["io1"].set({"DI1-8": [1, 0, 1, 1, 0, 0, 1, 0]})
             farm["io2"].set(DI2=1, DI16=1)
             farm["io4"].set(AI1=1200, AI2=-350, DI5=1)
@@ -52,9 +45,6 @@ def main() -> None:
             farm["io5"].inject("delay", delay_ms=250)
             time.sleep(2.5)  # two polls of the connection counters
             driver.save_screenshot(str(args.output))
-        finally:
-            conn.stopProduce()
-            enip.stopIO()
     print(f"{args.output}: {args.output.stat().st_size} bytes")
 
 

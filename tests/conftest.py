@@ -21,6 +21,7 @@ import pytest
 
 from enip_farm.farm.farm import Farm
 from tests.helpers import ROOT
+from tests.virtual_clock import Scenario, VirtualClockLoop, run_on
 
 # Subprocesses (`python -m enip_farm`, pytest of the README example) import the tree under test,
 # not whatever copy is installed, whatever their working directory.
@@ -128,6 +129,18 @@ def _unit_tests_stay_in_process(request: pytest.FixtureRequest, monkeypatch: pyt
         monkeypatch.setattr(socket.socket, name, refuse(f"called socket.{name}"))
     monkeypatch.setattr(subprocess.Popen, "__init__", refuse("started a process"))
     yield
+
+
+@pytest.fixture
+def on_virtual_clock() -> Iterator[Callable[..., None]]:
+    """Runs a scenario with a farm (built, not serving) whose loop is a virtual clock (tests/virtual_clock.py)."""
+    loop = VirtualClockLoop()
+
+    def run(scenario: Scenario, address: str = "127.0.0.1") -> None:
+        run_on(loop, scenario, address)
+
+    yield run
+    loop.close()
 
 
 @pytest.fixture

@@ -10,7 +10,6 @@ from __future__ import annotations
 import socket
 import time
 
-import ethernetip
 import httpx
 import pytest
 
@@ -20,6 +19,7 @@ from enip_farm.device.faults import Fault, FaultError
 from enip_farm.protocol.encapsulation import Command, encode_frame
 from enip_farm.protocol.epath import ElectronicKey
 from tests.helpers import ENIP_PORT, RawClient, wait_for
+from tests.scanners import Scanner, start_scanner
 from tests.test_implicit import forward_close, forward_open
 
 pytestmark = [pytest.mark.integration, pytest.mark.class1_paths]  # both class-1 paths
@@ -34,19 +34,14 @@ def rack(enip_farm, http: bool = False, **device):
                       "groups": [{"name": "rack2", "kind": "rack", "members": ["r*"]}]}, http=http)
 
 
-def scanner(address: str):
-    """The ethernetip scanner with a class-1 connection open (RPI 10 ms, timeout x16: 160 ms)."""
-    enip = ethernetip.EtherNetIP(address)
-    conn = enip.explicit_conn(address)
-    assert conn.registerSession() == 0
-    enip.registerAssembly(ethernetip.EtherNetIP.ENIP_IO_TYPE_INPUT, 2, 101, conn)
-    enip.registerAssembly(ethernetip.EtherNetIP.ENIP_IO_TYPE_OUTPUT, 2, 100, conn)
-    enip.startIO(udp_port=0)
-    status = conn.sendFwdOpenReq(101, 100, 1, torpi=RPI_MS, otrpi=RPI_MS, multiplier=2,
-                                 originator_udp_port=enip.originator_udp_port)
+def scanner(address: str) -> tuple[Scanner, int]:
+    """The ethernetip scanner with a class-1 connection asked (RPI 10 ms, timeout x16: 160 ms), and
+    the Forward Open's status (stopped unless 0)."""
+    started = start_scanner(address)
+    status = started.forward_open(RPI_MS, 2)
     if status != 0:
-        enip.stopIO()
-    return enip, conn, status
+        started.stop()
+    return started, status
 
 
 def list_identity_answered(address: str, timeout: float = 0.3) -> bool:
@@ -75,7 +70,7 @@ def unanswered(client: RawClient, timeout: float = 0.3) -> bool:
 def test_a_power_loss_of_a_rack_silences_every_member_and_the_forward_open_waits_for_the_boot(enip_farm) -> None:
     farm = rack(enip_farm)
     r1, r2 = farm["r1"], farm["r2"]
-    enip, conn, status = scanner(r1.address)
+    scan, status = scanner(r1.address)
     assert status == 0
     client = RawClient(r2.address, timeout=10)
     client.register()
@@ -92,13 +87,13 @@ def test_a_power_loss_of_a_rack_silences_every_member_and_the_forward_open_waits
                 socket.create_connection((handle.address, ENIP_PORT), timeout=2).close()
         assert r1.get("DI3") == 1  # the field's inputs are the field's
         assert unanswered(client)  # the open TCP connection: silent, not closed
-        enip.stopIO()
+        scan.stop()
         cleared_at = time.monotonic()
         assert farm.clear("rack2", "power-loss") == ["power-loss"]
         assert client.is_closed(timeout=5)  # the rebooted stack resets what it does not know
         while True:  # the scanner tries again and again, as a controller does
             try:
-                enip, conn, status = scanner(r1.address)
+                scan, status = scanner(r1.address)
                 break
             except ConnectionRefusedError:
                 assert time.monotonic() - cleared_at < BOOT_S + 10
@@ -114,14 +109,14 @@ def test_a_power_loss_of_a_rack_silences_every_member_and_the_forward_open_waits
             "power returned", "reset done", "self test done"]
         assert wait_for(lambda: list_identity_answered(r2.address))
     finally:
-        enip.stopIO()
+        scan.stop()
         client.close()
 
 
 def test_a_link_down_keeps_the_module_and_its_own_watchdog_times_the_connection_out(enip_farm) -> None:
     farm = rack(enip_farm)
     r1 = farm["r1"]
-    enip, conn, status = scanner(r1.address)
+    scan, status = scanner(r1.address)
     assert status == 0
     client = RawClient(r1.address, timeout=10)
     session = client.register()
@@ -140,11 +135,11 @@ def test_a_link_down_keeps_the_module_and_its_own_watchdog_times_the_connection_
         farm.clear("r1")
         assert client.get(1, 1, 1).general_status == 0  # the same TCP connection, the same session
         assert client.session_handle == session and list_identity_answered(r1.address)
-        enip.stopIO()
-        enip, conn, status = scanner(r1.address)  # answered at once: no boot
+        scan.stop()
+        scan, status = scanner(r1.address)  # answered at once: no boot
         assert status == 0
     finally:
-        enip.stopIO()
+        scan.stop()
         client.close()
 
 
@@ -266,7 +261,7 @@ def test_a_wrong_module_with_other_sizes_refuses_the_scanners_forward_open_until
     code = r1.device.profile.product_code
     farm.inject("r1", "wrong-module", input_size=4, output_size=8)  # the DSQC1030's are 2 and 2
     assert r1.device.identity_item().product_code == code  # sizes given: the identity stays
-    enip, conn, status = scanner(r1.address)  # the ethernetip scanner, the module's own sizes (2 and 2)
+    scan, status = scanner(r1.address)  # the ethernetip scanner, the module's own sizes (2 and 2)
     assert status == 0x0127  # general status 0x01: invalid O->T size
     with RawClient(r1.address) as client:
         client.register()
@@ -281,12 +276,11 @@ def test_a_wrong_module_with_other_sizes_refuses_the_scanners_forward_open_until
         message, triad = forward_open(o_t_size=8, t_o_size=4)
         assert client.request(message).general_status == 0  # put back: the sizes match again
         assert client.request(forward_close(triad)).general_status == 0
-    enip, conn, status = scanner(r1.address)
+    scan, status = scanner(r1.address)
     try:
         assert status == 0
     finally:
-        conn.stopProduce()
-        enip.stopIO()
+        scan.stop()
 
 
 def test_a_group_fault_over_http_sets_every_member_and_clears_them(enip_farm) -> None:
@@ -307,20 +301,14 @@ def test_a_group_fault_over_http_sets_every_member_and_clears_them(enip_farm) ->
 def test_a_degraded_link_delays_what_the_scanner_sees_and_loss_times_the_connection_out(enip_farm) -> None:
     farm = rack(enip_farm)
     r1 = farm["r1"]
-    enip = ethernetip.EtherNetIP(r1.address)
-    conn = enip.explicit_conn(r1.address)
-    assert conn.registerSession() == 0
-    inputs = enip.registerAssembly(ethernetip.EtherNetIP.ENIP_IO_TYPE_INPUT, 2, 101, conn)
-    enip.registerAssembly(ethernetip.EtherNetIP.ENIP_IO_TYPE_OUTPUT, 2, 100, conn)
-    enip.startIO(udp_port=0)
+    scan = start_scanner(r1.address)
     try:
-        assert conn.sendFwdOpenReq(101, 100, 1, torpi=RPI_MS, otrpi=RPI_MS, multiplier=2,
-                                   originator_udp_port=enip.originator_udp_port) == 0
-        conn.produce()
+        assert scan.forward_open(RPI_MS, 2) == 0
+        scan.conn.produce()
         farm.inject("r1", "degraded-link", delay_ms=80, direction="from-device")
         set_at = time.monotonic()
         r1.set(DI1=1)
-        assert wait_for(lambda: inputs[0], timeout=5)
+        assert wait_for(lambda: scan.inputs[0], timeout=5)
         assert time.monotonic() - set_at >= 0.08  # the T->O that carried it was held 80 ms
         assert r1.device.connections  # O->T untouched: the connection lives
         path = r1.device.faults.impairment
@@ -329,8 +317,7 @@ def test_a_degraded_link_delays_what_the_scanner_sees_and_loss_times_the_connect
         assert wait_for(lambda: r1.counters["connection_timeouts"] == 1, timeout=5)
         assert r1.device.faults.impairment.to_device.lost > 0
     finally:
-        conn.stopProduce()
-        enip.stopIO()
+        scan.stop()
         farm.clear("r1")
 
 

@@ -18,7 +18,6 @@ import threading
 import time
 from pathlib import Path
 
-import ethernetip
 import pytest
 from cpppo.automata import dfa_post, state
 from cpppo.server.enip import client as cpppo_client
@@ -30,6 +29,7 @@ from enip_farm.protocol.commands import encode_send_rr_data
 from enip_farm.protocol.encapsulation import HEADER_SIZE, Command, decode_frame, encode_frame
 from enip_farm.protocol.epath import encode_request_path
 from tests.helpers import ENIP_PORT, RawClient, wait_for
+from tests.scanners import Scanner, start_scanner
 from tests.test_cip_services_unit import non_routing_profile
 
 RESET_TIME_S = 2.0  # long enough to look at the silent device on a busy machine
@@ -216,19 +216,13 @@ def test_counters_count_tcp_and_udp_traffic(make_farm) -> None:
 # -- Identity Reset -------------------------------------------------------------------------------------
 
 
-def scanner(address: str):  # noqa: ANN201
+def producing(address: str) -> Scanner:
     """The `ethernetip` scanner with a class-1 connection producing outputs (DO5 on)."""
-    enip = ethernetip.EtherNetIP(address)
-    conn = enip.explicit_conn(address)
-    assert conn.registerSession() == 0
-    enip.registerAssembly(ethernetip.EtherNetIP.ENIP_IO_TYPE_INPUT, 2, 101, conn)
-    outputs = enip.registerAssembly(ethernetip.EtherNetIP.ENIP_IO_TYPE_OUTPUT, 2, 100, conn)
-    enip.startIO(udp_port=0)
-    assert conn.sendFwdOpenReq(101, 100, 1, torpi=20, otrpi=20, multiplier=2,
-                               originator_udp_port=enip.originator_udp_port) == 0
-    outputs[4] = True
-    conn.produce()
-    return enip, conn
+    scan = start_scanner(address)
+    assert scan.forward_open(20, 2) == 0
+    scan.outputs[4] = True
+    scan.conn.produce()
+    return scan
 
 
 def test_reset_pycomm3_drops_everything_and_answers_again_after_the_reset_time(make_farm) -> None:
@@ -236,7 +230,7 @@ def test_reset_pycomm3_drops_everything_and_answers_again_after_the_reset_time(m
                       "implicit": {"first_watchdog_s": 0}})
     device = farm.device("io1")
     address = device.profile.address
-    enip, conn = scanner(address)
+    scan = producing(address)
     connected = CIPDriver(address)
     resetter = CIPDriver(address)
     try:
@@ -266,8 +260,7 @@ def test_reset_pycomm3_drops_everything_and_answers_again_after_the_reset_time(m
         with pytest.raises(CommError, match="^failed to receive reply$"):  # the class-3 session ended with the reset
             generic(connected, 0x0E, 1, 1, 1, connected=True)
     finally:
-        conn.stopProduce()
-        enip.stopIO()
+        scan.stop()
         for driver in (connected, resetter):
             with contextlib.suppress(CommError):  # its Forward Close or UnRegisterSession has nowhere to go
                 driver.close()

@@ -199,6 +199,23 @@ def test_models_marks_unverified() -> None:
     assert "UNVERIFIED: identity.device_type, identity.product_code" in result.stdout
 
 
+def test_the_abb_models_select_acd_is_unverified_unless_the_device_sets_it() -> None:
+    """docs/unverified.md: whether ABB's modules ship with ACD on is not published; the profile's
+    unverified tuple (what `models`, the dashboard and an exported EDS mark) says so, exactly."""
+    devices = [{"name": "a", "model": "DSQC1030", "address": "127.0.0.1"},
+               {"name": "b", "model": "DSQC1030", "address": "127.0.0.2", "select_acd": False},
+               {"name": "c", "model": "DSQC1042", "address": "127.0.0.3", "select_acd": True}]
+    a, b, c = build_profiles(parse_config({"devices": devices}), shipped_catalogue())
+    assert a.unverified == tuple(f"DSQC1030.{item}" for item in (
+        "identity.device_type", "identity.product_code", "identity.revision", "identity.product_name",
+        "assemblies.input_only", "assemblies.listen_only", "RPI limits", "select_acd", "routing"))
+    assert b.unverified == tuple(item for item in a.unverified if item != "DSQC1030.select_acd")
+    assert "DSQC1042.select_acd" not in c.unverified and c.select_acd is True
+    unset = {key: value for key, value in devices[2].items() if key != "select_acd"}
+    (safety,) = build_profiles(parse_config({"devices": [unset]}), shipped_catalogue())
+    assert "DSQC1042.select_acd" in safety.unverified and safety.select_acd is False
+
+
 def test_shipped_default_cell_is_valid() -> None:
     repo_copy = Path(__file__).parent.parent / "configs" / "default-cell.yaml"
     config = load_config(repo_copy)

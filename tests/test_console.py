@@ -18,7 +18,6 @@ import time
 from collections.abc import Iterator
 from pathlib import Path
 
-import ethernetip
 import pytest
 from click.testing import CliRunner
 from pycomm3 import CIPDriver, Services
@@ -39,6 +38,7 @@ from enip_farm.protocol.session import EncapsulationSession, MessageContext
 from enip_farm.pytest_plugin import AddressPool
 from enip_farm.server.limits import RateLimitedLog
 from tests.helpers import CLI, ROOT, STARTUP_S, RawClient, read_lines, serving, wait_for
+from tests.scanners import scanner
 from tests.test_implicit import forward_close, forward_open
 from tests.test_safety import T0, _pid, safety_open
 
@@ -249,24 +249,14 @@ def test_the_lines_of_a_pycomm3_and_a_scanner_session(enip_farm, lines) -> None:
     for (level, line), (want_level, pattern) in zip(taken, expected, strict=True):
         assert level == want_level and re.fullmatch(re.escape(prefix) + pattern, line), line
 
-    enip = ethernetip.EtherNetIP(address)
-    conn = enip.explicit_conn(address)
-    assert conn.registerSession() == 0
-    enip.registerAssembly(ethernetip.EtherNetIP.ENIP_IO_TYPE_INPUT, 2, 101, conn)
-    outputs = enip.registerAssembly(ethernetip.EtherNetIP.ENIP_IO_TYPE_OUTPUT, 2, 100, conn)
-    enip.startIO(udp_port=0)
-    try:
-        assert conn.sendFwdOpenReq(101, 100, 1, torpi=50, otrpi=50, multiplier=0,
-                                   originator_udp_port=enip.originator_udp_port) == 0
-        outputs[4] = True
-        conn.produce()
+    with scanner(address) as scan:
+        assert scan.forward_open(50, 0) == 0
+        scan.outputs[4] = True
+        scan.conn.produce()
         assert wait_for(lambda: device.outputs == b"\x10\x00")
-        conn.stopProduce()  # the scanner goes silent: the connection times out after 4 x 50 ms
+        scan.conn.stopProduce()  # the scanner goes silent: the connection times out after 4 x 50 ms
         assert wait_for(lambda: any("timed out" in line for _, line in handler.records))
-    finally:
-        conn.stopProduce()
-        enip.stopIO()
-    port = enip.originator_udp_port
+    port = scan.enip.originator_udp_port
     connection = (rf"exclusive owner from 127\.0\.0\.1: O->T {HEX8} RPI 50000 us 8 bytes, T->O {HEX8} RPI 50000 us "
                   rf"4 bytes to 127\.0\.0\.1:{port}")
     expected = [

@@ -9,7 +9,6 @@ import subprocess
 import threading
 import time
 
-import ethernetip
 import httpx
 import pytest
 from pycomm3 import CIPDriver, CommError, Services
@@ -21,6 +20,7 @@ from enip_farm.device.catalogue import shipped_catalogue
 from enip_farm.protocol.encapsulation import Command, decode_frame, encode_frame
 from enip_farm.pytest_plugin import AddressPool
 from tests.helpers import CLI, STARTUP_S, RawClient, metric_samples, read_lines, serving
+from tests.scanners import scanner
 from tests.test_implicit import ASSEMBLY_PATH, forward_open
 
 GET_OUTPUTS = dict(service=Services.get_attribute_single, class_code=4, instance=100, attribute=3,
@@ -223,25 +223,15 @@ def test_injected_status_is_read_by_pycomm3(enip_farm) -> None:
 def test_stop_io_times_out_the_ethernetip_scanner(enip_farm) -> None:
     farm = enip_farm(name="io", model="DSQC1030", implicit={"first_watchdog_s": 0})
     io = farm["io"]
-    enip = ethernetip.EtherNetIP(io.address)
-    conn = enip.explicit_conn(io.address)
-    conn.registerSession()
-    inputs = enip.registerAssembly(ethernetip.EtherNetIP.ENIP_IO_TYPE_INPUT, 2, 101, conn)
-    enip.registerAssembly(ethernetip.EtherNetIP.ENIP_IO_TYPE_OUTPUT, 2, 100, conn)
-    enip.startIO(udp_port=0)
-    try:
-        assert conn.sendFwdOpenReq(101, 100, 1, torpi=10, otrpi=10, multiplier=1,
-                                   originator_udp_port=enip.originator_udp_port) == 0
-        conn.produce()
+    with scanner(io.address) as scan:
+        assert scan.forward_open(10, 1) == 0
+        scan.conn.produce()
         io.set(DI1=1)
-        assert _eventually(lambda: inputs[0])
+        assert _eventually(lambda: scan.inputs[0])
         io.inject("stop-io")
         io.set(DI2=1)  # no longer produced
         io.wait_for(lambda d: d.events("connection timed out"), timeout=5)
-        assert not inputs[1]
-    finally:
-        conn.stopProduce()
-        enip.stopIO()
+        assert not scan.inputs[1]
 
 
 def test_identity_mismatch_fails_keying(enip_farm) -> None:

@@ -14,7 +14,6 @@ import threading
 import time
 from html.parser import HTMLParser
 
-import ethernetip
 import httpx
 import pytest
 
@@ -30,6 +29,7 @@ from enip_farm.device.events import Event, FaultInjected, ImageChanged
 from enip_farm.device.faults import FaultKind
 from enip_farm.device.signals import SignalMap
 from tests.helpers import CLI, ROOT, RawClient, read_lines, wait_for
+from tests.scanners import scanner
 
 MS = 1_000_000  # ns
 S = 1_000_000_000  # ns
@@ -257,16 +257,9 @@ def test_state_shows_signals_connections_counters_and_faults(enip_farm) -> None:
     assert state["counters"] == {"o_t_packets": 0, "t_o_packets": 0, "connection_timeouts": 0,
                                  "tcp_connections": 0, "sessions": 0}
     assert state["open"] == {"tcp": 0, "sessions": 0}
-    enip = ethernetip.EtherNetIP(io.address)  # a real scanner's class-1 connection
-    conn = enip.explicit_conn(io.address)
-    assert conn.registerSession() == 0
-    enip.registerAssembly(ethernetip.EtherNetIP.ENIP_IO_TYPE_INPUT, 2, 101, conn)
-    enip.registerAssembly(ethernetip.EtherNetIP.ENIP_IO_TYPE_OUTPUT, 2, 100, conn)
-    enip.startIO(udp_port=0)
-    try:
-        assert conn.sendFwdOpenReq(101, 100, 1, torpi=10, otrpi=10, multiplier=2,
-                                   originator_udp_port=enip.originator_udp_port) == 0
-        conn.produce()
+    with scanner(io.address, forward_close=True) as scan:  # a real scanner's class-1 connection
+        assert scan.forward_open(10, 2) == 0
+        scan.conn.produce()
         assert wait_for(lambda: farm.devices["io"].counters["o_t_packets"] >= 3, timeout=DEADLINE_S), "O->T packets"
         io.inject("status", service=0x0E, status=0x08)
         (state,) = httpx.get(f"{base}/state", params={"device": "io"}).json()
@@ -276,10 +269,6 @@ def test_state_shows_signals_connections_counters_and_faults(enip_farm) -> None:
         assert state["status"] == 0x0061 and state["counters"]["o_t_packets"] >= 3
         assert state["counters"]["tcp_connections"] == state["counters"]["sessions"] == 1
         assert [f["kind"] for f in state["faults"]] == ["status"] and state["faults"][0]["status"] == 8
-    finally:
-        conn.stopProduce()
-        conn.sendFwdCloseReq(101, 100, 1)
-        enip.stopIO()
     assert httpx.get(f"{base}/state", params={"device": ["io", "nobody"]}).status_code == 404
 
 

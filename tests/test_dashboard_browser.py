@@ -16,7 +16,6 @@ import time
 from collections.abc import Iterator
 from contextlib import contextmanager
 
-import ethernetip
 import httpx
 import pytest
 from pycomm3 import CIPDriver, Services
@@ -33,6 +32,7 @@ from tests.browser import (
     page_errors,
     until,
 )
+from tests.scanners import Scanner, start_scanner
 
 pytestmark = pytest.mark.system
 
@@ -317,29 +317,11 @@ def test_a_thousand_devices_load_filter_and_scroll_without_freezing(enip_farm, b
 # -- the plant's overview ----------------------------------------------------------------------------------
 
 
-class Scanner:
-    """A real scanner (`ethernetip`) with a session to `address`, ready to open a class-1
-    exclusive-owner connection. The package waits on its sockets with select(), which takes file
-    descriptors below 1024 only: beside a 1000-device farm, make it where `low_descriptors` freed some."""
-
-    def __init__(self, address: str) -> None:
-        self.enip = ethernetip.EtherNetIP(address)
-        self.conn = self.enip.explicit_conn(address)
-        assert self.conn.registerSession() == 0
-        self.enip.registerAssembly(ethernetip.EtherNetIP.ENIP_IO_TYPE_INPUT, 2, 101, self.conn)
-        self.enip.registerAssembly(ethernetip.EtherNetIP.ENIP_IO_TYPE_OUTPUT, 2, 100, self.conn)
-        self.enip.startIO(udp_port=0)  # its own port: the farm's device sockets hold 2222 on their addresses
-
-    def open(self, rpi_ms: int = 50) -> None:
-        """Forward Open (timeout multiplier 3: 32 RPI, 1.6 s, so that a busy machine's pause of the
-        scanner's thread is not taken for silence) and produce O->T every RPI."""
-        assert self.conn.sendFwdOpenReq(101, 100, 1, torpi=rpi_ms, otrpi=rpi_ms, multiplier=3,
-                                        originator_udp_port=self.enip.originator_udp_port) == 0
-        self.conn.produce()
-
-    def close(self) -> None:
-        self.conn.stopProduce()
-        self.enip.stopIO()
+def producing(scan: Scanner, rpi_ms: int = 50) -> None:
+    """Forward Open (timeout multiplier 3: 32 RPI, 1.6 s, so that a busy machine's pause of the
+    scanner's thread is not taken for silence) and produce O->T every RPI."""
+    assert scan.forward_open(rpi_ms, 3) == 0
+    scan.conn.produce()
 
 
 @contextmanager
@@ -381,13 +363,15 @@ def test_the_overview_of_a_thousand_devices_is_complete_within_2_s_and_follows_t
     with low_descriptors():
         farm = enip_farm({"devices": [{"name": "io{n}", "address": "127.0.0.1", "count": devices,
                                        "model": "DSQC1030"}]}, http=True)
-    scanners = [Scanner(farm[name].address) for name in ("io7", "io8", "io9")]
+    # the scanner waits on its sockets with select(), which takes file descriptors below 1024 only:
+    # made where `low_descriptors` freed some
+    scanners = [start_scanner(farm[name].address) for name in ("io7", "io8", "io9")]
     running, silent, later = scanners
     base = f"http://127.0.0.1:{farm.http.port}"
     farm["io500"].inject("drop")
     try:
-        running.open()
-        silent.open()
+        producing(running)
+        producing(silent)
         silent.conn.stopProduce()  # the farm times io8's connection out after 32 RPI
         until(lambda: farm.devices["io8"].counters["connection_timeouts"] == 1, "io8's connection timed out")
         browser.execute_cdp_cmd("Page.addScriptToEvaluateOnNewDocument", {"source": OVERVIEW_COMPLETE % devices})
@@ -424,7 +408,7 @@ def test_the_overview_of_a_thousand_devices_is_complete_within_2_s_and_follows_t
         assert httpx.post(f"{base}/devices/io300/faults", json={"kind": "stop-io"}).status_code == 201
         faulted = _recoloured(browser, "io300", "faulted", before) - before
         before = time.time()
-        later.open()
+        producing(later)
         opened = _recoloured(browser, "io9", "running", before) - before
         before = time.time()
         running.conn.stopProduce()  # the last O->T went at most an RPI ago: the timeout is 1.6 s from it
@@ -446,7 +430,7 @@ def test_the_overview_of_a_thousand_devices_is_complete_within_2_s_and_follows_t
         until(lambda: _shown(browser) == ["io300"], lambda: f"io300 alone: {_shown(browser)}")  # applied per key
     finally:
         for scanner in scanners:
-            scanner.close()
+            scanner.stop()
     assert page_errors(browser) == []
 
 

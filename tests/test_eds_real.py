@@ -33,6 +33,7 @@ from enip_farm.protocol.connection import (
 from enip_farm.protocol.cpf import ItemType
 from enip_farm.protocol.epath import encode_request_path
 from tests.helpers import ROOT, RawClient, wait_for
+from tests.scanners import scanner
 
 REAL = ROOT / "tests" / "data" / "eds"
 FILES = sorted(p.name for p in REAL.glob("*.eds"))
@@ -264,25 +265,14 @@ def test_params_are_parameter_object_instances_with_limits_and_access(enip_farm,
 def test_the_ethernetip_scanner_opens_an_eds_made_device(enip_farm, tmp_path: Path) -> None:
     """A real scanner (PyPI's `ethernetip`) opens OpENer's sample EDS's exclusive owner (config 151,
     O->T 150, T->O 100, 32 bytes each way) on the device made from that EDS, and I/O goes both ways."""
-    ethernetip = pytest.importorskip("ethernetip")
     _, _, farm = _served_farm(enip_farm, tmp_path, "opener_sample_app.eds")
     address = farm["dev"].address
-    enip = ethernetip.EtherNetIP(address)
-    conn = enip.explicit_conn(address)
-    assert conn.registerSession() == 0
-    inputs = enip.registerAssembly(ethernetip.EtherNetIP.ENIP_IO_TYPE_INPUT, 32, 100, conn)
-    outputs = enip.registerAssembly(ethernetip.EtherNetIP.ENIP_IO_TYPE_OUTPUT, 32, 150, conn)
-    enip.startIO(udp_port=0)
-    try:
-        assert conn.sendFwdOpenReq(100, 150, 151, torpi=10, otrpi=10, multiplier=2,
-                                   originator_udp_port=enip.originator_udp_port) == 0
-        outputs[3] = outputs[255] = True
-        conn.produce()
+    with scanner(address, t_o=(100, 32), o_t=(150, 32), configuration=151) as scan:
+        assert scan.forward_open(10, 2) == 0
+        scan.outputs[3] = scan.outputs[255] = True
+        scan.conn.produce()
         assert wait_for(lambda: farm["dev"].outputs == b"\x08" + bytes(30) + b"\x80")
         farm["dev"].set_inputs(b"\x01" + bytes(30) + b"\x40")
-        assert wait_for(lambda: [i for i, bit in enumerate(inputs) if bit] == [0, 254])
-        conn.stopProduce()
-        assert conn.sendFwdCloseReq(100, 150, 151) == 0
-    finally:
-        conn.stopProduce()
-        enip.stopIO()
+        assert wait_for(lambda: [i for i, bit in enumerate(scan.inputs) if bit] == [0, 254])
+        scan.conn.stopProduce()
+        assert scan.forward_close() == 0

@@ -24,7 +24,7 @@ from enip_farm.control.client import ApiClient
 from enip_farm.engines.k8s import manifests
 from enip_farm.engines.stack import check_cell, stack_file
 from enip_farm.fleet.api import serving_router
-from enip_farm.fleet.router import merge_metrics
+from enip_farm.fleet.reports import merge_metrics
 from enip_farm.fleet.shard_api import create_shard_router, static_discovery
 from enip_farm.fleet.slices import shard, split
 from tests.helpers import CLI, ROOT, STARTUP_S

@@ -101,3 +101,28 @@ def test_state_metrics_and_health_merge_the_parts_that_answer(fleet) -> None:
     assert parts[1] == {label: 2, f"{label}_up": False, "ok": False,
                         "failure": f"{label} 2/3 (devices io2..io5) is down"}
     assert dead not in str(parts)
+
+
+def test_the_overview_merges_every_parts_devices_and_events(fleet) -> None:
+    """GET /overview through the router (the dashboard's one read of the plant): every part's
+    devices in configuration order, a down part's faulted by its being down, the counts of them
+    all, and the recent events of every part that answers, oldest first."""
+    label, api, farms, urls, _ = fleet
+    farms[1]["io6"].inject("drop")  # part 3
+    farms[0]["io1"].inject("delay", delay_ms=1)  # part 1, later
+    overview = api.get("/overview", params={"events": 10}).json()
+    own = [httpx.get(f"{url}/overview", params={"events": 10}, timeout=STARTUP_S).json() for url in urls]
+    (io1, io4), (io3, io6) = (part["devices"] for part in own)
+    down = [{"name": name, "address": f"127.0.0.{name[2:]}", "model": "DSQC1030", "addons": [], "state": "faulted",
+             "io_connections": 0, "timeouts": 0, "faults": [f"{label} down"], label: 2, f"{label}_up": False}
+            for name in ("io2", "io5")]
+    marks = {1: {label: 1, f"{label}_up": True}, 3: {label: 3, f"{label}_up": True}}
+    assert overview["devices"] == [{**io1, **marks[1]}, down[0], {**io3, **marks[3]}, {**io4, **marks[1]}, down[1],
+                                   {**io6, **marks[3]}]
+    assert (io1["state"], io6["state"], io3["state"]) == ("faulted", "faulted", "idle")
+    assert overview["counts"] == {"idle": 2, "running": 0, "timed_out": 0, "faulted": 4}
+    assert [(e["device"], e["kind"]) for e in overview["events"]] == [
+        ("io6", "fault injected"), ("io1", "fault injected")]
+    assert overview["events"] == own[1]["events"] + own[0]["events"]
+    assert api.get("/overview").json()["events"] == []
+    assert api.get("/overview", params={"events": -1}).status_code == 422  # the farms' own check

@@ -8,7 +8,6 @@ import socket
 import struct
 import time
 
-import ethernetip
 import pytest
 from pycomm3 import CIPDriver, Services
 
@@ -30,6 +29,7 @@ from enip_farm.protocol.connection import (
 from enip_farm.protocol.cpf import ItemType
 from enip_farm.protocol.epath import ElectronicKey, encode_electronic_key, encode_request_path
 from tests.helpers import RawClient, wait_for
+from tests.scanners import scanner
 
 pytestmark = pytest.mark.class1_paths  # both class-1 paths (tests/conftest.py)
 
@@ -74,39 +74,24 @@ def client(device):
 # -- the ethernetip scanner ------------------------------------------------------------------------
 
 
-def _scanner(address: str):
-    enip = ethernetip.EtherNetIP(address)
-    conn = enip.explicit_conn(address)
-    assert conn.registerSession() == 0
-    inputs = enip.registerAssembly(ethernetip.EtherNetIP.ENIP_IO_TYPE_INPUT, 2, 101, conn)
-    outputs = enip.registerAssembly(ethernetip.EtherNetIP.ENIP_IO_TYPE_OUTPUT, 2, 100, conn)
-    enip.startIO(udp_port=0)  # its own port: the farm's device sockets hold 2222 on their addresses
-    return enip, conn, inputs, outputs
-
-
 def test_ethernetip_scanner_exchanges_io(device) -> None:
-    enip, conn, inputs, outputs = _scanner(device.profile.address)
-    try:
-        assert conn.sendFwdOpenReq(101, 100, 1, torpi=10, otrpi=10, multiplier=2,
-                                   originator_udp_port=enip.originator_udp_port) == 0
+    with scanner(device.profile.address) as scan:
+        assert scan.forward_open(10, 2) == 0
         (connection,) = device.connections.values()
         assert connection.kind is ConnectionKind.EXCLUSIVE_OWNER
-        assert connection.t_o_address[1] == enip.originator_udp_port  # the 0x8001 item honoured
-        outputs[4] = outputs[9] = True  # DO5 and DO10
-        conn.produce()
+        assert connection.t_o_address[1] == scan.enip.originator_udp_port  # the 0x8001 item honoured
+        scan.outputs[4] = scan.outputs[9] = True  # DO5 and DO10
+        scan.conn.produce()
         assert wait_for(lambda: device.outputs == b"\x10\x02")
         device.set_inputs(b"\x81\x02")
-        assert wait_for(lambda: [i for i, bit in enumerate(inputs) if bit] == [0, 7, 9])
+        assert wait_for(lambda: [i for i, bit in enumerate(scan.inputs) if bit] == [0, 7, 9])
         assert device.status == 0x0061  # owned, an I/O connection in run mode
-        conn.stopProduce()
-        assert conn.sendFwdCloseReq(101, 100, 1) == 0
+        scan.conn.stopProduce()
+        assert scan.forward_close() == 0
         assert not device.connections and device.status == 0x0030
         assert device.outputs == b"\x00\x00"  # idle state on close: all off
         assert [e.kind for e in device.events if e.kind.startswith("connection")] == [
             "connection opened", "connection closed"]
-    finally:
-        conn.stopProduce()
-        enip.stopIO()
 
 
 @pytest.mark.parametrize(("fault_state", "expected"), [("off", b"\x00\x00"), ("hold", b"\x10\x00")])
@@ -117,26 +102,21 @@ def test_silent_scanner_times_out_into_fault_state(make_farm, fault_state: str, 
     count once packets have arrived."""
     farm = make_farm({"name": "io1", "model": "DSQC1030", "implicit": {"fault_state": fault_state}})
     device = farm.device("io1")
-    enip, conn, _, outputs = _scanner(device.profile.address)
     rpi = 0.050
-    try:
-        assert conn.sendFwdOpenReq(101, 100, 1, torpi=50, otrpi=50, multiplier=0,
-                                   originator_udp_port=enip.originator_udp_port) == 0
+    with scanner(device.profile.address) as scan:
+        assert scan.forward_open(50, 0) == 0
         (connection,) = device.connections.values()
         assert connection.timeout == pytest.approx(rpi * 4)  # RPI x 2^(2 + 0)
-        outputs[4] = True
-        conn.produce()
+        scan.outputs[4] = True
+        scan.conn.produce()
         assert wait_for(lambda: device.outputs == b"\x10\x00" and connection.received >= 5)
-        conn.stopProduce()  # the scanner goes silent
+        scan.conn.stopProduce()  # the scanner goes silent
         assert wait_for(lambda: device.events.of_kind("connection timed out"), timeout=5)
         (event,) = device.events.of_kind("connection timed out")
         silent_for = (event.monotonic_ns - connection.last_received) / 1e9
         assert connection.timeout <= silent_for <= connection.timeout + 2 * rpi
         assert device.outputs == expected
         assert not device.connections and device.status == 0x0030
-    finally:
-        conn.stopProduce()
-        enip.stopIO()
 
 
 # -- refusals with raw frames ----------------------------------------------------------------------

@@ -5,7 +5,6 @@ silent until the farm times it out, opened again and closed."""
 
 from __future__ import annotations
 
-import ethernetip
 import httpx
 
 from enip_farm.cip.connection import Connection, ConnectionKind
@@ -19,6 +18,7 @@ from enip_farm.device.events import FaultInjected, TcpConnected
 from enip_farm.device.faults import Fault
 from enip_farm.protocol.connection import ConnectionTriad
 from tests.helpers import wait_for
+from tests.scanners import scanner
 
 DEADLINE_S = 30.0  # generous: conditions end the waits as soon as they hold
 OWNER = Connection(ConnectionKind.EXCLUSIVE_OWNER, ConnectionTriad(1, 1, 1), 1, 2, 10000, 10000, 0, "127.0.0.1", 0)
@@ -80,16 +80,6 @@ def test_recent_events_leave_out_requests_and_image_changes_and_keep_the_newest(
     assert overview.snapshot()["events"] == []  # none unless asked for
 
 
-def _scanner(address: str):
-    enip = ethernetip.EtherNetIP(address)
-    conn = enip.explicit_conn(address)
-    assert conn.registerSession() == 0
-    enip.registerAssembly(ethernetip.EtherNetIP.ENIP_IO_TYPE_INPUT, 2, 101, conn)
-    enip.registerAssembly(ethernetip.EtherNetIP.ENIP_IO_TYPE_OUTPUT, 2, 100, conn)
-    enip.startIO(udp_port=0)  # its own port: the farm's device sockets hold 2222 on their addresses
-    return enip, conn
-
-
 def test_overview_follows_a_real_scanners_connection_and_a_fault(enip_farm) -> None:
     farm = enip_farm({"devices": [{"name": "io{n}", "address": "127.0.0.1", "count": 3, "model": "DSQC1030"}]},
                      http=True)
@@ -107,26 +97,20 @@ def test_overview_follows_a_real_scanners_connection_and_a_fault(enip_farm) -> N
     assert first["counts"] == {"idle": 3, "running": 0, "timed_out": 0, "faulted": 0}
     assert [d["name"] for d in first["devices"]] == ["io1", "io2", "io3"] and first["events"] == []
     address = farm["io2"].address
-    enip, conn = _scanner(address)
-    try:
-        assert conn.sendFwdOpenReq(101, 100, 1, torpi=20, otrpi=20, multiplier=0,
-                                   originator_udp_port=enip.originator_udp_port) == 0
-        conn.produce()
+    with scanner(address) as scan:
+        assert scan.forward_open(20, 0) == 0
+        scan.conn.produce()
         assert states() == {"io1": "idle", "io2": "running", "io3": "idle"}
         (io2,) = [d for d in overview()["devices"] if d["name"] == "io2"]
         assert (io2["io_connections"], io2["timeouts"]) == (1, 0)
-        conn.stopProduce()  # the scanner goes silent: the farm times the connection out (4 RPI)
+        scan.conn.stopProduce()  # the scanner goes silent: the farm times the connection out (4 RPI)
         assert wait_for(lambda: states()["io2"] == "timed_out", timeout=DEADLINE_S), states()
         (io2,) = [d for d in overview()["devices"] if d["name"] == "io2"]
         assert (io2["io_connections"], io2["timeouts"]) == (0, 1)
-        assert conn.sendFwdOpenReq(101, 100, 1, torpi=20, otrpi=20, multiplier=2,
-                                   originator_udp_port=enip.originator_udp_port) == 0
+        assert scan.forward_open(20, 2) == 0
         assert states()["io2"] == "running"
-        assert conn.sendFwdCloseReq(101, 100, 1) == 0  # closed normally: idle, not timed out
+        assert scan.forward_close() == 0  # closed normally: idle, not timed out
         assert states()["io2"] == "idle"
-    finally:
-        conn.stopProduce()
-        enip.stopIO()
     farm["io3"].inject("stop-io")
     snapshot = overview(events=RECENT)
     assert snapshot["counts"] == {"idle": 2, "running": 0, "timed_out": 0, "faulted": 1}

@@ -7,10 +7,7 @@ sets); no socket is opened but the one that takes an address."""
 
 from __future__ import annotations
 
-import asyncio
 import socket
-from collections.abc import Callable, Coroutine, Iterator
-from typing import Any
 
 import pytest
 
@@ -19,47 +16,9 @@ from enip_farm.device.impairment import DegradedPath, LinkQuality
 from enip_farm.device.safety_faults import SafetyTamper
 from enip_farm.farm.farm import Farm
 from enip_farm.protocol.encapsulation import ENIP_PORT
+from tests.virtual_clock import VirtualClockLoop, at
 
 NOW = 7_000_000_000
-
-
-class VirtualClockLoop(asyncio.SelectorEventLoop):
-    """An event loop whose clock the test sets: timers fire when `now` reaches them, not before."""
-
-    def __init__(self) -> None:
-        super().__init__()
-        self.now = 1_000.0
-
-    def time(self) -> float:
-        return self.now
-
-
-Scenario = Callable[[Farm, VirtualClockLoop], Coroutine[Any, Any, None]]
-
-
-@pytest.fixture
-def on_virtual_clock() -> Iterator[Callable[..., None]]:
-    """Runs a scenario with a farm (built, not serving) whose loop is a virtual clock."""
-    loop = VirtualClockLoop()
-
-    def run(scenario: Scenario, address: str = "127.0.0.1") -> None:
-        farm = Farm({"devices": [{"name": "io1", "model": "DSQC1030", "address": address}]})
-
-        async def main() -> None:
-            farm.loop = loop
-            await scenario(farm, loop)
-
-        loop.run_until_complete(main())
-
-    yield run
-    loop.close()
-
-
-async def at(loop: VirtualClockLoop, when: float) -> None:
-    """Move the clock to `when` and let what is due run (timers, then the tasks they start)."""
-    loop.now = when
-    for _ in range(4):
-        await asyncio.sleep(0)
 
 
 # -- device/faults.py: _update ------------------------------------------------------------------

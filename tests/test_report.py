@@ -14,7 +14,8 @@ from pycomm3 import CIPDriver, Services
 
 from enip_farm.protocol.connection import decode_forward_open_reply, encode_io_packet
 from tests.helpers import RawClient, wait_for
-from tests.test_implicit import _scanner, forward_close, forward_open
+from tests.scanners import scanner, start_scanner
+from tests.test_implicit import forward_close, forward_open
 
 pytestmark = [pytest.mark.integration, pytest.mark.class1_paths]  # both class-1 paths
 MS = 1_000_000
@@ -31,20 +32,15 @@ def _connection(farm, index: int = 0) -> dict:
 
 def test_the_ethernetip_scanner_measured_packet_by_packet(farm) -> None:
     device = farm.device("io1")
-    enip, conn, _inputs, outputs = _scanner(device.profile.address)
-    try:
-        assert conn.sendFwdOpenReq(101, 100, 1, torpi=10, otrpi=10, multiplier=2,
-                                   originator_udp_port=enip.originator_udp_port) == 0
-        outputs[4] = True
-        conn.produce()
+    with scanner(device.profile.address) as scan:
+        assert scan.forward_open(10, 2) == 0
+        scan.outputs[4] = True
+        scan.conn.produce()
         assert wait_for(lambda: device.counters["o_t_packets"] >= 60)
-        conn.stopProduce()
+        scan.conn.stopProduce()
         packets = device.counters["o_t_packets"]
         assert wait_for(lambda: _connection(farm)["sequence"]["packets"] == device.counters["o_t_packets"], 2)
-        assert conn.sendFwdCloseReq(101, 100, 1) == 0
-    finally:
-        conn.stopProduce()
-        enip.stopIO()
+        assert scan.forward_close() == 0
     report = farm.report()
     c = json.loads(json.dumps(report.as_dict()))["devices"][0]["connections"][0]
     packets = device.counters["o_t_packets"]
@@ -137,13 +133,12 @@ def _controller(scanner_inputs, scanner_outputs, conn, stop: threading.Event) ->
 
 def test_reaction_time_of_a_scanner_program_and_the_report_judges_it(farm) -> None:
     device = farm.device("io1")
-    enip, conn, inputs, outputs = _scanner(device.profile.address)
+    scan = start_scanner(device.profile.address)
     stop = threading.Event()
-    program = threading.Thread(target=_controller, args=(inputs, outputs, conn, stop), daemon=True)
+    program = threading.Thread(target=_controller, args=(scan.inputs, scan.outputs, scan.conn, stop), daemon=True)
     try:
-        assert conn.sendFwdOpenReq(101, 100, 1, torpi=10, otrpi=10, multiplier=4,
-                                   originator_udp_port=enip.originator_udp_port) == 0
-        conn.produce()
+        assert scan.forward_open(10, 4) == 0
+        scan.conn.produce()
         program.start()
         started = time.monotonic_ns()
         reaction = farm.reaction(set=("io1", "DI3", 1), expect=("io1", "DO5", 1), timeout=2, repeat=5,
@@ -152,8 +147,7 @@ def test_reaction_time_of_a_scanner_program_and_the_report_judges_it(farm) -> No
     finally:
         stop.set()
         program.join(5)
-        conn.stopProduce()
-        enip.stopIO()
+        scan.stop()
     assert reaction.count == 5 and reaction.timeouts == 0 and reaction.via == "o->t"
     assert all(0 < sample <= elapsed for sample in reaction.samples_ns)
     assert [v.verdict for v in reaction.verdicts] == ["pass", "pass"]  # max 2000 ms, no timeout
@@ -200,11 +194,9 @@ def test_a_reaction_that_never_comes_times_out(farm) -> None:
 
 def test_reconnection_after_a_fault_cleared_and_the_end_it_had(farm) -> None:
     device = farm.device("io1")
-    enip, conn, _inputs, _outputs = _scanner(device.profile.address)
-    try:
-        assert conn.sendFwdOpenReq(101, 100, 1, torpi=10, otrpi=10, multiplier=0,
-                                   originator_udp_port=enip.originator_udp_port) == 0
-        conn.produce()
+    with scanner(device.profile.address) as scan:
+        assert scan.forward_open(10, 0) == 0
+        scan.conn.produce()
         assert wait_for(lambda: device.counters["o_t_packets"] >= 5)
         farm["io1"].inject("stop-io")
         assert wait_for(lambda: not device.connections)  # timed out while the device stopped its I/O
@@ -213,14 +205,10 @@ def test_reconnection_after_a_fault_cleared_and_the_end_it_had(farm) -> None:
         after_clear = time.monotonic_ns()
         time.sleep(0.05)
         before_open = time.monotonic_ns()
-        assert conn.sendFwdOpenReq(101, 100, 1, torpi=10, otrpi=10, multiplier=0,
-                                   originator_udp_port=enip.originator_udp_port) == 0
+        assert scan.forward_open(10, 0) == 0
         after_open = time.monotonic_ns()
         assert wait_for(lambda: farm.report().devices[0].reconnections[0].first_o_t_ns is not None)
-        conn.sendFwdCloseReq(101, 100, 1)
-    finally:
-        conn.stopProduce()
-        enip.stopIO()
+        scan.forward_close()
     device_report = farm.report().devices[0]
     (reconnection,) = device_report.reconnections
     assert (reconnection.after, reconnection.originator) == ("fault cleared", "127.0.0.1")

@@ -14,10 +14,12 @@ import xml.etree.ElementTree as ElementTree
 from pathlib import Path
 
 import httpx
+import jsonschema
 import pytest
 from junitparser import Failure, JUnitXml
 
 from enip_farm.protocol.connection import decode_forward_open_reply, encode_io_packet
+from enip_farm.protocol.epath import ElectronicKey
 from tests.helpers import CLI, RawClient, metric_samples, wait_for
 from tests.test_implicit import forward_close, forward_open
 
@@ -38,7 +40,8 @@ def measured(enip_farm):
     io = farm["io1"]
     with RawClient(io.address) as client:
         client.register()
-        message, triad = forward_open(rpi=10_000, multiplier=7)  # timeout 5.12 s: a busy machine times nothing out
+        # timeout 5.12 s: a busy machine times nothing out; a key of zeros: one of every form's fields
+        message, triad = forward_open(rpi=10_000, multiplier=7, key=ElectronicKey(0, 0, 0, 0, 0, False))
         opened = decode_forward_open_reply(client.request(message).data)
         with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as udp:
             udp.bind(("127.0.0.1", 0))
@@ -67,11 +70,48 @@ def test_get_report_is_the_farms_report_in_the_schema(measured) -> None:
     assert [d["device"] for d in only["devices"]] == ["io2"] and only["verdict"] == "not judged"
     assert only["failures"] == []
     assert httpx.get(f"{base}/report", params={"device": "nope"}).status_code == 404
-    schema = httpx.get(f"{base}/openapi.json").json()
-    ok = schema["paths"]["/report"]["get"]["responses"]["200"]["content"]["application/json"]["schema"]
-    assert ok == {"$ref": "#/components/schemas/FarmReportModel"}
-    assert {"at_ns", "verdict", "failures", "devices", "reactions"} <= set(
-        schema["components"]["schemas"]["FarmReportModel"]["properties"])
+
+
+def _objects(schema: dict, schemas: dict, seen: set[str]) -> list[dict]:
+    """Every object schema reachable from `schema` through the components' $refs."""
+    if "$ref" in schema:
+        name = schema["$ref"].rsplit("/", 1)[1]
+        if name in seen:
+            return []
+        seen.add(name)
+        schema = schemas[name]
+    out = [schema] if schema.get("type") == "object" else []
+    for value in schema.values():
+        for part in (value if isinstance(value, list) else [value]):
+            if isinstance(part, dict):
+                out += [s for inner in [part, *part.values()] if isinstance(inner, dict)
+                        for s in _objects(inner, schemas, seen)]
+    return out
+
+
+def test_get_report_is_exactly_its_openapi_schema(measured) -> None:
+    """The JSON GET /report serves validates against the schema /openapi.json publishes for it,
+    one derived from cip/report.py's dataclasses with every object closed and every field
+    required: a field added to the JSON and not to the dataclasses, or one missing, fails."""
+    farm, _, _ = measured
+    base = f"http://127.0.0.1:{farm.http.port}"
+    openapi = httpx.get(f"{base}/openapi.json").json()
+    ok = openapi["paths"]["/report"]["get"]["responses"]["200"]["content"]["application/json"]["schema"]
+    assert ok == {"$ref": "#/components/schemas/FarmReport"}
+    objects = _objects(ok, openapi["components"]["schemas"], set())
+    assert len(objects) >= 12 and all(o["additionalProperties"] is False for o in objects)
+    assert all(set(o["required"]) == set(o["properties"]) for o in objects)
+    validator = jsonschema.Draft202012Validator({**ok, "components": openapi["components"]})
+    answer = httpx.get(f"{base}/report").json()
+    connection = answer["devices"][0]["connections"][0]
+    assert connection["forward_open"]["key"] == {"form": "any", "vendor_id": 0, "device_type": 0, "product_code": 0,
+                                                 "major_revision": 0, "minor_revision": 0}
+    assert list(validator.iter_errors(answer)) == []
+    drifted = {**answer, "devices": [{**answer["devices"][0], "connections": [{**connection, "new": 1}]}]}
+    assert [e.message for e in validator.iter_errors(drifted)] == [
+        "Additional properties are not allowed ('new' was unexpected)"]
+    del connection["run_idle"]
+    assert [e.message for e in validator.iter_errors(answer)] == ["'run_idle' is a required property"]
 
 
 @pytest.mark.system

@@ -18,7 +18,9 @@ from enip_farm.cip.reconnection import KEPT, Reconnections
 from enip_farm.cip.report import FAIL, PASS, TOO_SHORT, FarmReport, ReactionFigures
 from enip_farm.cip.verdicts import judge_connection, judge_reaction, judge_reconnection, verdict
 from enip_farm.config import parse_config
-from enip_farm.device.report import device_bounds
+from enip_farm.device import report as device_report_module
+from enip_farm.device.report import CellBounds, device_bounds
+from enip_farm.protocol.connection import ConnectionType
 from enip_farm.protocol.epath import ElectronicKey, encode_electronic_key
 from tests.test_connection_table import MS, ORIGINATOR, T0, make_table, o_t, open_owner, request
 
@@ -173,19 +175,33 @@ def test_measuring_off_keeps_nothing() -> None:
 # -- the Forward Open as asked ---------------------------------------------------------------------
 
 
+@pytest.mark.parametrize("route", [b"", bytes.fromhex("01 00")])  # none, or backplane port 1 slot 0
 @pytest.mark.parametrize(("key", "form"), [
     (ElectronicKey(75, 7, 1030, 1, 1, False), "exact"), (ElectronicKey(75, 7, 1030, 1, 0, True), "compatible"),
     (ElectronicKey(0, 0, 0, 0, 0, False), "any"), (None, None)])
-def test_forward_open_asked_names_the_key_form_and_the_configuration(key, form) -> None:
+def test_forward_open_asked_names_the_key_form_and_the_configuration(key, form, route) -> None:
     path = bytes.fromhex("20 04 24 01 2C 64 2C 65") + bytes.fromhex("80 02 AA BB CC DD")
     if key is not None:
         path = encode_electronic_key(key) + path
-    asked = forward_open_asked(request(path=path, rpi_us=4_000, multiplier=3), 123)
+    asked = forward_open_asked(request(path=route + path, rpi_us=4_000, multiplier=3), 123)
     assert (asked.o_t_rpi_us, asked.timeout_multiplier, asked.timeout_ns, asked.o_t_type, asked.o_t_priority) == (
         4_000, 3, 123, "point-to-point", "scheduled")
     assert asked.configuration_data == bytes.fromhex("AA BB CC DD") and asked.trigger == "cyclic"
     assert (asked.key.form if asked.key else None) == form
     assert json.dumps(asked.as_dict())
+
+
+@pytest.mark.parametrize(("kind", "word"), [(ConnectionType.POINT_TO_POINT, "point-to-point"),
+                                            (ConnectionType.MULTICAST, "multicast"), (ConnectionType.NULL, "null"),
+                                            (3, "reserved")])
+def test_forward_open_asked_names_the_connection_type(kind, word) -> None:
+    asked = forward_open_asked(request(t_o_type=kind), 1)
+    assert (asked.o_t_type, asked.t_o_type) == ("point-to-point", word)
+
+
+def test_forward_open_asked_of_a_path_that_cannot_be_read_has_no_key_and_no_data() -> None:
+    asked = forward_open_asked(request(path=bytes.fromhex("34 04 00 00")), 1)  # a key segment cut short
+    assert (asked.key, asked.configuration_data) == (None, None)
 
 
 # -- reconnections ---------------------------------------------------------------------------------
@@ -304,6 +320,26 @@ def test_bounds_levels_defaults_cell_device_test_with_their_sources() -> None:
         resolve(("test", {"intervals_p99": 1}))
     with pytest.raises(ValidationError):
         BoundsConfig(lost=-1)
+
+
+def test_one_report_resolves_the_devices_without_bounds_of_their_own_once(monkeypatch) -> None:
+    """device/report.py: a report's bounds cost one resolution for every device without its own
+    (was one per device, each searching the configuration's devices: quadratic in devices)."""
+    config = parse_config({"bounds": {"lost": 3}, "devices": [
+        {"name": "io{n}", "count": 300, "model": "DSQC1030", "address": "127.0.1.1", "netmask": "255.0.0.0"},
+        {"name": "own", "model": "DSQC1030", "address": "127.0.9.1", "bounds": {"lost": 5}}]})
+    calls = []
+    monkeypatch.setattr(device_report_module, "resolve", lambda *levels: calls.append(levels) or resolve(*levels))
+    cell = CellBounds(config, {"late_intervals": 2})
+    resolved = {device.name: cell.of(device.name) for device in config.devices}
+    assert len(calls) == 2  # the devices' shared one, and "own"'s
+    assert all(resolved[f"io{n}"] is resolved["io1"] for n in range(1, 301))
+    assert [(resolved[name]["lost"], resolved[name]["late_intervals"]) for name in ("io300", "own")] == [(3, 2), (5, 2)]
+    assert resolved["own"].source("lost") == "device configuration (own)"
+    assert resolved["io7"].source("lost") == "cell configuration" and resolved["io7"].source("late_intervals") == "test"
+    reaction = cell.of("io7", {"late_intervals": 7, "lost": 9})  # a reaction's own: over the device's, under the test's
+    assert (reaction["lost"], reaction["late_intervals"], len(calls)) == (9, 2, 3)
+    assert device_bounds(config, "own", {"lost": 1})["lost"] == 1
 
 
 def test_reconnection_and_reaction_verdicts() -> None:

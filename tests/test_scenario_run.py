@@ -6,11 +6,12 @@ from __future__ import annotations
 import asyncio
 import threading
 import time
+from pathlib import Path
 
-import ethernetip
 import pytest
 
 from enip_farm.scenario.run import run_scenario
+from tests.scanners import Scanner, start_scanner
 from tests.test_cell_faults import list_identity_answered
 
 pytestmark = pytest.mark.integration
@@ -48,24 +49,16 @@ class Controller:
         self.address = self.device.profile.address
         self.stopped = threading.Event()
         self.opens = 0
-        self.enip = None
-        self.conn = None
+        self.scan: Scanner | None = None
         self.thread = threading.Thread(target=self.run, daemon=True)
         self.thread.start()
 
     def open(self) -> None:
-        enip = ethernetip.EtherNetIP(self.address)
-        conn = enip.explicit_conn(self.address)
-        assert conn.registerSession() == 0
-        enip.registerAssembly(ethernetip.EtherNetIP.ENIP_IO_TYPE_INPUT, 2, 101, conn)
-        outputs = enip.registerAssembly(ethernetip.EtherNetIP.ENIP_IO_TYPE_OUTPUT, 2, 100, conn)
-        outputs[4] = True  # DO5
-        enip.startIO(udp_port=0)
-        if conn.sendFwdOpenReq(101, 100, 1, torpi=10, otrpi=10, multiplier=4,
-                               originator_udp_port=enip.originator_udp_port) == 0:
-            conn.produce()
+        self.scan = scan = start_scanner(self.address)
+        scan.outputs[4] = True  # DO5
+        if scan.forward_open(10, 4) == 0:
+            scan.conn.produce()
             self.opens += 1
-        self.enip, self.conn = enip, conn
 
     def run(self) -> None:
         deadline = time.monotonic() + 60
@@ -77,10 +70,8 @@ class Controller:
         self.close()
 
     def close(self) -> None:
-        if self.conn is not None:
-            self.conn.stopProduce()
-        if self.enip is not None:
-            self.enip.stopIO()
+        if self.scan is not None:
+            self.scan.stop()
 
     def stop(self) -> None:
         self.stopped.set()
@@ -183,6 +174,38 @@ steps:
     assert result.status == "failed" and [s.state for s in result.steps] == ["done", "failed", "skipped"]
     assert result.steps[1].detail == "io1.DI4 == 1 not met within 0.1 s"
     assert farm["r2-io1"].faults == []
+
+
+def test_marking_a_step_never_waits_on_the_disk(tmp_path) -> None:
+    """Farm.mark on the event loop hands the line to the recorder's thread: while an injected writer
+    holds that thread, the loop goes on; once let go, FILE.steps holds every step in order, each
+    stamped by the recorder's wall clock, exactly."""
+    from enip_farm.capture.recorder import Recorder, append_line
+    from enip_farm.farm.farm import Farm
+
+    held, writing = threading.Event(), threading.Event()
+
+    def slow(path: Path, line: str) -> None:
+        writing.set()
+        assert held.wait(10)
+        append_line(path, line)
+
+    stamps = iter([1_700_000_000.25, 1_700_000_001.5])
+    farm = Farm({"devices": [{"name": "x", "address": "127.0.0.1", "model": "DSQC1030"}], "discovery": False})
+    farm.recorder = Recorder(tmp_path / "cell.pcap", wall=lambda: next(stamps), append=slow)
+    steps = tmp_path / "cell.pcap.steps"
+
+    async def on_the_loop() -> None:
+        farm.mark("step 1: link-down on x")
+        farm.mark("step 2: set x.DI2=1")
+        assert await asyncio.to_thread(writing.wait, 10)  # the writer holds the first line; the loop runs
+        await asyncio.sleep(0.01)  # and its timers fire
+        assert not steps.exists()
+
+    asyncio.run(on_the_loop())
+    held.set()
+    farm.recorder.close()
+    assert steps.read_text() == "1700000000.250000 step 1: link-down on x\n1700000001.500000 step 2: set x.DI2=1\n"
 
 
 def test_each_step_is_marked_in_the_recording_and_the_event_logs(enip_farm, tmp_path) -> None:

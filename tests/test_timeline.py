@@ -7,7 +7,6 @@ from __future__ import annotations
 
 from collections.abc import Callable
 
-import ethernetip
 import httpx
 import pytest
 from pycomm3 import CIPDriver, Services
@@ -19,6 +18,7 @@ from enip_farm.device.build import build_profiles
 from enip_farm.device.catalogue import shipped_catalogue
 from enip_farm.device.events import Event, ImageChanged, RequestHandled
 from tests.helpers import wait_for
+from tests.scanners import scanner
 
 S = 1_000_000_000
 
@@ -105,23 +105,12 @@ def test_the_timeline_marks_stimuli_explicit_writes_and_class1_writes(enip_farm)
         reply = plc.generic_message(service=Services.set_attribute_single, class_code=4, instance=100,
                                     attribute=3, request_data=b"\x10\x00", connected=False, route_path=False)
         assert not reply.error
-    enip = ethernetip.EtherNetIP(io.address)
-    conn = enip.explicit_conn(io.address)
-    assert conn.registerSession() == 0
-    enip.registerAssembly(ethernetip.EtherNetIP.ENIP_IO_TYPE_INPUT, 2, 101, conn)
-    outputs = enip.registerAssembly(ethernetip.EtherNetIP.ENIP_IO_TYPE_OUTPUT, 2, 100, conn)
-    enip.startIO(udp_port=0)
-    try:
-        outputs[4] = outputs[5] = True  # DO5 stays, DO6 on: class 1
-        assert conn.sendFwdOpenReq(101, 100, 1, torpi=10, otrpi=10, multiplier=2,
-                                   originator_udp_port=enip.originator_udp_port) == 0
-        conn.produce()
+    with scanner(io.address, forward_close=True) as scan:
+        scan.outputs[4] = scan.outputs[5] = True  # DO5 stays, DO6 on: class 1
+        assert scan.forward_open(10, 2) == 0
+        scan.conn.produce()
         assert wait_for(lambda: io.get("DO6") == 1, 10)
         timeline = httpx.get(url).json()
-    finally:
-        conn.stopProduce()
-        conn.sendFwdCloseReq(101, 100, 1)
-        enip.stopIO()
     assert [(m["by"], m["signals"]) for m in timeline["marks"]] == [
         ("stimulus", ["DI3"]), ("explicit", ["DO5"]), ("o->t", ["DO6"])]
     marks = timeline["marks"]

@@ -8,10 +8,8 @@ Each test here kills a mutation that every other test let through (bench/mutatio
 
 from __future__ import annotations
 
-import asyncio
 import random
-from collections.abc import Callable, Coroutine, Iterator
-from typing import Any
+from collections.abc import Iterator
 
 import pytest
 
@@ -31,6 +29,7 @@ from enip_farm.protocol.connection import (
     decode_io_packet,
     encode_io_packet,
 )
+from tests.virtual_clock import VirtualClockLoop, at
 
 MS = 1_000_000  # ns
 T0 = 7_000 * MS  # an arbitrary origin: the table never reads a clock
@@ -185,42 +184,6 @@ def test_the_first_watchdog_never_undercuts_the_timeout(first_watchdog_ns: int) 
 
 
 # -- faults: durations to the tick, re-set while running ---------------------------------------------
-
-
-class VirtualClockLoop(asyncio.SelectorEventLoop):
-    """An event loop whose clock the test sets: timers fire when `now` reaches them, not before."""
-
-    def __init__(self) -> None:
-        super().__init__()
-        self.now = 1_000.0
-
-    def time(self) -> float:
-        return self.now
-
-
-@pytest.fixture
-def on_virtual_clock() -> Iterator[Callable[[Callable[[Farm, VirtualClockLoop], Coroutine[Any, Any, None]]], None]]:
-    """Runs a scenario with a farm (built, not serving: no sockets) whose loop is a virtual clock."""
-    loop = VirtualClockLoop()
-
-    def run(scenario: Callable[[Farm, VirtualClockLoop], Coroutine[Any, Any, None]]) -> None:
-        farm = Farm({"devices": [{"name": "io1", "model": "DSQC1030", "address": "127.0.0.1"}]})
-
-        async def main() -> None:
-            farm.loop = loop  # the loop its timers and tasks run on
-            await scenario(farm, loop)
-
-        loop.run_until_complete(main())
-
-    yield run
-    loop.close()
-
-
-async def at(loop: VirtualClockLoop, when: float) -> None:
-    """Move the clock to `when` and let what is due run (timers, then the tasks they start)."""
-    loop.now = when
-    for _ in range(4):
-        await asyncio.sleep(0)
 
 
 @pytest.mark.parametrize("duration_s", [0.004, 0.25, 1.0, 30.0, 7_200.5])  # the last: waits longer than MAX_WAIT_S

@@ -6,6 +6,10 @@ follow the bytes, and a FIN exchange when it closes, with the real client and de
 and ports. UDP datagrams (44818 and 2222) are written as themselves. Frames are Ethernet/IPv4 with
 MACs derived from the addresses and correct checksums. Each packet is flushed as it is written,
 so a farm that is killed leaves a readable file. Thread-safe (the cyclic I/O thread records too).
+
+A scenario's steps go to a side file, FILE.steps (a line of wall-clock time and text per step, to
+find it among the packets' time stamps), written in the order marked by a thread of the recorder's
+own: the event loop that marks a step never waits on the disk. `close()` writes what is left.
 """
 
 from __future__ import annotations
@@ -13,6 +17,8 @@ from __future__ import annotations
 import random
 import threading
 import time
+from collections.abc import Callable
+from concurrent.futures import Future, ThreadPoolExecutor
 from pathlib import Path
 
 import dpkt
@@ -32,9 +38,19 @@ class _TcpState:
         self.server_seq = random.getrandbits(32)
 
 
+def append_line(path: Path, line: str) -> None:
+    with open(path, "a", encoding="utf-8") as side:
+        side.write(line)
+
+
 class Recorder:
-    def __init__(self, path: str | Path) -> None:
+    def __init__(self, path: str | Path, wall: Callable[[], float] = time.time,
+                 append: Callable[[Path, str], None] = append_line) -> None:
+        """`wall`: the wall clock of the time stamps; `append`: how a line joins the steps file."""
         self.path = Path(path)
+        self.wall = wall
+        self._append = append
+        self._steps = ThreadPoolExecutor(max_workers=1, thread_name_prefix="enip-farm-steps")  # one: in order
         self._file = open(self.path, "wb")  # noqa: SIM115 (closed in close())
         self._writer = dpkt.pcap.Writer(self._file, linktype=dpkt.pcap.DLT_EN10MB)
         self._file.flush()
@@ -44,7 +60,7 @@ class Recorder:
 
     def _write(self, src: str, dst: str, transport: dpkt.Packet, proto: int) -> None:
         self._ip_id = (self._ip_id + 1) & 0xFFFF
-        self._writer.writepkt(ethernet_frame(src, dst, transport, proto, self._ip_id), ts=time.time())
+        self._writer.writepkt(ethernet_frame(src, dst, transport, proto, self._ip_id), ts=self.wall())
         self._file.flush()
 
     def _segment(self, state: _TcpState, from_client: bool, flags: int, payload: bytes = b"") -> None:
@@ -89,7 +105,12 @@ class Recorder:
         with self._lock:
             self._write(src[0], dst[0], datagram, dpkt.ip.IP_PROTO_UDP)
 
+    def mark(self, text: str) -> Future:
+        """A scenario's step, stamped now, appended to FILE.steps by the recorder's thread."""
+        return self._steps.submit(self._append, Path(f"{self.path}.steps"), f"{self.wall():.6f} {text}\n")
+
     def close(self) -> None:
+        self._steps.shutdown(wait=True)
         with self._lock:
             for key in list(self._tcp):
                 state = self._tcp.pop(key)

@@ -61,14 +61,28 @@ def strip_route(segments: list) -> int:
     return size
 
 
-def application_segments(connection_path: bytes, identity: KeyIdentity) -> list | int:
-    """The path's segments after the route to this device and the electronic key; or the extended
-    status of a path that cannot be read (0x0315) or of a key the device does not match."""
+def routed_segments(connection_path: bytes) -> list | None:
+    """The path's segments after the route to this device; None for a path that cannot be read."""
     try:
         segments = decode_epath(connection_path)
     except PathError:
-        return X.INVALID_SEGMENT
+        return None
     strip_route(segments)
+    return segments
+
+
+def electronic_key(connection_path: bytes) -> ElectronicKey | None:
+    """The path's electronic key (first after the route to this device); None without one."""
+    segments = routed_segments(connection_path)
+    return segments[0] if segments and isinstance(segments[0], ElectronicKey) else None
+
+
+def application_segments(connection_path: bytes, identity: KeyIdentity) -> list | int:
+    """The path's segments after the route to this device and the electronic key; or the extended
+    status of a path that cannot be read (0x0315) or of a key the device does not match."""
+    segments = routed_segments(connection_path)
+    if segments is None:
+        return X.INVALID_SEGMENT
     if segments and isinstance(segments[0], ElectronicKey):
         mismatch = key_mismatch(segments.pop(0), identity)
         if mismatch is not None:

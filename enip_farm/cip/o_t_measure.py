@@ -13,6 +13,7 @@ from __future__ import annotations
 from bisect import bisect_left
 from collections import deque
 
+from enip_farm.cip.connection_path import data_segments, electronic_key
 from enip_farm.cip.report import (
     CipSequenceFigures,
     ConnectionFigures,
@@ -24,8 +25,7 @@ from enip_farm.cip.report import (
     RunIdle,
     SequenceFigures,
 )
-from enip_farm.protocol.connection import ForwardOpenRequest
-from enip_farm.protocol.epath import DataSegment, ElectronicKey, PathError, decode_epath
+from enip_farm.protocol.connection import ConnectionType, ForwardOpenRequest
 
 #: Upper bounds of the interval histogram's buckets, in thousandths of the API: fine around 1 API,
 #: where a scanner's jitter lies, coarse further out. One more bucket counts what lies above them.
@@ -184,34 +184,32 @@ class OriginatorMeasure:
             RunIdle(self.run, self.transitions, tuple(self.recent)))
 
 
-_TYPES = {0: "null", 1: "multicast", 2: "point-to-point"}
 _PRIORITIES = ("low", "high", "scheduled", "urgent")
 _TRIGGERS = {0: "cyclic", 1: "change of state", 2: "application object"}
+
+
+def _type_word(kind: ConnectionType | int) -> str:
+    """"point-to-point", "multicast", "null" (the enum's names), "reserved" for 3."""
+    return kind.name.lower().replace("_", "-") if isinstance(kind, ConnectionType) else "reserved"
 
 
 def forward_open_asked(request: ForwardOpenRequest, timeout_ns: int, expected_o_t_rpi_us: int | None = None,
                        expected_t_o_rpi_us: int | None = None) -> ForwardOpenAsked:
     """The Forward Open as the originator asked it (Vol. 1, 3-5.4.1): RPIs, network connection
-    parameters, the transport trigger, the electronic key's form and the configuration data."""
+    parameters, the transport trigger, the electronic key's form and the configuration data (the
+    connection path read by cip/connection_path.py)."""
     o_t, t_o = request.o_t_parameters, request.t_o_parameters
     key = None
-    configuration = []
-    try:
-        for segment in decode_epath(request.connection_path):
-            if isinstance(segment, ElectronicKey) and key is None:
-                wildcard = not (segment.vendor_id or segment.device_type or segment.product_code
-                                or segment.major_revision)
-                form = "any" if wildcard else "compatible" if segment.compatibility else "exact"
-                key = ElectronicKeyAsked(form, segment.vendor_id, segment.device_type, segment.product_code,  # type: ignore[arg-type]
-                                         segment.major_revision, segment.minor_revision)
-            elif isinstance(segment, DataSegment):
-                configuration.append(segment.data)
-    except PathError:
-        pass
+    segment = electronic_key(request.connection_path)
+    if segment is not None:
+        wildcard = not (segment.vendor_id or segment.device_type or segment.product_code or segment.major_revision)
+        form = "any" if wildcard else "compatible" if segment.compatibility else "exact"
+        key = ElectronicKeyAsked(form, segment.vendor_id, segment.device_type, segment.product_code,
+                                 segment.major_revision, segment.minor_revision)
+    configuration = data_segments(request.connection_path)
     return ForwardOpenAsked(
         request.o_t_rpi, request.t_o_rpi, expected_o_t_rpi_us, expected_t_o_rpi_us, request.timeout_multiplier,
-        timeout_ns, _TYPES.get(int(o_t.connection_type), "reserved"), _TYPES.get(int(t_o.connection_type), "reserved"),
+        timeout_ns, _type_word(o_t.connection_type), _type_word(t_o.connection_type),
         _PRIORITIES[o_t.priority & 3], _PRIORITIES[t_o.priority & 3], o_t.size, t_o.size, o_t.variable, t_o.variable,
         request.large, request.transport_class, _TRIGGERS.get(request.production_trigger, "reserved"), key,
         b"".join(configuration) if configuration else None)
-

@@ -6,48 +6,20 @@ Figures follow ODVA's and NIST's EtherNet/IP performance definitions: the measur
 of the O->T stream against the connection's O->T API (jitter), and the action latency from a
 stimulus to the controller's reaction. Times are integer ns of the farm's monotonic clock.
 
-`as_dict()` gives JSON-ready dicts. The shape of `FarmReport.as_dict()` (GET /report, the CLI):
-
-    {"at_ns": int,                           # when the report was made (monotonic ns)
-     "verdict": "pass" | "fail" | "too short to judge" | "not judged",
-     "failures": [str],                      # one line per broken bound
-     "devices": [{
-         "device": "io1", "verdict": ...,
-         "connections": [{                   # open ones first, then the last ones that ended
-             "device", "originator", "o_t_id", "t_o_id", "kind", "opened_at_ns",
-             "ended_at_ns": int | null, "ended": null | "forward close" | "timeout" | "tcp gone"
-                 | "device fault" | "device reset" | "safety fault" | "closed", "end_reason": str,
-             "first_o_t_after_ns": int | null,   # from the Forward Open to the first O->T packet
-             "forward_open": {"o_t_rpi_us", "t_o_rpi_us", "expected_o_t_rpi_us": int | null,
-                 "expected_t_o_rpi_us": int | null, "timeout_multiplier", "timeout_ns",
-                 "o_t_type", "t_o_type",         # "point-to-point" | "multicast" | "null"
-                 "o_t_priority", "t_o_priority", # "low" | "high" | "scheduled" | "urgent"
-                 "o_t_size", "t_o_size", "o_t_variable", "t_o_variable", "large", "transport_class",
-                 "trigger", "key": {"form": "none" | "exact" | "compatible" | "any", "vendor_id",
-                 "device_type", "product_code", "major_revision", "minor_revision"} | null,
-                 "configuration_data": hex str | null},
-             "intervals": {"api_ns", "count", "min_ns", "p50_ns", "p99_ns", "max_ns", "mean_ns",
-                 "late",                        # intervals of 2 API or more
-                 "longest_silence_ns",          # the longest interval, or the time since the last packet
-                 "histogram": {"bounds_api": [float], "counts": [int]}},  # counts: one more (overflow)
-             "sequence": {"packets", "lost", "gaps", "repeats", "stale", "last": int | null},
-             "cip_sequence": {"new", "same", "skipped"},  # the 16-bit sequence count
-             "run_idle": {"run": bool, "transitions": int, "recent": [{"at_ns", "run"}]},
-             "verdict": ..., "verdicts": [Verdict]}],
-         "reconnections": [{"device", "originator", "after", "since_ns", "forward_open_ns": int | null,
-             "first_o_t_ns": int | null, "forward_open_after_ns", "first_o_t_after_ns"}],
-         "verdicts": [Verdict]}],            # the device's own (reconnection)
-     "reactions": [{"name", "stimulus", "expect", "via": "o->t" | "explicit" | "any", "count", "timeouts",
-         "min_ns", "p50_ns", "p99_ns", "max_ns", "samples_ns": [int], "verdict": ..., "verdicts": [Verdict]}]}
-
-    Verdict: {"figure", "verdict": "pass" | "fail" | "too short to judge", "value": number | null,
-              "bound": number, "unit", "needs": int, "have": int, "source": str}
+These frozen dataclasses are the one definition of the report's JSON: pydantic serializes them
+(`as_dict()`, `as_json()`; computed figures such as `verdict` are `computed_field`s) and derives
+GET /report's schema in /openapi.json from them, every object closed (`extra="forbid"`: a field
+the JSON has and the schema lacks fails tests/test_report_surfaces.py).
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
-from typing import Any, Literal
+from dataclasses import dataclass
+from functools import cache
+from typing import Annotated, Any, Literal
+
+from pydantic import ConfigDict, Field, PlainSerializer, TypeAdapter, computed_field
+from typing_extensions import TypedDict
 
 VerdictWord = Literal["pass", "fail", "too short to judge", "not judged"]
 PASS, FAIL, TOO_SHORT, NOT_JUDGED = "pass", "fail", "too short to judge", "not judged"
@@ -62,23 +34,38 @@ def worst(verdicts: list[Verdict] | tuple[Verdict, ...] | list[str]) -> VerdictW
     return NOT_JUDGED  # type: ignore[return-value]
 
 
+class _Json:
+    """The JSON of a report dataclass, as pydantic serializes it (one adapter per class)."""
+
+    __slots__ = ()
+    __pydantic_config__ = ConfigDict(extra="forbid", json_schema_serialization_defaults_required=True)
+
+    def as_dict(self) -> dict[str, Any]:
+        return _adapter(type(self)).dump_python(self, mode="json")
+
+    def as_json(self) -> bytes:
+        return _adapter(type(self)).dump_json(self)
+
+
+@cache
+def _adapter(cls: type) -> TypeAdapter:
+    return TypeAdapter(cls)
+
+
 @dataclass(frozen=True, slots=True)
-class Verdict:
+class Verdict(_Json):
     """One figure held against its bound: `value` <= `bound` passes (every bound is an upper one);
     fewer than `needs` samples (`have`) is too short to judge."""
 
-    figure: str
+    figure: Annotated[str, Field(description="what was measured, e.g. `interval p99`")]
     verdict: VerdictWord
-    value: float | int | None
-    bound: float | int
+    value: Annotated[float | int | None, Field(description="the figure (None: not measured yet)")]
+    bound: Annotated[float | int, Field(description="its upper bound: a value at or below it passes")]
     unit: str
-    needs: int
-    have: int
-    source: str  # where the bound comes from (a spec section, a publication, "a choice (unverified)", "test")
-
-    def as_dict(self) -> dict[str, Any]:
-        return {"figure": self.figure, "verdict": self.verdict, "value": self.value, "bound": self.bound,
-                "unit": self.unit, "needs": self.needs, "have": self.have, "source": self.source}
+    needs: Annotated[int, Field(description="samples the bound needs before it judges")]
+    have: Annotated[int, Field(description="samples measured")]
+    source: Annotated[str, Field(description="where the bound comes from: a spec section, a publication, the "
+                                             "configuration, the test, or a choice (unverified)")]
 
     @property
     def line(self) -> str:
@@ -90,21 +77,18 @@ def _number(value: float | int | None) -> str:
 
 
 @dataclass(frozen=True, slots=True)
-class Histogram:
+class Histogram(_Json):
     """Counts of intervals by bucket: `counts[i]` holds those up to `bounds_api[i]` x API (and above
     the bound before); the last count the ones above every bound."""
 
-    bounds_api: tuple[float, ...]
-    counts: tuple[int, ...]
-
-    def as_dict(self) -> dict[str, Any]:
-        return {"bounds_api": list(self.bounds_api), "counts": list(self.counts)}
+    bounds_api: Annotated[tuple[float, ...], Field(description="each bucket's upper bound, in O->T APIs")]
+    counts: Annotated[tuple[int, ...], Field(description="intervals per bucket; the last: above every bound")]
 
 
 @dataclass(frozen=True, slots=True)
-class IntervalFigures:
-    """The measured O->T packet interval against the API. p50 and p99 are the upper bound of their
-    bucket (clamped to the exact min and max)."""
+class IntervalFigures(_Json):
+    """The measured O->T packet interval against the API (ODVA/NIST: jitter), in ns. p50 and p99 are
+    the upper bound of their bucket (clamped to the exact min and max)."""
 
     api_ns: int
     count: int
@@ -113,19 +97,14 @@ class IntervalFigures:
     p99_ns: int | None
     max_ns: int | None
     mean_ns: int | None
-    late: int  # intervals of 2 API or more
-    longest_silence_ns: int  # the longest interval, or the time from the last packet to the end (or now)
+    late: Annotated[int, Field(description="intervals of 2 API or more")]
+    longest_silence_ns: Annotated[int, Field(description="the longest interval, or the time from the last "
+                                                         "packet to the end (or now)")]
     histogram: Histogram
-
-    def as_dict(self) -> dict[str, Any]:
-        out = {name: getattr(self, name) for name in (
-            "api_ns", "count", "min_ns", "p50_ns", "p99_ns", "max_ns", "mean_ns", "late", "longest_silence_ns")}
-        out["histogram"] = self.histogram.as_dict()
-        return out
 
 
 @dataclass(frozen=True, slots=True)
-class SequenceFigures:
+class SequenceFigures(_Json):
     """The 32-bit sequence of the O->T packets (Vol. 2, 3-2.1): `packets` that advanced it, `lost`
     sequence numbers skipped in `gaps` jumps, `repeats` of the last one, `stale` older ones."""
 
@@ -136,13 +115,9 @@ class SequenceFigures:
     stale: int
     last: int | None
 
-    def as_dict(self) -> dict[str, Any]:
-        return {"packets": self.packets, "lost": self.lost, "gaps": self.gaps, "repeats": self.repeats,
-                "stale": self.stale, "last": self.last}
-
 
 @dataclass(frozen=True, slots=True)
-class CipSequenceFigures:
+class CipSequenceFigures(_Json):
     """The 16-bit CIP sequence count of the packets that advanced the 32-bit one: `new` data (one
     more), the `same` count (no new data), `skipped` (more than one more)."""
 
@@ -150,25 +125,29 @@ class CipSequenceFigures:
     same: int
     skipped: int
 
-    def as_dict(self) -> dict[str, Any]:
-        return {"new": self.new, "same": self.same, "skipped": self.skipped}
+
+class RunIdleChange(TypedDict):
+    """A run/idle transition: when, and the mode it went to."""
+
+    at_ns: int
+    run: bool
+
+
+def _change(change: tuple[int, bool]) -> RunIdleChange:
+    return {"at_ns": change[0], "run": change[1]}
 
 
 @dataclass(frozen=True, slots=True)
-class RunIdle:
+class RunIdle(_Json):
     """The run/idle mode of the O->T data: now, the transitions counted, the last ones with their times."""
 
     run: bool
     transitions: int
-    recent: tuple[tuple[int, bool], ...]  # (at_ns, run)
-
-    def as_dict(self) -> dict[str, Any]:
-        return {"run": self.run, "transitions": self.transitions,
-                "recent": [{"at_ns": at, "run": run} for at, run in self.recent]}
+    recent: tuple[Annotated[tuple[int, bool], PlainSerializer(_change, return_type=RunIdleChange)], ...]  # (at_ns, run)
 
 
 @dataclass(frozen=True, slots=True)
-class ElectronicKeyAsked:
+class ElectronicKeyAsked(_Json):
     form: Literal["exact", "compatible", "any"]  # "any": every field zero
     vendor_id: int
     device_type: int
@@ -176,14 +155,9 @@ class ElectronicKeyAsked:
     major_revision: int
     minor_revision: int
 
-    def as_dict(self) -> dict[str, Any]:
-        return {"form": self.form, "vendor_id": self.vendor_id, "device_type": self.device_type,
-                "product_code": self.product_code, "major_revision": self.major_revision,
-                "minor_revision": self.minor_revision}
-
 
 @dataclass(frozen=True, slots=True)
-class ForwardOpenAsked:
+class ForwardOpenAsked(_Json):
     """The Forward Open as the originator asked it (Vol. 1, 3-5.4.1), beside what the device expects."""
 
     o_t_rpi_us: int
@@ -192,9 +166,9 @@ class ForwardOpenAsked:
     expected_t_o_rpi_us: int | None
     timeout_multiplier: int
     timeout_ns: int
-    o_t_type: str
+    o_t_type: Annotated[str, Field(description="point-to-point, multicast, null")]
     t_o_type: str
-    o_t_priority: str
+    o_t_priority: Annotated[str, Field(description="low, high, scheduled, urgent")]
     t_o_priority: str
     o_t_size: int
     t_o_size: int
@@ -204,20 +178,15 @@ class ForwardOpenAsked:
     transport_class: int
     trigger: str
     key: ElectronicKeyAsked | None
-    configuration_data: bytes | None
-
-    def as_dict(self) -> dict[str, Any]:
-        out = {name: getattr(self, name) for name in self.__slots__ if name not in ("key", "configuration_data")}
-        out["key"] = self.key.as_dict() if self.key is not None else None
-        out["configuration_data"] = self.configuration_data.hex() if self.configuration_data is not None else None
-        return out
+    configuration_data: Annotated[bytes | None, PlainSerializer(lambda data: None if data is None else data.hex(),
+                                                                return_type=str | None)]  # hex
 
 
 EndWord = Literal["forward close", "timeout", "tcp gone", "device fault", "device reset", "safety fault", "closed"]
 
 
 @dataclass(frozen=True, slots=True)
-class ConnectionFigures:
+class ConnectionFigures(_Json):
     """Everything measured of one class-1 connection's originator."""
 
     device: str
@@ -229,7 +198,7 @@ class ConnectionFigures:
     ended_at_ns: int | None
     ended: EndWord | None
     end_reason: str
-    first_o_t_after_ns: int | None
+    first_o_t_after_ns: Annotated[int | None, Field(description="from the Forward Open to the first O->T packet")]
     forward_open: ForwardOpenAsked | None
     intervals: IntervalFigures
     sequence: SequenceFigures
@@ -237,25 +206,17 @@ class ConnectionFigures:
     run_idle: RunIdle
     verdicts: tuple[Verdict, ...] = ()
 
+    @computed_field
     @property
     def verdict(self) -> VerdictWord:
         return worst(self.verdicts)
-
-    def as_dict(self) -> dict[str, Any]:
-        return {"device": self.device, "originator": self.originator, "o_t_id": self.o_t_id, "t_o_id": self.t_o_id,
-                "kind": self.kind, "opened_at_ns": self.opened_at_ns, "ended_at_ns": self.ended_at_ns,
-                "ended": self.ended, "end_reason": self.end_reason, "first_o_t_after_ns": self.first_o_t_after_ns,
-                "forward_open": self.forward_open.as_dict() if self.forward_open is not None else None,
-                "intervals": self.intervals.as_dict(), "sequence": self.sequence.as_dict(),
-                "cip_sequence": self.cip_sequence.as_dict(), "run_idle": self.run_idle.as_dict(),
-                "verdict": self.verdict, "verdicts": [v.as_dict() for v in self.verdicts]}
 
 
 ReconnectAfter = Literal["fault cleared", "reset done", "timeout"]
 
 
 @dataclass(frozen=True, slots=True)
-class Reconnection:
+class Reconnection(_Json):
     """After the device came back (`after` a fault cleared or a reset done, at `since_ns`) or a
     connection of this originator timed out: when its next accepted Forward Open came and its
     first O->T after it (None: not yet)."""
@@ -267,40 +228,32 @@ class Reconnection:
     forward_open_ns: int | None
     first_o_t_ns: int | None
 
+    @computed_field
     @property
     def forward_open_after_ns(self) -> int | None:
         return None if self.forward_open_ns is None else self.forward_open_ns - self.since_ns
 
+    @computed_field
     @property
     def first_o_t_after_ns(self) -> int | None:
         return None if self.first_o_t_ns is None else self.first_o_t_ns - self.since_ns
 
-    def as_dict(self) -> dict[str, Any]:
-        return {"device": self.device, "originator": self.originator, "after": self.after, "since_ns": self.since_ns,
-                "forward_open_ns": self.forward_open_ns, "first_o_t_ns": self.first_o_t_ns,
-                "forward_open_after_ns": self.forward_open_after_ns, "first_o_t_after_ns": self.first_o_t_after_ns}
-
 
 @dataclass(frozen=True, slots=True)
-class DeviceReport:
+class DeviceReport(_Json):
     device: str
-    connections: tuple[ConnectionFigures, ...]
+    connections: Annotated[tuple[ConnectionFigures, ...], Field(description="open ones, then the last that ended")]
     reconnections: tuple[Reconnection, ...] = ()
-    verdicts: tuple[Verdict, ...] = ()  # the device's own: reconnection times
+    verdicts: Annotated[tuple[Verdict, ...], Field(description="the device's own: reconnection times")] = ()
 
+    @computed_field
     @property
     def verdict(self) -> VerdictWord:
         return worst([*self.verdicts, *(c.verdict for c in self.connections)])
 
-    def as_dict(self) -> dict[str, Any]:
-        return {"device": self.device, "verdict": self.verdict,
-                "connections": [c.as_dict() for c in self.connections],
-                "reconnections": [r.as_dict() for r in self.reconnections],
-                "verdicts": [v.as_dict() for v in self.verdicts]}
-
 
 @dataclass(frozen=True, slots=True)
-class ReactionFigures:
+class ReactionFigures(_Json):
     """Action latency: from the T->O packet that first carried the stimulus leaving the farm to the
     O->T packet (its kernel receive time) or explicit write that first carried the expected output."""
 
@@ -312,9 +265,30 @@ class ReactionFigures:
     timeouts: int
     verdicts: tuple[Verdict, ...] = ()
 
+    @computed_field
     @property
     def count(self) -> int:
         return len(self.samples_ns)
+
+    @computed_field
+    @property
+    def min_ns(self) -> int | None:
+        return min(self.samples_ns) if self.samples_ns else None
+
+    @computed_field
+    @property
+    def p50_ns(self) -> int | None:
+        return self.percentile(0.5)
+
+    @computed_field
+    @property
+    def p99_ns(self) -> int | None:
+        return self.percentile(0.99)
+
+    @computed_field
+    @property
+    def max_ns(self) -> int | None:
+        return max(self.samples_ns) if self.samples_ns else None
 
     def percentile(self, fraction: float) -> int | None:
         """The nearest-rank percentile of the samples (exact: a reaction keeps every sample)."""
@@ -324,35 +298,29 @@ class ReactionFigures:
         rank = max(1, -(-round(fraction * 1_000_000) * len(ordered) // 1_000_000))
         return ordered[min(rank, len(ordered)) - 1]
 
+    @computed_field
     @property
     def verdict(self) -> VerdictWord:
         return worst(self.verdicts)
 
-    def as_dict(self) -> dict[str, Any]:
-        return {"name": self.name, "stimulus": self.stimulus, "expect": self.expect, "via": self.via,
-                "count": self.count, "timeouts": self.timeouts,
-                "min_ns": min(self.samples_ns) if self.samples_ns else None, "p50_ns": self.percentile(0.5),
-                "p99_ns": self.percentile(0.99), "max_ns": max(self.samples_ns) if self.samples_ns else None,
-                "samples_ns": list(self.samples_ns), "verdict": self.verdict,
-                "verdicts": [v.as_dict() for v in self.verdicts]}
-
 
 @dataclass(frozen=True, slots=True)
-class FarmReport:
-    """The whole cell: every device's connections and reconnections, and the reactions measured."""
+class FarmReport(_Json):
+    """The whole cell (or the devices asked for): every class-1 connection's originator as measured
+    and judged, reconnections, reactions."""
 
-    at_ns: int
+    at_ns: Annotated[int, Field(description="when the report was made, ns of the farm's monotonic clock")]
     devices: tuple[DeviceReport, ...]
     reactions: tuple[ReactionFigures, ...] = ()
-    extra: dict[str, Any] = field(default_factory=dict)  # room for surfaces (a worker's name...)
 
+    @computed_field(description="fail if any bound failed, else too short if any was, else pass")
     @property
     def verdict(self) -> VerdictWord:
         return worst([*(d.verdict for d in self.devices), *(r.verdict for r in self.reactions)])
 
+    @computed_field(description="one line per broken bound: where, the figure and the bound")
     @property
     def failures(self) -> list[str]:
-        """One line per broken bound: where, the figure and the bound."""
         return [f"{where}: {verdict.line}" for where, verdict in self.failed()]
 
     def failed(self) -> list[tuple[str, Verdict]]:
@@ -372,8 +340,3 @@ class FarmReport:
             if device.device == name:
                 return device
         raise KeyError(name)
-
-    def as_dict(self) -> dict[str, Any]:
-        return {"at_ns": self.at_ns, "verdict": self.verdict, "failures": self.failures,
-                "devices": [d.as_dict() for d in self.devices], "reactions": [r.as_dict() for r in self.reactions],
-                **self.extra}

@@ -9,10 +9,9 @@ import dataclasses
 from collections.abc import Callable
 from typing import Annotated, Any
 
-from fastapi import FastAPI, Query
+from fastapi import FastAPI, Query, Response
 
 from enip_farm.cip.report import FarmReport
-from enip_farm.control.report_schema import FarmReportModel
 from enip_farm.control.timeline import MAX_SECONDS, Timelines
 
 DEFAULT_SECONDS = 30.0
@@ -28,8 +27,8 @@ def only(report: FarmReport, names: list[str]) -> FarmReport:
 
 def mount_measured(app: FastAPI, timelines: Timelines, known: Callable[[str], str],
                    report: Callable[[], FarmReport]) -> None:
-    @app.get("/report", response_model=FarmReportModel)
-    def get_report(device: Annotated[list[str], Query()] = []) -> dict[str, Any]:  # noqa: B006 (FastAPI copies)
+    @app.get("/report", response_model=FarmReport)
+    def get_report(device: Annotated[list[str], Query()] = []) -> Response:  # noqa: B006 (FastAPI copies)
         """The report on the controller under test: every class-1 connection's originator as the farm
         measured it (O->T packet intervals against the API, the 32-bit sequence, run/idle, the Forward
         Open as asked, how it ended), reconnections and reactions, each figure judged against its
@@ -37,7 +36,7 @@ def mount_measured(app: FastAPI, timelines: Timelines, known: Callable[[str], st
         it) keeps those devices. `enip-farm report` shows it as a table, `--junit FILE` as JUnit XML."""
         for name in device:
             known(name)
-        return only(report(), device).as_dict()
+        return Response(only(report(), device).as_json(), media_type="application/json")
 
     @app.get("/devices/{name}/timeline")
     def timeline(name: str, seconds: Annotated[float, Query(gt=0, le=MAX_SECONDS)] = DEFAULT_SECONDS

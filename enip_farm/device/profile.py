@@ -120,6 +120,7 @@ def resolve(config: DeviceConfig, catalogue: Catalogue) -> DeviceProfile:
     overridden |= {f"assemblies.{name}" for name, value in config.assemblies.model_dump().items()
                    if value is not None}
     overridden |= {f"safety.{name}" for name, value in config.safety.model_dump().items() if value is not None}
+    overridden |= {"select_acd"} & config.model_fields_set  # the device's own out-of-box SelectAcd
     unverified = [f"{config.model}.{item}" for item in model.unverified
                   if item.removeprefix("identity.") not in overridden and item not in overridden]
 

@@ -16,16 +16,38 @@ from enip_farm.config import FarmConfig
 from enip_farm.device.device import Device
 
 TestBounds = BoundsConfig | Mapping[str, Any] | None
-__all__ = ["FarmReport", "TestBounds", "device_bounds", "device_report", "farm_report", "reconnection_figures"]
+__all__ = ["CellBounds", "FarmReport", "TestBounds", "device_bounds", "device_report", "farm_report",
+           "reconnection_figures"]
+
+
+class CellBounds:
+    """The bounds in force for each device of `config` under the report's `test` bounds, for one
+    report: the devices' entries found by name, the test's bounds validated once, and the devices
+    without bounds of their own sharing one resolution (linear in devices, not quadratic)."""
+
+    def __init__(self, config: FarmConfig, test: TestBounds = None) -> None:
+        self.entries = {device.name: device.bounds for device in config.devices if device.bounds.model_fields_set}
+        self.cell = ("cell configuration", config.bounds)
+        self.test = ("test", _validated(test))
+        self.shared = resolve(self.cell, self.test)
+
+    def of(self, name: str, *own: TestBounds) -> ResolvedBounds:
+        """The defaults, the cell's, device `name`'s entry's, each of `own` (a reaction's), the test's."""
+        entry = self.entries.get(name)
+        if entry is None and not any(level is not None for level in own):
+            return self.shared
+        return resolve(self.cell, (f"device configuration ({name})", entry), *(("test", level) for level in own),
+                       self.test)
+
+
+def _validated(bounds: TestBounds) -> BoundsConfig | None:
+    return bounds if bounds is None or isinstance(bounds, BoundsConfig) else BoundsConfig.model_validate(dict(bounds))
 
 
 def device_bounds(config: FarmConfig, name: str, *tests: TestBounds) -> ResolvedBounds:
     """The bounds in force for device `name`: the defaults, the cell's, the device's entry's, then
     each of the test's (a reaction's own, then the report's)."""
-    entry = next((d for d in config.devices if d.name == name), None)
-    return resolve(("cell configuration", config.bounds),
-                   (f"device configuration ({name})", entry.bounds if entry is not None else None),
-                   *(("test", test) for test in tests))
+    return CellBounds(config).of(name, *tests)
 
 
 def connection_figures(device: Device, connection: Connection, now: int) -> ConnectionFigures:
@@ -60,6 +82,7 @@ def farm_report(config: FarmConfig, devices: Iterable[Device], now: int,
                 reactions: Iterable[tuple[ReactionFigures, TestBounds]] = (), test: TestBounds = None) -> FarmReport:
     """The cell's report at `now`; `test`: bounds over the configuration's (a test's own). Each
     reaction is judged by its stimulus device's bounds, then its own, then `test`."""
-    reports = tuple(device_report(d, now, device_bounds(config, d.name, test)) for d in devices)
+    bounds = CellBounds(config, test)
+    reports = tuple(device_report(d, now, bounds.of(d.name)) for d in devices)
     return FarmReport(now, reports, tuple(
-        judge_reaction(r, device_bounds(config, r.stimulus.split(".", 1)[0], own, test)) for r, own in reactions))
+        judge_reaction(r, bounds.of(r.stimulus.split(".", 1)[0], own)) for r, own in reactions))

@@ -324,10 +324,10 @@ class Farm:
 
     def mark(self, text: str) -> None:
         """A scenario's step, in the recording's side file (`--record FILE`: FILE.steps, a line of wall-clock
-        time and text per step, to find it among the packets' time stamps); nothing when not recording."""
+        time and text per step, to find it among the packets' time stamps), written off the event loop
+        by the recorder's thread (capture/recorder.py); nothing when not recording."""
         if self.recorder is not None:
-            with open(f"{self.recorder.path}.steps", "a", encoding="utf-8") as steps:
-                steps.write(f"{time.time():.6f} {text}\n")
+            self.recorder.mark(text)
 
     def _spawn(self, coroutine: Coroutine[Any, Any, Any]) -> None:
         """A task of the farm, kept until it ends; its exception reaches the loop's handler."""

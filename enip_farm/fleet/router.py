@@ -2,9 +2,9 @@
 --http` (fleet/api.py) and the shards that an engine runs (`enip-farm fleet-api`, fleet/shard_api.py).
 
 Each farm is asked what it serves (GET /devices); a device's requests go to the farm serving its
-part of the cell; GET /devices, /state, /events, /metrics, /report (fleet/reports.py) and /health
-merge every farm's answer; a
-farm that does not answer is **down, not missing**: its devices are listed with `"<part>_up":
+part of the cell; GET /devices, /state, /events, /metrics, /report, /overview and /health merge
+every farm's answer (fleet/reports.py the report's, the overview's and the metrics'); a farm that
+does not answer is **down, not missing**: its devices are listed with `"<part>_up":
 false`, a request for one gets 503 `<part> I/N (devices A..B) is down`, `enip_farm_<part>_up` is 0,
 GET /<part>s lists each part, its endpoint and whether it is up. The routes are the same for both;
 the one difference is a `Finder`: where the farms may be (workers: their ports, known at start;
@@ -20,9 +20,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import httpx
-from prometheus_client import CollectorRegistry, generate_latest
-from prometheus_client.metrics_core import GaugeMetricFamily, Metric
-from prometheus_client.parser import text_string_to_metric_families
+from prometheus_client.metrics_core import GaugeMetricFamily
 from starlette.applications import Starlette
 from starlette.requests import Request
 from starlette.responses import JSONResponse, Response, StreamingResponse
@@ -31,7 +29,7 @@ from starlette.routing import Route
 from enip_farm.config import FarmConfig
 from enip_farm.control.client import merge_events
 from enip_farm.control.http import no_such_device
-from enip_farm.fleet.reports import down_device, merge_reports
+from enip_farm.fleet.reports import down_device, merge_metrics, merge_overviews, merge_reports
 
 _FORWARD_TIMEOUT = 30.0
 _PROBE_TIMEOUT = 3.0
@@ -58,29 +56,6 @@ def static_endpoints(urls: list[str]) -> Endpoints:
         return list(urls)
 
     return endpoints
-
-
-def merge_metrics(texts: list[str], labels: list[dict[str, str]] | None = None,
-                  extra: list[Metric] | None = None) -> str:
-    """Prometheus text of several farms as one exposition, parsed and written by prometheus_client:
-    each family once (HELP and TYPE from the first that has it) with every farm's samples, each
-    given `labels[i]` (e.g. its shard) if given, then the families in `extra`."""
-    families: dict[str, Metric] = {}
-    for index, text in enumerate(texts):
-        for family in text_string_to_metric_families(text):
-            merged = families.get(family.name)
-            if merged is None:
-                merged = families[family.name] = Metric(family.name, family.documentation, family.type, family.unit)
-            added = labels[index] if labels else {}
-            merged.samples.extend(sample._replace(labels={**sample.labels, **added}) for sample in family.samples)
-
-    class Merged:
-        def collect(self) -> list[Metric]:
-            return [*families.values(), *(extra or [])]
-
-    registry = CollectorRegistry(auto_describe=False)
-    registry.register(Merged())
-    return generate_latest(registry).decode()
 
 
 class Upstream:
@@ -180,6 +155,13 @@ class View:
         merged.sort(key=lambda device: self.order.get(device["name"], len(self.order)))
         return merged
 
+    def down_tile(self, name: str, part: Part) -> dict[str, Any]:
+        """A device of a part that is down, as GET /overview shows it: faulted, by its part's being down."""
+        device = self.config[name]
+        return {"name": name, "address": str(device.address), "model": device.model, "addons": list(device.addons),
+                "state": "faulted", "io_connections": 0, "timeouts": 0, "faults": [f"{self.label} down"],
+                **self.marks(part, False)}
+
     def down_state(self, name: str, part: Part) -> dict[str, Any]:
         """A device of a part that is down, in GET /state's shape: nothing connected, no signals known."""
         return {"name": name, "monotonic": 0.0, "signals": [], "status": 0, "owners": [], "connections": [],
@@ -269,17 +251,18 @@ def create_router(config: FarmConfig, slices: list[FarmConfig], finder: Finder, 
             gauge.add_metric([str(index)], 1.0 if state else 0.0)
         return Response(merge_metrics(texts, labels, [gauge]), media_type="text/plain; version=0.0.4; charset=utf-8")
 
-    async def ask_parts(request: Request, path: str, names: list[str]
+    async def ask_parts(request: Request, path: str, names: list[str], extra: tuple[tuple[str, str], ...] = ()
                         ) -> tuple[set[str], list[Part], list[tuple[Part, Any]]] | Response:
         """GET `path` of every part up that serves one of `names` (none: every device), at once: the
         names wanted, the parts serving them, and (part, JSON) of those that answered 200; a part's
-        other answer is the reply (one that did not answer counts as down)."""
+        other answer is the reply (one that did not answer counts as down). `extra`: more parameters."""
         await refresh(force=True)
         wanted = set(names) if names else set(view.owner)
         parts = [part for part in view.parts if wanted & set(part.devices)]
         up = [part for part in parts if part.up]
         replies = await asyncio.gather(*(client().get(f"{part.endpoint}/{path}", headers=headers_of(request), params=[
-            ("device", name) for name in names if name in part.devices]) for part in up), return_exceptions=True)
+            ("device", name) for name in names if name in part.devices] + list(extra)) for part in up),
+            return_exceptions=True)
         answers: list[tuple[Part, Any]] = []
         for part, reply in zip(up, replies, strict=True):
             if isinstance(reply, httpx.Response) and reply.status_code == 200:
@@ -319,6 +302,16 @@ def create_router(config: FarmConfig, slices: list[FarmConfig], finder: Finder, 
         position = {name: i for i, name in enumerate(names)} if names else view.order
         return JSONResponse(merge_reports([(report, view.marks(part, True)) for part, report in answers], down,
                                           position))
+
+    async def overview(request: Request) -> Response:
+        asking = await ask_parts(request, "overview", [], tuple(request.query_params.multi_items()))
+        if isinstance(asking, Response):
+            return asking
+        _, parts, answers = asking
+        answered = {part.index for part, _ in answers}
+        down = [view.down_tile(name, part) for part in parts if part.index not in answered for name in part.devices]
+        return JSONResponse(merge_overviews([(answer, view.marks(part, True)) for part, answer in answers], down,
+                                            view.order, int(request.query_params.get("events", 0))))
 
     async def events(request: Request) -> Response:
         names = asked(request)
@@ -383,6 +376,7 @@ def create_router(config: FarmConfig, slices: list[FarmConfig], finder: Finder, 
         Route("/events", events, methods=["GET"]),
         Route("/state", state, methods=["GET"]),
         Route("/report", report, methods=["GET"]),
+        Route("/overview", overview, methods=["GET"]),
         Route("/health", health, methods=["GET"]),
         Route("/{rest:path}", other, methods=methods),
     ], lifespan=lifespan)
