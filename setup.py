@@ -1,7 +1,11 @@
-"""The one native part: enip_farm/server/_mmsg.c (batched UDP for the cyclic I/O thread). Optional:
-where no compiler exists the build goes on without it and server/batch.py uses recvfrom/sendto."""
+"""The native parts, both optional: where no compiler exists the build goes on without them.
+enip_farm/server/_mmsg.c: batched UDP for the cyclic I/O thread (server/batch.py falls back to
+recvfrom/sendto); enip_farm/server/_class1.c: the per-packet work of established class-1 connections
+(server/native.py; without it the pure-Python path runs every connection)."""
 
 from setuptools import Extension, setup
 
 setup(ext_modules=[Extension("enip_farm.server._mmsg", ["enip_farm/server/_mmsg.c"], optional=True,
+                             extra_compile_args=["-O2", "-Wall"]),
+                   Extension("enip_farm.server._class1", ["enip_farm/server/_class1.c"], optional=True,
                              extra_compile_args=["-O2", "-Wall"])])

@@ -32,12 +32,15 @@ RcvbufErrors + InErrors for the whole host) are read when the originator says th
 and ends.
 Pairs per CPU second = (O->T sent - dropped at the receiver's sockets + T->O received) / 2 in the
 window / CPU seconds of the farm (or of the responder) in the window; the ratio is farm / C.
+The farm runs its class-1 connections on the native path (server/native.py) and, in the same row,
+on the Python one (`cyclic_io: {native: off}`), interleaved (--native both, the default).
 Every loop is bounded in count and time; traffic goes to 127.0.0.0/8 only.
 
     python bench/bench_cyclic.py                   # the six rows, 60 s each (+ the same against C)
     python bench/bench_cyclic.py --quick           # the same rows, 3 s each
     python bench/bench_cyclic.py --rows 1600@10 --seconds 20    # past the farm's budget
     python bench/bench_cyclic.py --measure-cost --no-responder --repeat 3   # what the report's measurement costs
+    python bench/bench_cyclic.py --native off      # the farm on the Python class-1 path only (default: both)
 """
 
 from __future__ import annotations
@@ -191,14 +194,15 @@ def originator_socket() -> socket.socket:
 
 
 def write_farm_config(path: Path, count: int, first: str, implicit: str = "", measure: bool = True,
-                      budget: str = "auto") -> None:
+                      budget: str = "auto", native: bool = True) -> None:
     """N DSQC1030; the watchdog before the first O->T is 60 s (the default 10 s could pass while
     Python opens 1600 connections on a busy machine, and it is not what this measures). `measure`:
     the report's measurement of every O->T stream (`cyclic_io: {measure: false}` turns it off);
-    `budget`: each worker's `cyclic_io.budget_datagrams_per_s` (auto, or a number)."""
+    `budget`: each worker's `cyclic_io.budget_datagrams_per_s` (auto, or a number); `native`: the
+    native class-1 path where built (`cyclic_io: {native: auto}`), else the Python one (`off`)."""
     with path.open("w") as config:
         config.write(f"discovery: false\ncyclic_io: {{measure: {'true' if measure else 'false'}, "
-                     f"budget_datagrams_per_s: {budget}}}\ndevices:\n")
+                     f"budget_datagrams_per_s: {budget}, native: {'auto' if native else repr('off')}}}\ndevices:\n")
         for i in range(count):
             config.write(f"  - {{name: c{i}, address: {address(i, first)}, model: DSQC1030, "
                          f"implicit: {{first_watchdog_s: 60{', ' + implicit if implicit else ''}}}}}\n")
@@ -429,9 +433,9 @@ def py_spy(pids: list[int], seconds: float, directory: Path) -> list[subprocess.
 
 
 def run_farm(count: int, rpi_us: int, args: argparse.Namespace, originator: Path, work: Path,
-             measure: bool = True) -> dict:
+             measure: bool = True, native: bool = True) -> dict:
     config = work / "cell.yaml"
-    write_farm_config(config, count, args.first_address, args.implicit, measure, args.budget)
+    write_farm_config(config, count, args.first_address, args.implicit, measure, args.budget, native)
     farm = start_farm(config, args.workers, args.farm_cpus, work / "farm.log")
     try:
         pids = descendants(farm.pid)
@@ -551,6 +555,10 @@ COLUMNS = [
     ("pairs/CPU-s farm / C", lambda r: f"{r['farm']['pairs_per_cpu_s']:,.0f} / " +
      ("-" if not r.get("c") else f"{r['c']['pairs_per_cpu_s']:,.0f}")),
     ("ratio", lambda r: "-" if not r.get("c") else f"{r['farm']['pairs_per_cpu_s'] / r['c']['pairs_per_cpu_s']:.3f}"),
+    # --native both: the farm again on the Python class-1 path (cyclic_io: {native: off}), interleaved
+    ("Python path: T->O received, p99 ms, pairs/CPU-s, ratio to C", lambda r: "-" if not r.get("python") else
+     f"{r['python']['t_o_received_window']:,}, {p99(r['python'])}, {r['python']['pairs_per_cpu_s']:,.0f}, " +
+     ("-" if not r.get("c") else f"{r['python']['pairs_per_cpu_s'] / r['c']['pairs_per_cpu_s']:.3f}")),
     # --measure-cost: the farm again without the report's measurement; CPU per pair with it / without it - 1
     ("pairs/CPU-s unmeasured, measuring costs", lambda r: "-" if not r.get("unmeasured") else
      f"{r['unmeasured']['pairs_per_cpu_s']:,.0f}, "
@@ -590,6 +598,9 @@ def main() -> None:
                              "at most 8), so that the originator is not the limit")
     parser.add_argument("--py-spy", type=Path, default=None, metavar="DIR",
                         help="record every farm process with py-spy over the window, raw stacks into DIR")
+    parser.add_argument("--native", choices=("both", "on", "off"), default="both",
+                        help="the farm's class-1 path: native (on: cyclic_io.native auto, where built), Python "
+                             "(off), or both, interleaved (every other run the Python one goes first) (both)")
     parser.add_argument("--no-responder", action="store_true", help="leave out the C responder's runs")
     parser.add_argument("--measure-cost", action="store_true",
                         help="also run the farm with the report's measurement off (cyclic_io: {measure: false}), "
@@ -622,8 +633,12 @@ def main() -> None:
                       f"{args.seconds:g} s: farm ...", file=sys.stderr, flush=True)
                 run = {}
                 if args.measure_cost and attempt % 2 == 0:  # every other run the unmeasured farm goes first
-                    run["unmeasured"] = run_farm(count, rpi_us, args, originator, work, measure=False)
-                run["farm"] = run_farm(count, rpi_us, args, originator, work)
+                    run["unmeasured"] = run_farm(count, rpi_us, args, originator, work, measure=False,
+                                                 native=args.native != "off")
+                python_first = args.native == "both" and attempt % 2 == 0
+                if python_first:
+                    run["python"] = run_farm(count, rpi_us, args, originator, work, native=False)
+                run["farm"] = run_farm(count, rpi_us, args, originator, work, native=args.native != "off")
                 farm = run["farm"]
                 print(f"  farm: {farm['admitted']} admitted, {farm['refused']} refused, T->O "
                       f"{farm['t_o_received_window']}/{farm['t_o_expected_window']}, p99 {farm['err_p99_ms']:.2f} ms, "
@@ -631,9 +646,18 @@ def main() -> None:
                       f"CPU {farm['peer_cpu_percent']:.0f}% ({farm['peer_user_percent']:.0f}% user, "
                       f"{farm['peer_system_percent']:.0f}% system), load average {farm['load_average']:.2f}",
                       file=sys.stderr, flush=True)
+                if args.native == "both":
+                    if not python_first:
+                        run["python"] = run_farm(count, rpi_us, args, originator, work, native=False)
+                    p = run["python"]
+                    print(f"  farm, Python path: {p['admitted']} admitted, T->O {p['t_o_received_window']}/"
+                          f"{p['t_o_expected_window']}, p99 {p['err_p99_ms']:.2f} ms, {p['timeouts']} timed out, CPU "
+                          f"{p['peer_cpu_percent']:.0f}%, {p['pairs_per_cpu_s']:,.0f} pairs/CPU-s (native: "
+                          f"{farm['pairs_per_cpu_s']:,.0f})", file=sys.stderr, flush=True)
                 if args.measure_cost:
                     if "unmeasured" not in run:
-                        run["unmeasured"] = run_farm(count, rpi_us, args, originator, work, measure=False)
+                        run["unmeasured"] = run_farm(count, rpi_us, args, originator, work, measure=False,
+                                                 native=args.native != "off")
                     u = run["unmeasured"]
                     print(f"  farm, not measuring: {u['admitted']} admitted, CPU {u['peer_cpu_percent']:.0f}%, "
                           f"{u['pairs_per_cpu_s']:,.0f} pairs/CPU-s (measuring: {farm['pairs_per_cpu_s']:,.0f})",
@@ -650,14 +674,14 @@ def main() -> None:
                 result["runs"] = runs
             results.append(result)
     print(f"{args.seconds:g} s windows{f', medians of {args.repeat} runs' if args.repeat > 1 else ''}, "
-          f"farm: --workers {args.workers}"
+          f"farm: --workers {args.workers}, class-1 path {'native' if args.native != 'off' else 'Python'}"
           f"{' on CPUs ' + args.farm_cpus if args.farm_cpus else ''}")
     print(table(results))
     if args.json:
         args.json.parent.mkdir(parents=True, exist_ok=True)
         for result in results:
             for figures in [result, *result.get("runs", [])]:
-                for side in ("farm", "c", "unmeasured"):
+                for side in ("farm", "c", "unmeasured", "python"):
                     if side in figures and not args.per_connection:
                         figures[side].pop("per_connection", None)
         args.json.write_text(json.dumps({"args": {k: str(v) for k, v in vars(args).items()}, "rows": results},

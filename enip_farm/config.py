@@ -78,8 +78,7 @@ class AssemblyConfig(_Strict):
 
 
 class ImplicitConfig(_Strict):
-    """Class-1 and class-3 connection policy of a device. The DSQC modules' real limits are not
-    published: these defaults are the farm's (unverified for the hardware)."""
+    """Class-1 and class-3 connection policy of a device: the farm's defaults (unverified, unpublished)."""
 
     rpi_min_us: int = Field(2_000, ge=100, description="smallest accepted RPI, microseconds")
     rpi_max_us: int = Field(10_000_000, le=0xFFFFFFFF, description="largest accepted RPI, microseconds")
@@ -277,6 +276,7 @@ class CyclicIoConfig(_Strict):
         f"past it a Forward Open gets 0x01/0x0113. auto: measured at start (a pair's CPU, for {BUDGET_UTILISATION:.0%}"
         " of a core), lowered to what the I/O thread really spends, held while it runs late")
     measure: bool = Field(True, description="measure every O->T stream for the report (cip/o_t_measure.py)")
+    native: Literal["auto", "off"] = Field("auto", description="auto: the native class-1 path where built; off: Python")
     @field_validator("budget_datagrams_per_s")
     @classmethod
     def _positive(cls, value: int | str) -> int | str:

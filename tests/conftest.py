@@ -59,6 +59,32 @@ def _fail_skip_on_ci(config: pytest.Config, report: pytest.TestReport | pytest.C
                        "(.ci/run installs it); if CI never can, add the reason to CI_MAY_SKIP in tests/conftest.py")
 
 
+# -- the two class-1 paths ------------------------------------------------------------------------------
+# A module marked `pytestmark = pytest.mark.class1_paths` runs each of its tests twice: on the native
+# path (server/native.py; on CI the extension must be built, or the test fails) and on the Python one.
+def pytest_generate_tests(metafunc: pytest.Metafunc) -> None:
+    marked = metafunc.definition.get_closest_marker("class1_paths") is not None
+    if marked and "class1_path" not in metafunc.fixturenames:
+        metafunc.fixturenames.insert(0, "class1_path")  # first: before any fixture that starts a farm
+    if "class1_path" in metafunc.fixturenames:
+        metafunc.parametrize("class1_path", ["native", "python"], indirect=True)
+
+
+@pytest.fixture
+def class1_path(request: pytest.FixtureRequest, monkeypatch: pytest.MonkeyPatch) -> str:
+    """Which class-1 path the farms this test starts run (ENIP_FARM_NATIVE)."""
+    from enip_farm.server.native import BUILT, ENVIRONMENT
+
+    path: str = request.param
+    if path == "native" and not BUILT:
+        message = "the native class-1 extension (enip_farm/server/_class1.c) is not built"
+        if os.environ.get("CI"):
+            pytest.fail(message + " (CI builds it: pip install -e .)")
+        pytest.skip(message)
+    monkeypatch.setenv(ENVIRONMENT, "1" if path == "native" else "0")
+    return path
+
+
 @pytest.hookimpl(hookwrapper=True)
 def pytest_runtest_makereport(item: pytest.Item, call: pytest.CallInfo) -> Iterator[None]:
     outcome = yield

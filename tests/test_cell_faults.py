@@ -22,7 +22,7 @@ from tests.helpers import ENIP_PORT, RawClient, wait_for
 from tests.scanners import Scanner, start_scanner
 from tests.test_implicit import forward_close, forward_open
 
-pytestmark = pytest.mark.integration
+pytestmark = [pytest.mark.integration, pytest.mark.class1_paths]  # both class-1 paths
 RPI_MS = 10
 BOOT_S = 1.5
 SELF_TEST_S = 1.0

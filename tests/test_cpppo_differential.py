@@ -19,6 +19,8 @@ from enip_farm.protocol.encapsulation import Command, decode_frame, encode_frame
 from enip_farm.protocol.epath import encode_request_path
 from enip_farm.protocol.session import EncapsulationSession
 
+pytestmark = pytest.mark.class1_paths  # both class-1 paths (tests/conftest.py)
+
 
 def cpppo_decode(frame: bytes) -> dotdict:
     data = dotdict()

@@ -31,6 +31,8 @@ from enip_farm.protocol.epath import ElectronicKey, encode_electronic_key, encod
 from tests.helpers import RawClient, wait_for
 from tests.scanners import scanner
 
+pytestmark = pytest.mark.class1_paths  # both class-1 paths (tests/conftest.py)
+
 P2P, MULTICAST, NULL = ConnectionType.POINT_TO_POINT, ConnectionType.MULTICAST, ConnectionType.NULL
 ASSEMBLY_PATH = bytes.fromhex("20 04 24 01 2C 64 2C 65")  # config 1, O->T 100, T->O 101
 _serials = iter(range(1, 1_000_000))

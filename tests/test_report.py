@@ -17,7 +17,7 @@ from tests.helpers import RawClient, wait_for
 from tests.scanners import scanner, start_scanner
 from tests.test_implicit import forward_close, forward_open
 
-pytestmark = pytest.mark.integration
+pytestmark = [pytest.mark.integration, pytest.mark.class1_paths]  # both class-1 paths
 MS = 1_000_000
 
 

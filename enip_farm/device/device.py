@@ -56,10 +56,10 @@ class Device:
         self.profile = profile
         self.faults = DeviceFaults()
         self.recorder: TrafficTap | None = None  # serve --record
-        self.counters: Counter[str] = Counter(dict.fromkeys(COUNTERS, 0))
+        self._counters: Counter[str] = Counter(dict.fromkeys(COUNTERS, 0))
         self.tcp_open = 0  # TCP connections open now (server/tcp.py counts them in and out; counters: since start)
         self.latency = LatencyHistogram()
-        objects = build_objects(profile, self.counters, budget, product_code=lambda: self.product_code,
+        objects = build_objects(profile, self._counters, budget, product_code=lambda: self.product_code,
                                 revision=lambda: self.revision,
                                 identity_state=lambda: self.identity_state, resetting=lambda: self.resetting,
                                 forced_status=self.faults.forced_status, assembly_size=self.faults.assembly_size)
@@ -68,13 +68,13 @@ class Device:
         self._tcpip = objects.tcpip
         self.guard = guard = DeviceGuard(profile.name, objects.assemblies, objects.table, clock)
         self.clock, self.events = clock, guard.events
-        self.session_handles = SessionHandles(profile.limits.max_sessions, self.counters, guard.record)
+        self.session_handles = SessionHandles(profile.limits.max_sessions, self._counters, guard.record)
         self.resets = Resets(objects, guard, self.session_handles, profile.reset_time_s)
         self.reset_window = self.resets.window
         self.target = EncapsulationTarget(profile, guard, objects.router, self.resets,
                                           lambda: self.product_code, lambda: self.identity_state,
                                           lambda: self.revision)
-        self.cyclic = CyclicIo(guard, self.faults, self.reset_window, self.counters)
+        self.cyclic = CyclicIo(guard, self.faults, self.reset_window, self._counters)
         #: What faults do to the module itself: its power, its address (device/hardware.py).
         self.hardware = ModuleHardware(objects, guard, self.session_handles, self.reset_window, profile.address,
                                        profile.mac)
@@ -107,6 +107,14 @@ class Device:
         """Log an event (device/events.py) that happened at `now` (ns, monotonic; None: the device's
         clock) and tell the observers."""
         self.guard.record(event, now)
+
+    @property
+    def counters(self) -> Counter[str]:
+        """The device's counters; those the native class-1 path keeps written in first (server/native.py)."""
+        native = self.guard.native
+        if native is not None:
+            native.sync()
+        return self._counters
 
     @property
     def timer_moved(self) -> Callable[[], None] | None:

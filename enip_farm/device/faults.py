@@ -14,7 +14,7 @@ monotonic clock, passed in.
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from enum import Enum
 from types import MappingProxyType
 from typing import Any
@@ -79,6 +79,8 @@ class DeviceFaults:
         self._tampered_by: FaultType | None = None
         self._replies: tuple[FaultType, ...] = ()  # the faults that change how TCP replies go out
         self._disconnect: Disconnect | None = None
+        #: Told after each change of the faults' effects (server/native.py: a faulted device leaves the native path).
+        self.changed: Callable[[], None] | None = None
 
     def set(self, fault: FaultType, now: int) -> None:
         """Switch `fault` on at `now` (ns), in place of a fault of its kind."""
@@ -128,6 +130,8 @@ class DeviceFaults:
         # a list in the faults' order, not a set: the choice never rests on a hash order (issue 32)
         ends = [end for end in (fault.on_tcp_connection() for fault in faults) if end is not None]
         self._disconnect = Disconnect.RESET if Disconnect.RESET in ends else ends[0] if ends else None
+        if self.changed is not None:
+            self.changed()
 
     def on_reply(self) -> int | None:
         """Nanoseconds to hold this turn's TCP replies back (in order after the ones held before), or

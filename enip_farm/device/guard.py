@@ -20,7 +20,7 @@ from __future__ import annotations
 import threading
 import time
 from collections.abc import Callable, Iterable
-from typing import TypeVar
+from typing import Protocol, TypeVar
 
 from enip_farm.cip.assembly import AssemblyInstance
 from enip_farm.cip.connection_events import ConnectionEvent, ConnectionOpened, describe
@@ -38,6 +38,18 @@ Clock = Callable[[], int]
 NO_IMAGES, OUTPUT_IMAGE, INPUT_IMAGE, BOTH_IMAGES = 0, 1, 2, 3
 
 T = TypeVar("T")
+
+
+class NativeHooks(Protocol):
+    """The native class-1 path's hold on a device (server/native.py): under the device lock,
+    `enter` takes the state back at a transaction's start, `exit` hands it over again at its end,
+    `sync` writes it back for a reader."""
+
+    def enter(self) -> None: ...
+
+    def exit(self) -> None: ...
+
+    def sync(self) -> None: ...
 
 
 class Transaction:
@@ -80,6 +92,9 @@ class Transaction:
         return self
 
     def __exit__(self, exc_type: object, exc: object, traceback: object) -> None:
+        native = self.guard.native
+        if native is not None:  # the device to the native path again, if it qualifies, before the lock goes
+            native.exit()
         if self._pending or self.images or self.requests or self.emitted:
             self._end()
         else:
@@ -127,6 +142,8 @@ class DeviceGuard:
         #: The cyclic I/O thread's (server/implicit.py): called, after the lock, when a connection
         #: opened (a new T->O stream and watchdog), so the table's timer may be earlier than the thread's.
         self.timer_moved: Callable[[], None] | None = None
+        #: The native class-1 path's hooks while it may run the device (server/native.py), else None.
+        self.native: NativeHooks | None = None
         self._transaction = Transaction(self)
 
     def observe(self, observer: Observer, *classes: type) -> Callable[[], None]:
@@ -146,6 +163,9 @@ class DeviceGuard:
         if now is None:
             now = self.clock()
         self._acquire()
+        native = self.native
+        if native is not None:  # the state the native path held, back in the objects the work reads
+            native.enter()
         transaction = self._transaction
         transaction.now = now
         if images and self.observers.of_images:
@@ -155,7 +175,18 @@ class DeviceGuard:
     def read(self, reading: Callable[[], T]) -> T:
         """`reading()` under the lock: a whole view of the images and the table."""
         with self.lock:
+            native = self.native
+            if native is not None:
+                native.sync()
             return reading()
+
+    def settle(self) -> None:
+        """The native path's counters and connection state written back (for readers without the
+        lock: /metrics, the overview, the state API). Nothing to do on the Python path."""
+        native = self.native
+        if native is not None:
+            with self.lock:
+                native.sync()
 
     def image(self, role: str) -> bytes:
         """One image (b"" if the device has none), read under the lock."""

@@ -24,6 +24,8 @@ class Observers:
         self._routes: dict[type, list[Observer]] = {}
         self.of_images: list[Observer] = []  # of ImageChanged: the hot paths ask before comparing
         self.of_requests: list[Observer] = []  # of RequestHandled: before making an Event per request
+        #: Told after each change of who observes (server/native.py: image observers leave the native path).
+        self.changed: Callable[[], None] | None = None
 
     def add(self, observer: Observer, classes: tuple[type, ...] = ()) -> Callable[[], None]:
         """Tell `observer` the events of `classes` (and their subclasses; none: every event). The remove."""
@@ -39,6 +41,8 @@ class Observers:
         self._routes = {}
         self.of_images = self._match(ImageChanged)
         self.of_requests = self._match(RequestHandled)
+        if self.changed is not None:
+            self.changed()
 
     def _match(self, cls: type) -> list[Observer]:
         return [observer for observer, classes in self._subscribed if not classes or issubclass(cls, classes)]

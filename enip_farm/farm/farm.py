@@ -48,6 +48,7 @@ from enip_farm.scenario.verdict import ScenarioResult
 from enip_farm.server.calibrate import DEFAULT_DATAGRAMS_PER_S, measure_budget
 from enip_farm.server.implicit import ImplicitIo
 from enip_farm.server.limits import TcpLimits
+from enip_farm.server.native import native_wanted
 from enip_farm.server.udp import DeviceDatagramProtocol, DiscoveryResponder, udp_socket
 
 #: What callers import from here (the serve command, the workers, the tests).
@@ -181,11 +182,11 @@ class Farm:
                 endpoints.append(endpoint)
             budget = self.config.cyclic_io.budget_datagrams_per_s
             if budget == "auto":
-                measured = measure_budget(self._profiles)
+                measured = measure_budget(self._profiles, native_wanted(self.config.cyclic_io.native))
                 self.budget.set(measured.datagrams_per_s, measured.source, measured.ceiling)
             else:
                 self.budget.set(budget, "configured")
-            self._implicit = ImplicitIo(self.budget if budget == "auto" else None)
+            self._implicit = ImplicitIo(self.budget if budget == "auto" else None, self.config.cyclic_io.native)
             for device in self.devices.values():
                 if device.name in self.address_owners:
                     continue

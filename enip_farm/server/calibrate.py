@@ -32,7 +32,7 @@ from enip_farm.protocol.connection import (
 from enip_farm.protocol.cpf import CpfItem, ItemType
 from enip_farm.protocol.epath import LogicalType, encode_logical, encode_request_path
 from enip_farm.protocol.session import MessageContext
-from enip_farm.server.batch import Datagrams
+from enip_farm.server.batch import RECEIVE_LIMIT, Datagrams
 from enip_farm.server.implicit import CyclicIoThread, DeviceIo
 
 #: Used when no device of the farm can carry an exclusive-owner connection to measure with.
@@ -73,20 +73,20 @@ def _scratch_connection(profile: DeviceProfile, port: int) -> tuple[Device, int]
     return device, decode_forward_open_reply(answer.data).o_t_connection_id
 
 
-def _pair_cost_ns(profiles: list[DeviceProfile]) -> tuple[float, float] | None:
+def _pair_cost_ns(profiles: list[DeviceProfile], native: bool = False) -> tuple[float, float] | None:
     """CPU ns of one O->T taken and one T->O made and sent, as the I/O thread does them, over as many
     scratch devices as the worker has (at most SCRATCH_DEVICES; profiles in turn): each turn reads
     one O->T on every device's socket and sends their T->O in one batch, so the working set and the
     turn are the worker's, not one device's kept warm. With it, the share of a core this thread got
     meanwhile (its CPU over the wall time: all of it is CPU-bound work). None: no profile carries an
-    exclusive owner."""
+    exclusive owner. `native`: the devices run by the native engine (server/native.py), as the thread runs them."""
     usable = [p for p in profiles if p.assembly("output") is not None and p.assembly("input") is not None
               and p.safety is None]
     if not usable:
         return None
     count = min(len(profiles), SCRATCH_DEVICES)
     wall_at, cpu_at = time.monotonic_ns(), time.thread_time_ns()
-    thread = CyclicIoThread(Datagrams())  # not started: its epoll, its outbox and its batched send
+    thread = CyclicIoThread(Datagrams(), native=native)  # not started: its epoll, outbox, batched send, engine
     sockets: list[socket.socket] = []
     endpoints: list[tuple[DeviceIo, int, tuple[str, int], bytes]] = []
     try:
@@ -101,13 +101,15 @@ def _pair_cost_ns(profiles: list[DeviceProfile]) -> tuple[float, float] | None:
             endpoint = DeviceIo(device, sock, thread)
             endpoint.source = socket.inet_aton(_HOST)  # T->O leave from the scratch socket's own address
             thread.register(endpoint)
+            with device.guard.transaction(0):  # to the native engine, where there is one
+                pass
             output = profile.assembly("output")
             endpoints.append((endpoint, connection_id, sock.getsockname(),
                               b"\x01\x00\x00\x00" + bytes(output.size if output is not None else 0)))
         if not endpoints:
             return None
         readers = {endpoint.sock.fileno(): endpoint for endpoint, _, _, _ in endpoints}
-        poll, receive = thread._epoll.poll, thread.datagrams.receive
+        poll, receive, engine = thread._epoll.poll, thread.datagrams.receive, thread.native
         turns = max(1, -(-_PAIRS // len(endpoints)))
         best, sequence, now = float("inf"), 0, 0
         for _ in range(_ROUNDS):
@@ -118,8 +120,12 @@ def _pair_cost_ns(profiles: list[DeviceProfile]) -> tuple[float, float] | None:
                     originator.sendto(encode_io_packet(connection_id, sequence, sequence, image), target)
                 started = time.thread_time_ns()
                 now += _RPI_NS
-                for fd, data, host, port, received_at in receive([fd for fd, _ in poll(0)]):
+                fds = [fd for fd, _ in poll(0)]
+                for fd, data, host, port, received_at in (engine.receive(fds, RECEIVE_LIMIT, now)[0] if engine
+                                                          else receive(fds)):
                     readers[fd].take(data, host, port, now, received_at or now)
+                if engine is not None:
+                    engine.produce(now, now)
                 for endpoint, _, _, _ in endpoints:
                     endpoint.service(now, now)
                 thread._flush()
@@ -147,12 +153,12 @@ def _socket(opened: list[socket.socket]) -> socket.socket:
     return sock
 
 
-def measure_budget(profiles: list[DeviceProfile]) -> CyclicBudget:
+def measure_budget(profiles: list[DeviceProfile], native: bool = False) -> CyclicBudget:
     """The budget of one I/O thread on this machine: BUDGET_UTILISATION of a core over the cost of
     a consumed plus a produced packet (a pair), counted as two datagrams; where the machine gave the
     measuring thread less of a core than that (other programs keep it busy), that share instead,
     the CPU figure staying the ceiling the running check may rise to (cip/budget.py)."""
-    measured = _pair_cost_ns(profiles)
+    measured = _pair_cost_ns(profiles, native)
     if measured is None:
         return CyclicBudget(DEFAULT_DATAGRAMS_PER_S, "no device to measure with: the default")
     pair_ns, share = measured

@@ -36,7 +36,6 @@ from __future__ import annotations
 
 import collections
 import heapq
-import ipaddress
 import itertools
 import logging
 import os
@@ -50,16 +49,17 @@ from collections.abc import Callable
 from enip_farm.cip.budget import CyclicBudget
 from enip_farm.device.device import Device
 from enip_farm.protocol.connection import IO_PORT
-from enip_farm.server.batch import SO_TIMESTAMPNS, Datagrams, Message, sockaddr
+from enip_farm.server.batch import RECEIVE_LIMIT, SO_TIMESTAMPNS, Datagrams, Message
+from enip_farm.server.device_io import DeviceIo as DeviceIo
+from enip_farm.server.lag import OVERLOAD_LAG_NS as OVERLOAD_LAG_NS
+from enip_farm.server.lag import Lag
 from enip_farm.server.limits import RateLimitedLog
+from enip_farm.server.native import NativeDevice, native_wanted, new_engine
 from enip_farm.server.running_budget import RunningBudget
 from enip_farm.server.udp import udp_socket
 from enip_farm.server.waits import os_wait_ns
 
 log = logging.getLogger(__name__)
-_RETRY_NS = 10_000_000  # a device whose service raised is serviced again this much later
-#: A wake-up this late is an overload of the farm, not a slow originator.
-OVERLOAD_LAG_NS = 5_000_000
 
 
 def io_socket(host: str, port: int = IO_PORT) -> socket.socket:
@@ -74,29 +74,6 @@ def io_socket(host: str, port: int = IO_PORT) -> socket.socket:
     return sock
 
 
-class Lag:
-    """How late the thread's wake-ups run behind their schedule: the worst of the current second
-    (`worst_ns`, shown in /metrics) and the wake-ups later than OVERLOAD_LAG_NS (`overloads`)."""
-
-    def __init__(self) -> None:
-        self.worst_ns = 0  # the worst lag of the last whole second
-        self.overloads = 0  # wake-ups later than OVERLOAD_LAG_NS
-        self._second = 0
-        self._worst_now = 0
-
-    def observe(self, lag_ns: int, now: int) -> bool:
-        """One wake-up `lag_ns` late at `now`: True when it is an overload."""
-        second = now // 1_000_000_000
-        if second != self._second:
-            self._second, self.worst_ns, self._worst_now = second, self._worst_now, 0
-        if lag_ns > self._worst_now:
-            self._worst_now = lag_ns
-        if lag_ns > OVERLOAD_LAG_NS:
-            self.overloads += 1
-            return True
-        return False
-
-
 class CyclicIoThread(threading.Thread):
     """Reads O->T from every device socket and runs each device's connection timer."""
 
@@ -108,9 +85,16 @@ class CyclicIoThread(threading.Thread):
     #: its deadline, never later for the thread's sake; deadlines stay absolute). Coalescing the
     #: wake-ups is what makes the cost per packet rather than per wake-up.
     TURN_NS = 1_000_000
+    #: How often the native engine writes its state into the Python objects that readers without the
+    #: device lock look at (the lock's readers and transactions get it at once: server/native.py).
+    NATIVE_SYNC_NS = 100_000_000
 
-    def __init__(self, datagrams: Datagrams | None = None, budget: CyclicBudget | None = None) -> None:
+    def __init__(self, datagrams: Datagrams | None = None, budget: CyclicBudget | None = None,
+                 native: bool = False) -> None:
         super().__init__(name="enip-farm-cyclic-io", daemon=True)
+        #: The native class-1 engine (server/native.py) of this thread's devices, None: all on Python's path.
+        self.native = new_engine() if native else None
+        self.native_timer: int | None = None  # the engine's earliest deadline after its last turn
         self.running_budget = RunningBudget(budget)  # budget: a measured one, checked while it runs
         self.datagrams = datagrams if datagrams is not None else Datagrams()
         self._heap: list[tuple[int, int, DeviceIo]] = []
@@ -118,6 +102,7 @@ class CyclicIoThread(threading.Thread):
         self._requests: collections.deque[DeviceIo] = collections.deque()  # timers that may have moved
         self._epoll = select.epoll()
         self._readers: dict[int, DeviceIo] = {}
+        self._slots: dict[int, DeviceIo] = {}  # by the native engine's slot
         self._wake_read, self._wake_write = os.pipe()
         os.set_blocking(self._wake_read, False)
         os.set_blocking(self._wake_write, False)
@@ -144,6 +129,11 @@ class CyclicIoThread(threading.Thread):
 
     def register(self, endpoint: DeviceIo) -> None:
         self._readers[endpoint.sock.fileno()] = endpoint
+        if self.native is not None:
+            endpoint.native = NativeDevice(self.native, endpoint.sock.fileno(), endpoint.device,
+                                           lambda: self.reschedule(endpoint))
+            endpoint.native.attach()
+            self._slots[endpoint.native.slot] = endpoint
         self.datagrams.add(endpoint.sock)
         self._epoll.register(endpoint.sock.fileno(), select.EPOLLIN)
 
@@ -197,6 +187,10 @@ class CyclicIoThread(threading.Thread):
         receive, wake_read, outbox, lag = self.datagrams.receive, self._wake_read, self.outbox, self.lag
         turn_ns, margin_ns = self.TURN_NS, self._EPOLL_MARGIN_NS
         running = self.running_budget
+        native, slots = self.native, self._slots
+        native_receive = native.receive if native is not None else None
+        native_produce = native.produce if native is not None else None
+        synced = 0
         last = 0
         while not self._stopping:
             while requests:
@@ -205,7 +199,10 @@ class CyclicIoThread(threading.Thread):
             gap = last + turn_ns - monotonic_ns()
             if gap > 0:  # turns at most every TURN_NS: what comes meanwhile waits in the sockets for it
                 sleep(gap / 1e9)
-            wait = (heap[0][0] - turn_ns - monotonic_ns()) if heap else None  # until the next turn that is due
+            first = heap[0][0] if heap else None
+            if self.native_timer is not None and (first is None or self.native_timer < first):
+                first = self.native_timer
+            wait = (first - turn_ns - monotonic_ns()) if first is not None else None  # until the next turn that is due
             if wait is None or wait > margin_ns + self._IDLE_WAIT * 1e9:
                 events = poll(self._IDLE_WAIT)  # nothing due soon: look again after the idle wait at most
             elif wait > margin_ns:
@@ -227,15 +224,31 @@ class CyclicIoThread(threading.Thread):
                     else:
                         fds.append(fd)
                 if fds:
-                    received = receive(fds)
+                    if native_receive is not None:  # the native devices' datagrams taken there, the rest here
+                        received, taken = native_receive(fds, RECEIVE_LIMIT, now)
+                        running.datagrams += taken
+                    else:
+                        received = receive(fds)
                     running.datagrams += len(received)
                     for fd, data, host, port, received_at in received:
                         endpoint = readers.get(fd)
                         if endpoint is not None:
                             endpoint.take(data, host, port, now, received_at or now)
             horizon = now + turn_ns  # what falls due before the next turn is served in this one
-            if heap and heap[0][0] <= horizon:
-                late = now - heap[0][0]  # <= 0 on time: the lag still starts its next second (worst_ns)
+            first = heap[0][0] if heap and heap[0][0] <= horizon else None
+            if native_produce is not None:  # the native devices' T->O (sent), their timeouts to Python
+                python, self.native_timer, served, sent, _ = native_produce(now, horizon)
+                running.datagrams += sent
+                if served is not None and (first is None or served < first):
+                    first = served
+                for slot in python:
+                    endpoint = slots[slot]
+                    self._schedule(endpoint, endpoint.service(now, horizon, True))
+                if now - synced >= self.NATIVE_SYNC_NS:
+                    synced = now
+                    native.sync()
+            if first is not None:
+                late = now - first  # <= 0 on time: the lag still starts its next second (worst_ns)
                 running.turn(late)
                 if lag.observe(late, now):
                     self._overloaded(late, now)
@@ -275,92 +288,12 @@ class CyclicIoThread(threading.Thread):
                               "connections than its budget), not the originators late", lag_ns / 1e6)
 
 
-class DeviceIo:
-    """UDP 2222 of one device: moves its datagrams between the socket and the device."""
-
-    def __init__(self, device: Device, sock: socket.socket, thread: CyclicIoThread) -> None:
-        self.device = device
-        self.sock = sock
-        self.thread = thread
-        self.scheduled: int | None = None  # the wake-up the thread holds for this device (ns)
-        self.source = socket.inet_aton(device.profile.address)
-        self._address = (device.profile.address, IO_PORT)
-        self._destinations: dict[tuple[str, int], tuple[bytes, bool]] = {}  # -> (sockaddr, unicast)
-        device.timer_moved = self._timer_moved
-
-    def _timer_moved(self) -> None:
-        """A connection opened (a new stream and a new watchdog): the device's timer may be earlier."""
-        self.thread.reschedule(self)
-
-    def take(self, data: bytes, host: str, port: int, now: int, received_at: int | None = None) -> None:
-        """In the I/O thread: one O->T datagram from host:port, read at `now` (`received_at`: the
-        kernel's receive time), to the device."""
-        device = self.device
-        traffic = device.io_traffic
-        traffic.received(len(data))
-        recorder = device.recorder
-        if recorder is not None:
-            recorder.udp((host, port), self._address, data)
-        try:
-            taken = device.receive_io(data, (host, port), now, self.send, received_at)
-        except Exception:  # last resort: the other devices' cyclic I/O goes on
-            self._failed("taking an O->T datagram", now)
-            taken = False
-        if not taken:
-            traffic.discarded()
-
-    def service(self, now: int, horizon: int | None = None) -> int | None:
-        """In the I/O thread: the device's timer has come (by `horizon`); the next one."""
-        try:
-            return self.device.service_io(now, self.send, horizon)
-        except Exception:  # last resort: the other devices' cyclic I/O goes on
-            self._failed("servicing its connections", now)
-            return now + _RETRY_NS
-
-    def timer(self) -> int | None:
-        """In the I/O thread: when the device next wants servicing."""
-        try:
-            return self.device.get_timer()
-        except Exception:  # last resort: the other devices' cyclic I/O goes on
-            now = time.monotonic_ns()
-            self._failed("computing its timer", now)
-            return now + _RETRY_NS
-
-    def _failed(self, what: str, now: int) -> None:
-        """Count and log (rate-limited, with the traceback) an exception of this device's I/O."""
-        self.device.counters["io_errors"] += 1
-        self.thread.errors.log(logging.ERROR, f"io error {self.device.name}", now / 1e9,
-                               "%s: cyclic I/O error %s", self.device.name, what, exc_info=True)
-
-    def send(self, packet: bytes, destination: tuple[str, int]) -> None:
-        """Queue a T->O packet (counted and recorded now): the thread sends a turn's packets together."""
-        known = self._destinations.get(destination)
-        if known is None:
-            known = self._destinations[destination] = (
-                sockaddr(*destination), not ipaddress.IPv4Address(destination[0]).is_multicast)
-        device = self.device
-        device.io_traffic.sent(len(packet), known[1])
-        if device.recorder is not None:
-            device.recorder.udp(self._address, destination, packet)
-        thread = self.thread
-        thread.outbox.append((packet, known[0], self.source))
-        thread.outbox_from.append(self)
-
-    def send_failed(self) -> None:
-        self.device.counters["t_o_send_errors"] += 1
-        self.device.io_traffic.send_failed()
-        log.debug("%s: a T->O packet could not be sent", self.device.name)
-
-    def close(self) -> None:
-        if self.device.timer_moved == self._timer_moved:
-            self.device.timer_moved = None
-
-
 class ImplicitIo:
     """UDP 2222 of every device of a farm, and the cyclic I/O thread."""
 
-    def __init__(self, budget: CyclicBudget | None = None) -> None:
-        self.thread = CyclicIoThread(budget=budget)  # a measured budget: checked while the thread runs
+    def __init__(self, budget: CyclicBudget | None = None, native: str = "auto") -> None:
+        # a measured budget: checked while the thread runs; native: server/native.py, where built and wanted
+        self.thread = CyclicIoThread(budget=budget, native=native_wanted(native))
         self.endpoints: list[DeviceIo] = []
         self._sockets: list[socket.socket] = []
         if sys.getswitchinterval() > 0.0005:
