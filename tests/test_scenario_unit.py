@@ -158,10 +158,47 @@ def test_steps_that_can_never_happen_are_refused() -> None:
               - {fault: link-down, target: io1}
               - {clear: io1, kind: power-loss}
             """)
-    with pytest.raises(ScenarioError, match=r"^s.yaml:2: not valid YAML"):
+    with pytest.raises(ScenarioError, match=r"^s.yaml:2:1: not valid YAML: while parsing a flow node: expected the "
+                                            r"node content, but found '<stream end>'$"):  # its line and column
         parse("steps: [\n")
     with pytest.raises(ScenarioError, match=r"^s.yaml:1: steps: a list of at least one step is needed$"):
         parse("name: x\n")
+
+
+def test_the_files_shape_is_told_at_the_line_of_each_key() -> None:
+    """The keys, the one action, the durations and the mappings (pydantic: scenario/document.py),
+    each problem at the line of the key that has it (config_errors.line_map, as a configuration's)."""
+    with pytest.raises(ScenarioError) as caught:
+        parse("""\
+            name: x
+            repeat: 3
+            steps:
+              - at: 1 s
+                delay: 2 s
+                fault: link-down
+                target: io1
+              - fault: link-down
+                target: io1
+                duration: 0
+                params: [1]
+                colour: red
+              - set: {}
+              - 7
+            expect:
+              - 12
+            """)
+    assert caught.value.problems == [
+        "s.yaml:2: repeat: not a key of a scenario (name, duration, steps, expect)",
+        "s.yaml:4: step 1: delay goes with after, not with at",
+        "s.yaml:10: step 2: duration: must be > 0 (leave it out: until cleared)",
+        "s.yaml:11: step 2: params: a mapping of the kind's parameters",
+        "s.yaml:12: step 2: colour: not a key of a step",
+        "s.yaml:13: step 3: set: a mapping of DEVICE.SIGNAL: value",
+        "s.yaml:14: step 4: a mapping (at:/after:, and one of fault, clear, set, wait)",
+        "s.yaml:16: an expectation is a line of text, got 12",
+    ]
+    with pytest.raises(ScenarioError, match=r"^s.yaml:2: steps: a list of at least one step is needed$"):
+        parse("name: x\nsteps: []\n")  # the line of the key
 
 
 @pytest.mark.parametrize(("text", "ns"), [("100 ms", 100 * MS), ("2 s", 2_000 * MS), ("1.5", 1_500 * MS),

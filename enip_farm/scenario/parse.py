@@ -30,10 +30,19 @@ from collections.abc import Callable, Mapping
 from typing import Any
 
 import yaml
+from pydantic import ValidationError
 
 from enip_farm.config import FarmConfig
+from enip_farm.config_errors import Location, line_map, line_of, yaml_problem
 from enip_farm.device.faults import Fault, FaultError
 from enip_farm.device.signals import SignalError, SignalMap
+from enip_farm.scenario.document import (
+    ScenarioDocument,
+    StepDocument,
+    duration_ns,
+    problems,
+    step_document,
+)
 from enip_farm.scenario.model import (
     OPERATORS,
     Action,
@@ -53,12 +62,6 @@ from enip_farm.scenario.model import (
 
 #: Why a device has no such signal (None: it has): (device, signal) -> reason.
 SignalCheck = Callable[[str, str], str | None]
-DEFAULT_WAIT_NS = 10_000_000_000
-_STEP_KEYS = frozenset({"id", "at", "after", "delay", "fault", "target", "duration", "params", "clear", "kind", "set",
-                        "wait", "timeout", "note"})
-_ACTIONS = ("fault", "clear", "set", "wait")
-_DURATION = re.compile(r"^\s*(\d+(?:\.\d+)?)\s*(ms|s|min)?\s*$")
-_UNITS = {"ms": 1_000_000, "s": 1_000_000_000, "min": 60_000_000_000, None: 1_000_000_000}
 _OP = r"(==|!=|<=|>=|<|>)"
 _CONDITION = re.compile(rf"^\s*([A-Za-z0-9_.{{}}-]+?)\.([A-Za-z][A-Za-z0-9_-]*)\s*{_OP}\s*(-?\d+(?:\.\d+)?)\s*$")
 _OF_STEP = r"within\s+(?P<bound>\S+(?:\s*(?:ms|s|min))?)\s+of\s+(?P<end>end\s+of\s+)?step\s+(?P<step>\S+)"
@@ -66,6 +69,7 @@ _SIGNAL_WITHIN = re.compile(rf"^(?P<condition>.+?)\s+{_OF_STEP}$", re.I)
 _RECONNECTED = re.compile(rf"^(?P<target>\S+)\s+reconnected\s+{_OF_STEP}$", re.I)
 _NO_TIMEOUTS = re.compile(r"^no\s+connection\s+timed\s+out(?:\s+(?P<where>outside|in)\s+(?P<target>\S+))?$", re.I)
 _COUNT = re.compile(rf"^count\(\s*(?P<kind>[^,)]+?)\s*(?:,\s*(?P<target>[^)]+?)\s*)?\)\s*(?P<op>{_OP})\s*(?P<n>\d+)$")
+__all__ = ["ScenarioError", "SignalCheck", "duration_ns", "load_scenario", "parse_scenario", "signal_check"]
 
 
 class ScenarioError(ValueError):
@@ -74,29 +78,6 @@ class ScenarioError(ValueError):
     def __init__(self, problems: list[str]) -> None:
         super().__init__("\n".join(problems))
         self.problems = problems
-
-
-class _Lines(list):
-    lines: list[int]
-
-
-class _LineLoader(yaml.SafeLoader):
-    """Keeps the line of each mapping (`__line__`) and of each item of a sequence (`.lines`)."""
-
-    def construct_mapping(self, node: yaml.MappingNode, deep: bool = False) -> dict[Any, Any]:
-        mapping = super().construct_mapping(node, deep=True)
-        mapping["__line__"] = node.start_mark.line + 1
-        return mapping
-
-
-
-def _sequence(loader: _LineLoader, node: yaml.SequenceNode) -> _Lines:
-    items = _Lines(loader.construct_sequence(node, deep=True))
-    items.lines = [child.start_mark.line + 1 for child in node.value]
-    return items
-
-
-_LineLoader.add_constructor("tag:yaml.org,2002:seq", _sequence)
 
 
 def signal_check(maps: Mapping[str, SignalMap]) -> SignalCheck:
@@ -110,16 +91,6 @@ def signal_check(maps: Mapping[str, SignalMap]) -> SignalCheck:
     return check
 
 
-def duration_ns(value: Any) -> int | None:
-    """"100 ms", "3 s", "2 min", 1.5 (s) as ns; None if it is none of these."""
-    if isinstance(value, bool):
-        return None
-    if isinstance(value, (int, float)):
-        return round(value * 1e9) if value >= 0 else None
-    match = _DURATION.match(str(value))
-    return round(float(match[1]) * _UNITS[match[2]]) if match else None
-
-
 def load_scenario(path: str, config: FarmConfig, check_signal: SignalCheck) -> Scenario:
     try:
         with open(path, encoding="utf-8") as file:
@@ -130,154 +101,126 @@ def load_scenario(path: str, config: FarmConfig, check_signal: SignalCheck) -> S
 
 
 def parse_scenario(text: str, source: str, config: FarmConfig, check_signal: SignalCheck) -> Scenario:
-    """The scenario of `text` against the cell `config`; ScenarioError listing every defect."""
+    """The scenario of `text` against the cell `config`; ScenarioError listing every defect at its
+    line (config_errors.line_map, as a configuration's)."""
     try:
-        data = yaml.load(text, Loader=_LineLoader)  # noqa: S506 (a SafeLoader)
+        data = yaml.safe_load(text)
     except yaml.YAMLError as error:
-        mark = getattr(error, "problem_mark", None)
-        raise ScenarioError([f"{source}:{mark.line + 1 if mark else 1}: not valid YAML: "
-                             f"{getattr(error, 'problem', error)}"]) from None
-    return _Parser(source, config, check_signal).scenario(data)
+        raise ScenarioError([yaml_problem(source, error)]) from None
+    return _Parser(source, config, check_signal, line_map(text)).scenario(data)
 
 
 class _Parser:
-    def __init__(self, source: str, config: FarmConfig, check_signal: SignalCheck) -> None:
+    def __init__(self, source: str, config: FarmConfig, check_signal: SignalCheck, lines: dict[Location, int]
+                 ) -> None:
         self.source = source
         self.config = config
         self.check_signal = check_signal
+        self.lines = lines
+        self.top = min(lines.values(), default=1)  # the document's first key
         self.problems: list[tuple[int, str]] = []
         self.names: dict[str, int] = {}
+        self._count = 0
 
     def problem(self, line: int, message: str) -> None:
         self.problems.append((line, message))
 
+    def line(self, where: Location) -> int:
+        return line_of(self.lines, where) or self.top
+
     def scenario(self, data: Any) -> Scenario:
         if not isinstance(data, dict):
             raise ScenarioError([f"{self.source}:1: a scenario is a mapping with steps: and expect:"])
-        line = data.get("__line__", 1)
-        for key in sorted(set(data) - {"name", "steps", "expect", "duration", "__line__"}, key=str):
-            self.problem(line, f"{key}: not a key of a scenario (name, duration, steps, expect)")
-        lasting = self.duration(data.get("duration", 0), line, "duration")
-        raw_steps = data.get("steps")
-        if not isinstance(raw_steps, list) or not raw_steps:
-            self.problem(line, "steps: a list of at least one step is needed")
-            raw_steps = _Lines()
-            raw_steps.lines = []
+        lasting = None
+        try:
+            lasting = ScenarioDocument.model_validate(data).duration
+        except ValidationError as error:
+            for where, message in problems(error, ()):
+                self.problem(self.line(where), message)
+        raw_steps = data["steps"] if isinstance(data.get("steps"), list) else []
         self._count = len(raw_steps)
         for number, raw in enumerate(raw_steps, 1):  # names first: a step may wait for a later one
             if isinstance(raw, dict) and raw.get("id") is not None:
                 name = str(raw["id"])
                 if name in self.names or name.isdigit():
-                    self.problem(raw["__line__"], f"id {name!r}: " + (
+                    self.problem(self.line(("steps", number - 1)), f"id {name!r}: " + (
                         f"taken by step {self.names[name]}" if name in self.names else "a number names a step already"))
                 self.names.setdefault(name, number)
-        steps = [self.step(number, raw, getattr(raw_steps, "lines", [line] * len(raw_steps))[number - 1])
-                 for number, raw in enumerate(raw_steps, 1)]
-        steps = [step for step in steps if step is not None]
+        steps = []
+        for number, raw in enumerate(raw_steps, 1):
+            document = step_document(raw, number)
+            if isinstance(document, list):
+                for where, message in document:
+                    self.problem(self.line(where), message)
+                continue
+            step = self.step(number, document, self.line(("steps", number - 1)))
+            if step is not None:
+                steps.append(step)
         self.cycles(steps)
         self.clears(steps)
-        raw_expect = data.get("expect", [])
+        raw_expect = data["expect"] if isinstance(data.get("expect"), list) else []
         expectations = []
-        if not isinstance(raw_expect, list):
-            self.problem(line, "expect: a list of expectations")
-        else:
-            for index, text in enumerate(raw_expect):
-                where = raw_expect.lines[index]
-                if not isinstance(text, str):
-                    self.problem(where, f"an expectation is a line of text, got {text!r}")
-                    continue
-                check = self.expectation(text.strip(), where, len(raw_steps))
-                if check is not None:
-                    expectations.append(Expectation(text.strip(), where, check))
+        for index, text in enumerate(raw_expect):
+            where = self.line(("expect", index))
+            if not isinstance(text, str):
+                self.problem(where, f"an expectation is a line of text, got {text!r}")
+                continue
+            check = self.expectation(text.strip(), where, len(raw_steps))
+            if check is not None:
+                expectations.append(Expectation(text.strip(), where, check))
         if self.problems:
             raise ScenarioError([f"{self.source}:{line}: {message}" for line, message in sorted(
                 self.problems, key=lambda problem: problem[0])])
         return Scenario(str(data.get("name") or self.source), self.source, tuple(steps), tuple(expectations),
                         tuple(device.name for device in self.config.devices), lasting or 0)
 
-    # -- steps --------------------------------------------------------------------------------------
+    # -- steps ---------------------------------------------------------------------------------------
 
-    def step(self, number: int, raw: Any, line: int) -> Step | None:
-        if not isinstance(raw, dict):
-            self.problem(line, f"step {number}: a mapping (at:/after:, and one of {', '.join(_ACTIONS)})")
-            return None
-        line = raw["__line__"]
+    def step(self, number: int, document: StepDocument, line: int) -> Step | None:
+        """A step whose keys are right (scenario/document.py), checked against the cell."""
         before = len(self.problems)
-        for key in sorted(set(raw) - _STEP_KEYS - {"__line__"}, key=str):
-            self.problem(line, f"step {number}: {key}: not a key of a step")
-        actions = [key for key in _ACTIONS if key in raw]
-        if len(actions) != 1:
-            self.problem(line, f"step {number}: one action of {', '.join(_ACTIONS)}, got "
-                               f"{', '.join(actions) or 'none'}")
-            return None
-        at_ns = after = None
-        if "at" in raw and "after" in raw:
-            self.problem(line, f"step {number}: at and after both given: one or the other")
-        if "at" in raw:
-            at_ns = self.duration(raw["at"], line, f"step {number}: at")
-            if "delay" in raw:
-                self.problem(line, f"step {number}: delay goes with after, not with at")
-        elif "after" in raw:
-            after = self.reference(raw["after"], line, f"step {number}: after")
+        after = None
+        if "after" in document.model_fields_set:
+            after = self.reference(document.after, line, f"step {number}: after")
             if after == number:
-                self.problem(line, f"step {number}: waits for itself (after: {raw['after']})")
-        elif number > 1:
+                self.problem(line, f"step {number}: waits for itself (after: {document.after})")
+        elif document.at is None and number > 1:
             after = number - 1
-        delay = self.duration(raw.get("delay", 0), line, f"step {number}: delay") or 0
-        action = getattr(self, f"_{actions[0]}")(number, raw, line)
+        action = getattr(self, f"_{document.action}")(number, document, line)
         if len(self.problems) > before or action is None:
             return None
-        return Step(number, line, action, None if raw.get("id") is None else str(raw["id"]), at_ns, after, delay)
+        return Step(number, line, action, document.id, document.at, after, document.delay)
 
-    def _fault(self, number: int, raw: dict, line: int) -> Action | None:
-        kind, target = raw["fault"], raw.get("target")
-        self.target(target, line, f"step {number}: target")
-        params = raw.get("params", {}) or {}
-        if not isinstance(params, dict):
-            self.problem(line, f"step {number}: params: a mapping of the kind's parameters")
-            return None
-        params = {k: v for k, v in params.items() if k != "__line__"}
-        lasting = None
-        if "duration" in raw:
-            lasting = self.duration(raw["duration"], line, f"step {number}: duration")
-            if lasting == 0:
-                self.problem(line, f"step {number}: duration: must be > 0 (leave it out: until cleared)")
+    def _fault(self, number: int, step: StepDocument, line: int) -> Action | None:
+        self.target(step.target, line, f"step {number}: target")
         try:
-            Fault(str(kind), duration_s=lasting / 1e9 if lasting else None, **params)
+            Fault(str(step.fault), duration_s=step.duration / 1e9 if step.duration else None, **step.params)
         except FaultError as error:
-            self.problem(line, f"step {number}: fault {kind}: {error}")
+            self.problem(line, f"step {number}: fault {step.fault}: {error}")
             return None
-        return FaultAction(str(target), str(kind), lasting, params)
+        return FaultAction(str(step.target), str(step.fault), step.duration, step.params)
 
-    def _clear(self, number: int, raw: dict, line: int) -> Action | None:
-        target, kind = raw["clear"], raw.get("kind")
-        self.target(target, line, f"step {number}: clear")
-        if kind is not None:
+    def _clear(self, number: int, step: StepDocument, line: int) -> Action | None:
+        self.target(step.clear, line, f"step {number}: clear")
+        if step.kind is not None:
             try:
-                Fault(str(kind))
+                Fault(step.kind)
             except FaultError as error:
                 if error.field == "kind":
                     self.problem(line, f"step {number}: kind: {error}")
-        return ClearAction(str(target), None if kind is None else str(kind))
+        return ClearAction(str(step.clear), step.kind)
 
-    def _set(self, number: int, raw: dict, line: int) -> Action | None:
-        values = raw["set"]
-        if not isinstance(values, dict) or len(values) <= 1:
-            self.problem(line, f"step {number}: set: a mapping of DEVICE.SIGNAL: value")
-            return None
+    def _set(self, number: int, step: StepDocument, line: int) -> Action | None:
         out = []
-        for name, value in values.items():
-            if name == "__line__":
-                continue
-            device, _, signal = str(name).rpartition(".")
+        for name, value in step.set.items():
+            device, _, signal = name.rpartition(".")
             if self.signal(device, signal, line, f"step {number}: set {name}"):
                 out.append((device, signal, value))
         return SetAction(tuple(out))
 
-    def _wait(self, number: int, raw: dict, line: int) -> Action | None:
-        condition = self.condition(str(raw["wait"]), line, f"step {number}: wait")
-        timeout = self.duration(raw.get("timeout", DEFAULT_WAIT_NS / 1e9), line, f"step {number}: timeout")
-        return None if condition is None or timeout is None else WaitAction(condition, timeout)
+    def _wait(self, number: int, step: StepDocument, line: int) -> Action | None:
+        condition = self.condition(str(step.wait), line, f"step {number}: wait")
+        return None if condition is None else WaitAction(condition, step.timeout)
 
     def cycles(self, steps: list[Step]) -> None:
         """A step waiting (through others) for itself can never happen."""
@@ -385,5 +328,3 @@ class _Parser:
     def _count_of(self, match: re.Match, line: int) -> Any:
         devices = self.target(match["target"], line, "count") if match["target"] else self.config.topology.devices
         return EventCount(match["kind"], devices, match["op"], int(match["n"]))
-
-    _count = 0
