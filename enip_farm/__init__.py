@@ -4,7 +4,8 @@ The public Python API, importable from here (`from enip_farm import Farm`):
 
 - `Farm(config, http=None, ...)`: a cell served in this process; an async context manager, or
   `with farm.running_in_thread():` for synchronous callers; `farm["io1"]` is a `DeviceHandle`.
-- `FarmConfig`, `load_config(path)`, `parse_config(dict)`: a cell's configuration, checked;
+- `FarmConfig`, `load_config(path)`, `parse_config(dict)`: a cell's configuration, checked
+  (`load_config` in one pass with building its devices: every problem of the file at once);
   `ConfigError` (one line per problem) when it is not servable.
 - `BindError`: a device's address or port cannot be bound (the message says what to do).
 - `EioImportWarning`: what importing a controller's EIO.cfg did not import (the pytest fixture).
@@ -27,7 +28,7 @@ _PUBLIC = {
     "DeviceHandle": "enip_farm.control.handle",
     "FarmConfig": "enip_farm.config",
     "ConfigError": "enip_farm.config",
-    "load_config": "enip_farm.config",
+    "load_config": "enip_farm.farm.cell",
     "parse_config": "enip_farm.config",
     "EioImportWarning": "enip_farm.eio.importer",
 }

@@ -25,7 +25,7 @@ from pydantic import BaseModel
 Location = tuple[str | int, ...]
 
 _LOADER = getattr(yaml, "CSafeLoader", yaml.SafeLoader)  # libyaml's parser where PyYAML has it
-_NAMED = re.compile(r"(?:\(|^)(devices|groups)\[(\d+)\]\)?(?:, ([\w.]+):)?")
+_NAMED = re.compile(r"(?:\(|^)(devices|groups|wires|rules)\[(\d+)\]\)?(?:, ([\w.]+):)?")
 _WIRE_OR_RULE = re.compile(r"^(wire|rule) (\S+) -> (\S+):")
 
 
@@ -180,13 +180,13 @@ def locate(message: str, source: str, text: str, data: Any) -> str:
     out = []
     for line in message.splitlines():
         rest = line.removeprefix(f"{source}: ")
-        where = _place(rest, data) if rest != line else None
+        where = place(rest, data) if rest != line else None
         number = line_of(lines, where) if where else None
         out.append(f"{source}:{number}: {rest}" if number is not None else line)
     return "\n".join(out)
 
 
-def _place(message: str, data: Any) -> Location | None:
+def place(message: str, data: Any) -> Location | None:
     """The location a message names: a device's or group's entry and field, a wire, a rule."""
     named = _NAMED.search(message)
     if named:

@@ -124,6 +124,42 @@ def test_every_problem_is_told_at_once_at_its_line(tmp_path: Path) -> None:
         f"{both}:8: wire c2.DO1 -> zz.DI1: 'zz.DI1': no device named 'zz'"])  # a's wire and rule wait for a
 
 
+def test_a_problem_outside_the_devices_is_told_with_what_building_tells_in_every_loader(tmp_path: Path) -> None:
+    """A top-level key's problem, a group's and a wire's no longer hold back what building the
+    devices tells; `enip_farm.load_config(path)`, `Farm(path)` and the CLI tell the same, in one
+    pass (a plain load_config told the catalogue's names only when the devices were built)."""
+    import enip_farm
+
+    path = _write(tmp_path, """\
+        devices:
+          - {name: a, address: 127.0.0.3, model: DSQC1099}
+          - {name: b, address: 127.0.0.4, model: DSQC1030, signals: [{name: diX, type: DI, device_map: "99"}]}
+        wires:
+          - {from: a.DO1, to: b.DI1}
+          - {from: b.DO1, to: zz.DI1}
+          - {from: b.DO2}
+        colour: red
+        bounds: {lost: -1}
+        """)
+    expected = [
+        f"{path}:2: device 'a' (devices[0]), model: unknown base model 'DSQC1099' (did you mean DSQC1042?); known: "
+        "DSQC1030, DSQC1042, GenericAdapter",
+        f"{path}:3: devices[1], signals: diX: bit 99 is beyond the 2-byte input image (bits 0..15)",
+        f"{path}:6: wire b.DO1 -> zz.DI1: 'zz.DI1': no device named 'zz'",
+        f"{path}:7: wires[2], to: missing: the key is required here",
+        f"{path}:8: colour: unknown key; the keys here: devices, groups, cyclic_io, discovery, max_tcp_connections, "
+        "wires, rules, bounds",
+        f"{path}:9: bounds.lost: Input should be greater than or equal to 0"]  # a's wire waits for a
+    for load in (enip_farm.load_config, Farm):
+        with pytest.raises(ConfigError) as error:
+            load(path)
+        assert str(error.value).splitlines() == expected
+    result = CliRunner().invoke(main, ["validate", str(path)])
+    assert (result.exit_code, result.output.splitlines()) == (2, expected)
+    path.write_text("devices:\n  - {name: a, address: 127.0.0.3, model: DSQC1030}\n")
+    assert [d.name for d in enip_farm.load_config(path).devices] == ["a"]
+
+
 @pytest.mark.system
 def test_invalid_config_refused_before_binding(free_address: AddressPool, tmp_path: Path) -> None:
     address = free_address()

@@ -205,7 +205,10 @@ def test_marking_a_step_never_waits_on_the_disk(tmp_path) -> None:
     asyncio.run(on_the_loop())
     held.set()
     farm.recorder.close()
-    assert steps.read_text() == "1700000000.250000 step 1: link-down on x\n1700000001.500000 step 2: set x.DI2=1\n"
+    stamps = iter([1_700_000_002.0])
+    farm.mark("step 3: late")  # after close: at once
+    assert steps.read_text() == ("1700000000.250000 step 1: link-down on x\n1700000001.500000 step 2: set x.DI2=1\n"
+                                 "1700000002.000000 step 3: late\n")
 
 
 def test_each_step_is_marked_in_the_recording_and_the_event_logs(enip_farm, tmp_path) -> None:

@@ -18,7 +18,7 @@ import random
 import threading
 import time
 from collections.abc import Callable
-from concurrent.futures import Future, ThreadPoolExecutor
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import dpkt
@@ -105,9 +105,14 @@ class Recorder:
         with self._lock:
             self._write(src[0], dst[0], datagram, dpkt.ip.IP_PROTO_UDP)
 
-    def mark(self, text: str) -> Future:
-        """A scenario's step, stamped now, appended to FILE.steps by the recorder's thread."""
-        return self._steps.submit(self._append, Path(f"{self.path}.steps"), f"{self.wall():.6f} {text}\n")
+    def mark(self, text: str) -> None:
+        """A scenario's step, stamped now, appended to FILE.steps by the recorder's thread (once the
+        recorder is closed, a step that comes late is appended at once)."""
+        steps, line = Path(f"{self.path}.steps"), f"{self.wall():.6f} {text}\n"
+        try:
+            self._steps.submit(self._append, steps, line)
+        except RuntimeError:  # closed: no thread to write it
+            self._append(steps, line)
 
     def close(self) -> None:
         self._steps.shutdown(wait=True)

@@ -22,7 +22,7 @@ from enip_farm.capture.recorder import Recorder
 from enip_farm.cip.budget import CyclicBudget
 from enip_farm.cip.report import ReactionFigures
 from enip_farm.cip.verdicts import judge_reaction
-from enip_farm.config import ConfigError, FarmConfig, as_config, load_config
+from enip_farm.config import ConfigError, FarmConfig, as_config
 from enip_farm.control.handle import DeviceHandle
 from enip_farm.control.http import HttpApi, bind_problem
 from enip_farm.control.reaction import SignalValue, measure_reaction
@@ -34,6 +34,7 @@ from enip_farm.device.faults import Disconnect, Fault, FaultType
 from enip_farm.device.nonvolatile import load_state, save_state
 from enip_farm.device.report import FarmReport, TestBounds, device_bounds, farm_report
 from enip_farm.eds.reader import eds_catalogue
+from enip_farm.farm.cell import check_cell
 from enip_farm.farm.faulting import FarmFaults
 from enip_farm.farm.listeners import SOCKETS_PER_DEVICE, BindError, Listeners, bind_message, raise_open_file_limit
 from enip_farm.farm.loop import FarmThread, freeze_heap, new_event_loop, until_stopped_or_failed
@@ -76,9 +77,12 @@ class Farm:
         devices' API edge takes when not given a time (a test's, to drive it). Raises ConfigError if
         the configuration is invalid or its devices cannot be built, or the state file is not one."""
         models = eds_catalogue(catalogue)
-        known = (models.bases(), models.addons())  # a file's unknown models are told with its other problems
-        self.config = config = load_config(config, known) if isinstance(config, (str, Path)) else as_config(config)
-        profiles = build_profiles(config, models)
+        if isinstance(config, (str, Path)):  # a file: every problem in one pass, at its line (farm/cell.py)
+            config, profiles = check_cell(config, models)
+        else:
+            config = as_config(config)
+            profiles = build_profiles(config, models)
+        self.config = config
         self.recorder = Recorder(record) if record else None
         self._http_address = http
         self._http_token = token

@@ -11,13 +11,13 @@ from prometheus_client import CollectorRegistry, generate_latest
 from prometheus_client.metrics_core import Metric
 from prometheus_client.parser import text_string_to_metric_families
 
-from enip_farm.cip.report import NOT_JUDGED, worst
+from enip_farm.cip.report import NOT_JUDGED, DeviceReport, worst
 from enip_farm.control.overview import STATES
 
 
 def down_device(name: str, marks: Mapping[str, Any]) -> dict[str, Any]:
-    """A device of a part that is down, in the report's shape: nothing measured, not judged."""
-    return {"device": name, "verdict": NOT_JUDGED, "connections": [], "reconnections": [], "verdicts": [], **marks}
+    """A device of a part that is down, in the report's shape (cip/report.py's): nothing measured, not judged."""
+    return {**DeviceReport(name, ()).as_dict(), **marks}
 
 
 def merge_reports(answers: list[tuple[dict[str, Any], Mapping[str, Any]]], down: list[dict[str, Any]],

@@ -40,7 +40,7 @@ typedef struct {
     int run, has_last_received;
     PyObject *conn, *measure, *image; /* owned references */
     /* the measurement (cip/o_t_measure.py), when the connection has one */
-    long long bounds[NBOUNDS], counts[NBOUNDS + 1];
+    long long bounds[NBOUNDS], counts[NBOUNDS + 1], written[NBOUNDS + 1]; /* written: as Python last has them */
     long long total, min, max, last_at, first_at, m_last_sequence, last_count, packets, lost, gaps, repeats,
         stale, cip_same, cip_skipped;
     int has_min, has_first;
@@ -60,6 +60,7 @@ static const char *counter_names[NCOUNTERS] = {"o_t_packets", "t_o_packets", "o_
                                                "o_t_dropped_wrong_port", "o_t_dropped_stale",
                                                "o_t_dropped_wrong_size", "t_o_send_errors"};
 enum { T_IN_OCTETS, T_IN_UCAST, T_IN_DISCARDS, T_OUT_OCTETS, T_OUT_UCAST, T_OUT_NUCAST, T_OUT_ERRORS, NTRAFFIC };
+static PyObject *counter_keys[NCOUNTERS], *traffic_keys[NTRAFFIC]; /* interned at import */
 static const char *traffic_names[NTRAFFIC] = {"in_octets", "in_ucast", "in_discards", "out_octets",
                                               "out_ucast", "out_nucast", "out_errors"};
 
@@ -80,6 +81,7 @@ typedef struct {
     int ndevs, cap;
     int *by_fd, nfd;
     int sender;
+    int next_sync;   /* the device the next sync slice starts at */
     long long turns; /* produce calls: a device loaded again after one ran without it must be rescheduled */
     /* the T->O of one produce call, sent together */
     struct mmsghdr headers[MAX_BATCH];
@@ -155,7 +157,7 @@ static int load_measure(Conn *c, PyObject *m) {
     for (int i = 0; ok && i < NBOUNDS; i++)
         c->bounds[i] = PyLong_AsLongLong(PyTuple_GET_ITEM(bounds, i));
     for (int i = 0; ok && i <= NBOUNDS; i++)
-        c->counts[i] = PyLong_AsLongLong(PyList_GET_ITEM(counts, i));
+        c->written[i] = c->counts[i] = PyLong_AsLongLong(PyList_GET_ITEM(counts, i));
     Py_XDECREF(bounds);
     Py_XDECREF(counts);
     if (!ok) {
@@ -184,11 +186,14 @@ static int store_measure(Conn *c) {
     if (counts == NULL)
         return -1;
     for (int i = 0; i <= NBOUNDS && i < PyList_GET_SIZE(counts); i++) {
+        if (c->written[i] == c->counts[i])
+            continue;
         PyObject *v = PyLong_FromLongLong(c->counts[i]);
         if (v == NULL || PyList_SetItem(counts, i, v) < 0) {
             Py_DECREF(counts);
             return -1;
         }
+        c->written[i] = c->counts[i];
     }
     Py_DECREF(counts);
     int r = set_ll(m, "total_ns", c->total) || set_ll(m, "max_ns", c->max) || set_ll(m, "last_at", c->last_at) ||
@@ -209,12 +214,8 @@ static int store_measure(Conn *c) {
     return r;
 }
 
-static int add_to(PyObject *target, int mapping, const char *name, long long delta) {
-    if (delta == 0)
-        return 0;
-    PyObject *key = PyUnicode_InternFromString(name);
-    if (key == NULL)
-        return -1;
+/* target[name] += delta (mapping) or target.name += delta. */
+static int add_to(PyObject *target, int mapping, PyObject *key, long long delta) {
     PyObject *old = mapping ? PyObject_GetItem(target, key) : PyObject_GetAttr(target, key);
     if (old == NULL && mapping && PyErr_ExceptionMatches(PyExc_KeyError)) {
         PyErr_Clear();
@@ -225,24 +226,28 @@ static int add_to(PyObject *target, int mapping, const char *name, long long del
     Py_XDECREF(old);
     Py_XDECREF(d);
     Py_XDECREF(sum);
-    Py_DECREF(key);
     return r;
 }
 
 /* Write what the engine counted and changed back into the Python objects (it keeps them). */
 static int store_dev(Dev *d) {
+    /* Each delta is taken (and zeroed) before any Python code runs: whatever the engine counts
+     * meanwhile (another thread may run between two calls into Python) is the next store's. */
     for (int i = 0; i < NCOUNTERS; i++) {
-        if (add_to(d->counters, 1, counter_names[i], d->counter[i]) < 0)
-            return -1;
+        long long delta = d->counter[i];
         d->counter[i] = 0;
+        if (delta && add_to(d->counters, 1, counter_keys[i], delta) < 0)
+            return -1;
     }
     for (int i = 0; i < NTRAFFIC; i++) {
-        if (add_to(d->traffic, 0, traffic_names[i], d->traffic_delta[i]) < 0)
-            return -1;
+        long long delta = d->traffic_delta[i];
         d->traffic_delta[i] = 0;
+        if (delta && add_to(d->traffic, 0, traffic_keys[i], delta) < 0)
+            return -1;
     }
     if (!d->dirty)
         return 0;
+    d->dirty = 0; /* a change made while this writes marks it again */
     for (int i = 0; i < d->nconns; i++) {
         Conn *c = &d->conns[i];
         PyObject *o = c->conn;
@@ -261,7 +266,6 @@ static int store_dev(Dev *d) {
             set_ll(o, "sequence", s->sequence))
             return -1;
     }
-    d->dirty = 0;
     return 0;
 }
 
@@ -448,12 +452,19 @@ static PyObject *engine_store(Engine *e, PyObject *args) {
     Py_RETURN_TRUE;
 }
 
-/* sync() -> devices written: every native device's state written into its Python objects, the engine
- * keeping them (the I/O thread's periodic refresh, so that a reader without the lock lags at most one period). */
-static PyObject *engine_sync(Engine *e, PyObject *noargs) {
+/* sync(count) -> devices written: the next `count` devices (in turn, round the engine) written into
+ * their Python objects if they changed, the engine keeping them: the I/O thread's periodic refresh in
+ * slices (a few devices a turn, so no turn stalls), so that a reader without the lock lags at most
+ * one round. */
+static PyObject *engine_sync(Engine *e, PyObject *args) {
+    int count;
+    if (!PyArg_ParseTuple(args, "i", &count))
+        return NULL;
     long written = 0;
-    for (int i = 0; i < e->ndevs; i++) {
-        Dev *d = &e->devs[i];
+    for (int n = 0; n < count && n < e->ndevs; n++) {
+        if (e->next_sync >= e->ndevs)
+            e->next_sync = 0;
+        Dev *d = &e->devs[e->next_sync++];
         if (!d->native || !d->dirty)
             continue;
         if (store_dev(d) < 0) {
@@ -888,7 +899,7 @@ static PyMethodDef engine_methods[] = {
     {"add", (PyCFunction)engine_add, METH_VARARGS, "add(fd, source, counters, traffic) -> slot"},
     {"load", (PyCFunction)engine_load, METH_VARARGS, "load(slot, conns, streams, outputs_off_on_idle)"},
     {"store", (PyCFunction)engine_store, METH_VARARGS, "store(slot, release=False) -> was native"},
-    {"sync", (PyCFunction)engine_sync, METH_NOARGS, "sync() -> devices written back"},
+    {"sync", (PyCFunction)engine_sync, METH_VARARGS, "sync(count) -> devices written back"},
     {"turns", (PyCFunction)engine_turns, METH_NOARGS, "turns() -> produce calls so far"},
     {"native", (PyCFunction)engine_native, METH_VARARGS, "native(slot) -> bool"},
     {"consume", (PyCFunction)engine_consume, METH_VARARGS, "consume(slot, data, host, port, now, received_at)"},
@@ -913,6 +924,12 @@ static struct PyModuleDef module = {PyModuleDef_HEAD_INIT, "_class1", NULL, -1, 
 PyMODINIT_FUNC PyInit__class1(void) {
     if (PyType_Ready(&EngineType) < 0)
         return NULL;
+    for (int i = 0; i < NCOUNTERS; i++)
+        if (counter_keys[i] == NULL && (counter_keys[i] = PyUnicode_InternFromString(counter_names[i])) == NULL)
+            return NULL;
+    for (int i = 0; i < NTRAFFIC; i++)
+        if (traffic_keys[i] == NULL && (traffic_keys[i] = PyUnicode_InternFromString(traffic_names[i])) == NULL)
+            return NULL;
     PyObject *m = PyModule_Create(&module);
     if (m == NULL)
         return NULL;

@@ -89,6 +89,11 @@ class CyclicIoThread(threading.Thread):
     #: device lock look at (the lock's readers and transactions get it at once: server/native.py).
     NATIVE_SYNC_NS = 100_000_000
 
+    @property
+    def native_sync_slice(self) -> int:
+        """Devices the engine writes back a turn, for a whole round every NATIVE_SYNC_NS."""
+        return -(-len(self._slots) * self.TURN_NS // self.NATIVE_SYNC_NS)
+
     def __init__(self, datagrams: Datagrams | None = None, budget: CyclicBudget | None = None,
                  native: bool = False) -> None:
         super().__init__(name="enip-farm-cyclic-io", daemon=True)
@@ -190,7 +195,6 @@ class CyclicIoThread(threading.Thread):
         native, slots = self.native, self._slots
         native_receive = native.receive if native is not None else None
         native_produce = native.produce if native is not None else None
-        synced = 0
         last = 0
         while not self._stopping:
             while requests:
@@ -244,9 +248,7 @@ class CyclicIoThread(threading.Thread):
                 for slot in python:
                     endpoint = slots[slot]
                     self._schedule(endpoint, endpoint.service(now, horizon, True))
-                if now - synced >= self.NATIVE_SYNC_NS:
-                    synced = now
-                    native.sync()
+                native.sync(self.native_sync_slice)  # a few devices a turn: a whole round every NATIVE_SYNC_NS
             if first is not None:
                 late = now - first  # <= 0 on time: the lag still starts its next second (worst_ns)
                 running.turn(late)
