@@ -897,7 +897,7 @@ static void engine_dealloc(Engine *e) {
 
 static PyMethodDef engine_methods[] = {
     {"add", (PyCFunction)engine_add, METH_VARARGS, "add(fd, source, counters, traffic) -> slot"},
-    {"load", (PyCFunction)engine_load, METH_VARARGS, "load(slot, conns, streams, outputs_off_on_idle)"},
+    {"load", (PyCFunction)engine_load, METH_VARARGS, "load(slot, conns, streams, outputs_off_on_idle, watch=None)"},
     {"store", (PyCFunction)engine_store, METH_VARARGS, "store(slot, release=False) -> was native"},
     {"sync", (PyCFunction)engine_sync, METH_VARARGS, "sync(count) -> devices written back"},
     {"turns", (PyCFunction)engine_turns, METH_NOARGS, "turns() -> produce calls so far"},
