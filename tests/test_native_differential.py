@@ -20,7 +20,7 @@ from enip_farm.device.report import connection_figures
 from enip_farm.protocol.connection import ConnectionTriad, decode_forward_open_reply, encode_io_packet
 from enip_farm.protocol.session import MessageContext
 from enip_farm.server.native import BUILT, NativeDevice, new_engine, plan
-from tests.test_cip_services_unit import MS, SCANNER, forward_open, make_device
+from tests.test_cip_services_unit import MS, SCANNER, forward_open, get_list, make_device
 from tests.test_implicit import forward_close
 
 pytestmark = pytest.mark.skipif(not BUILT, reason="the native class-1 extension is not built")
@@ -114,6 +114,8 @@ def _run(steps: list[tuple], native_expected: bool = True) -> None:
                 path.turn(now, now + MS)
             elif kind == "close":
                 path.close(now)
+            elif kind == "explicit":  # a Get_Attribute_List of the identity: the engine keeps the device
+                path.device.handle_unconnected(get_list(1, 1, 1, 2, 3), MessageContext(SCANNER, None, (), now))
             elif kind == "inputs":
                 path.device.set_inputs(args[0], now)
             elif kind == "fault":
@@ -137,7 +139,7 @@ def _cyclic(start: int, first: int, count: int, data: bytes = RUN + b"\x01\x00",
 def test_normal_exchange_with_inputs_written_between_turns() -> None:
     steps = [("open", T0), ("turn", T0)]
     steps += _cyclic(T0 + 5 * MS, 1, 20)
-    steps += [("inputs", T0 + 120 * MS, b"\x5a\xa5"), ("turn", T0 + 125 * MS)]
+    steps += [("inputs", T0 + 120 * MS, b"\x5a\xa5"), ("turn", T0 + 125 * MS), ("explicit", T0 + 126 * MS)]
     steps += _cyclic(T0 + 215 * MS, 21, 5, RUN + b"\xff\x00")
     _run(steps)
 

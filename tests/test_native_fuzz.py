@@ -2,7 +2,8 @@
 server/native.py) against the Python one, sans-IO, as tests/test_native_differential.py drives them
 (its `Path`): random sequences of O->T datagrams (valid, truncated, other ids, another originator or
 port, stale, duplicate and wrapped sequences, run/idle flips, other sizes, random bytes) at random
-injected times, with turns, Forward Opens and Closes (class 1 and class 3), input image writes,
+injected times, with turns, Forward Opens and Closes (class 1 and class 3), explicit requests
+(unconnected and on the class-3 connection), input image writes,
 faults and image observers in between, through both paths with the same times. After every step
 every T->O byte, both images, the counters, the interface counters, the events and the report's
 figures are the same. The budget is fixed and reproducible (`derandomize`, no example database):
@@ -21,7 +22,7 @@ from enip_farm.device.faults import Fault
 from enip_farm.protocol.connection import ConnectionTriad, decode_forward_open_reply, encode_io_packet
 from enip_farm.protocol.session import MessageContext
 from enip_farm.server.native import BUILT
-from tests.test_cip_services_unit import CLASS3, MS, SCANNER
+from tests.test_cip_services_unit import CLASS3, MS, SCANNER, get_list
 from tests.test_implicit import forward_close
 from tests.test_native_differential import CLASS1_10MS, PORT, T0, Path
 
@@ -43,6 +44,7 @@ _step = st.one_of(
     st.tuples(st.just("raw"), st.binary(max_size=40)),
     st.tuples(st.just("open")), st.tuples(st.just("close")),
     st.tuples(st.just("class3")), st.tuples(st.just("class3 close")),
+    st.tuples(st.just("explicit")), st.tuples(st.just("class3 message")), st.tuples(st.just("class3 message")),
     st.tuples(st.just("inputs"), st.binary(min_size=2, max_size=2)),
     st.tuples(st.just("fault"), st.sampled_from(FAULTS)),
     st.tuples(st.just("observe")), st.tuples(st.just("unobserve")))
@@ -56,6 +58,8 @@ class Driver:
     def __init__(self, native: bool) -> None:
         self.path = Path(native)
         self.oid = 0
+        self.class3 = 0  # the class-3 connection's O->T id
+        self.count = 0  # its sequence count
         self.sequence = 0
         self.unobserve: list = []
 
@@ -82,7 +86,15 @@ class Driver:
         elif kind == "close":
             self.ask(forward_close(ConnectionTriad(1, 0x1234, 0xABCD)), now)
         elif kind == "class3":
-            self.ask(CLASS3, now)
+            reply = self.ask(CLASS3, now)
+            if reply[2] == 0:
+                self.class3 = decode_forward_open_reply(reply[4:]).o_t_connection_id
+        elif kind == "explicit":  # an unconnected Get_Attribute_List of the identity
+            self.ask(get_list(1, 1, 1, 2, 3), now)
+        elif kind == "class3 message":  # the same on the class-3 connection: its watchdog fed
+            self.count += 1
+            device.handle_connected(self.class3, self.count, get_list(1, 1, 1, 2, 3),
+                                    MessageContext(SCANNER, None, (), now))
         elif kind == "class3 close":
             self.ask(forward_close(ConnectionTriad(2, 0x1234, 0xABCD), bytes.fromhex("20 02 24 01")), now)
         elif kind == "inputs":

@@ -65,7 +65,7 @@ static const char *traffic_names[NTRAFFIC] = {"in_octets", "in_ucast", "in_disca
                                               "out_ucast", "out_nucast", "out_errors"};
 
 typedef struct {
-    int fd, native, dirty, off_on_idle;
+    int fd, native, dirty, off_on_idle, kept; /* kept: released to Python with its state kept (`resume`) */
     uint32_t source;
     PyObject *counters, *traffic;
     Conn *conns;
@@ -147,7 +147,7 @@ static void clear_dev(Dev *d) {
     d->conns = NULL;
     d->streams = NULL;
     d->nconns = d->nstreams = 0;
-    d->native = 0;
+    d->native = d->kept = 0;
 }
 
 static int load_measure(Conn *c, PyObject *m) {
@@ -447,8 +447,49 @@ static PyObject *engine_store(Engine *e, PyObject *args) {
         clear_dev(d); /* Python takes over with what it has */
         return NULL;
     }
-    if (release)
-        clear_dev(d);
+    if (release) { /* Python's now; what the engine held is kept for `resume` */
+        d->native = 0;
+        d->kept = 1;
+    }
+    Py_RETURN_TRUE;
+}
+
+static int same(PyObject *o, const char *name, long long value, long long none) {
+    long long now;
+    if (get_ll(o, name, &now, none) < 0) {
+        PyErr_Clear();
+        return 0;
+    }
+    return now == value;
+}
+
+/* resume(slot) -> bool: the device back in native mode with what the engine held when it was released,
+ * if Python changed none of it meanwhile (a transaction that did not touch its connections: an
+ * explicit request); False: `load` it again. */
+static PyObject *engine_resume(Engine *e, PyObject *args) {
+    Dev *d = dev_of(e, args, "i", NULL, NULL, NULL, NULL, NULL, NULL);
+    if (d == NULL)
+        return NULL;
+    if (!d->kept)
+        Py_RETURN_FALSE;
+    for (int i = 0; i < d->nconns; i++) {
+        Conn *c = &d->conns[i];
+        PyObject *o = c->conn, *m = c->measure;
+        if (!same(o, "received", c->received, -1) || !same(o, "last_sequence", c->last_sequence, -1) ||
+            !same(o, "deadline", c->deadline, LLONG_MIN) || !same(o, "run", c->run, -1) ||
+            !same(o, "o_t_port", c->port, -1) || !same(o, "closed", 0, -1) ||
+            (m != NULL && (!same(m, "packets", c->packets, -1) || !same(m, "stale", c->stale, -1) ||
+                           !same(m, "repeats", c->repeats, -1))))
+            Py_RETURN_FALSE;
+    }
+    for (int i = 0; i < d->nstreams; i++) {
+        Stream *s = &d->streams[i];
+        if (!same(s->production, "count", s->count, -1) || !same(s->production, "sequence", s->sequence, -1) ||
+            !same(s->production, "due", s->due, LLONG_MIN) || !same(s->production, "users", 1, -1))
+            Py_RETURN_FALSE;
+    }
+    d->native = 1;
+    d->kept = 0;
     Py_RETURN_TRUE;
 }
 
@@ -901,6 +942,7 @@ static PyMethodDef engine_methods[] = {
     {"store", (PyCFunction)engine_store, METH_VARARGS, "store(slot, release=False) -> was native"},
     {"sync", (PyCFunction)engine_sync, METH_VARARGS, "sync(count) -> devices written back"},
     {"turns", (PyCFunction)engine_turns, METH_NOARGS, "turns() -> produce calls so far"},
+    {"resume", (PyCFunction)engine_resume, METH_VARARGS, "resume(slot) -> bool: native again, if nothing changed"},
     {"native", (PyCFunction)engine_native, METH_VARARGS, "native(slot) -> bool"},
     {"consume", (PyCFunction)engine_consume, METH_VARARGS, "consume(slot, data, host, port, now, received_at)"},
     {"receive", (PyCFunction)engine_receive, METH_VARARGS, "receive(fds, limit, now) -> (rest, taken)"},

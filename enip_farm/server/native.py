@@ -60,12 +60,13 @@ def plan(device: Device) -> tuple[list[tuple], list[tuple], bool, int | None] | 
     """What the engine would hold of `device` (its connections and streams, the idle policy and the
     earliest supervision deadline of the connections Python keeps: class 3), or None when the device
     must stay on the Python path. Called under the device lock."""
-    faults, cyclic, guard = device.faults, device.cyclic, device.guard
+    faults, cyclic, guard, table = device.faults, device.cyclic, device.guard, device.table
+    if not table.connections:
+        return None  # nothing to run (most explicit requests' devices)
     if (faults.active or faults.io_stopped or faults.impairment is not None or faults.safety_tamper is not None
             or device.reset_window.deadline is not None or device.recorder is not None or cyclic.stimuli
             or cyclic.expectations or guard.observers.of_images):
         return None
-    table = device.table
     if table.answers_queued or table.schedule.safety_consumers:
         return None
     conns = []
@@ -109,19 +110,20 @@ class NativeDevice:
     under the GIL); `park` may come from any thread at any time, so a hand-over that a park
     overtook is taken back at once (`_parks`)."""
 
-    __slots__ = ("engine", "slot", "device", "_reschedule", "_store", "_load", "_native", "_was", "_parks", "_turns",
-                 "_turn")
+    __slots__ = ("engine", "slot", "device", "_reschedule", "_store", "_load", "_resume", "_native", "_was", "_parks",
+                 "_turns", "_turn", "_entered")
 
     def __init__(self, engine: Any, fd: int, device: Device, reschedule: Callable[[], None]) -> None:
         self.engine = engine
         self.device = device
         self.slot: int = engine.add(fd, socket.inet_aton(device.profile.address), device.counters, device.io_traffic)
         self._reschedule = reschedule  # the device's timer to the I/O thread's heap (from any thread)
-        self._store, self._load, self._native = engine.store, engine.load, engine.native
+        self._store, self._load, self._resume, self._native = engine.store, engine.load, engine.resume, engine.native
         self._was = False
         self._parks = 0
         self._turns = engine.turns
         self._turn = 0
+        self._entered = 0  # the parks counted when the transaction began
 
     @property
     def active(self) -> bool:
@@ -152,14 +154,16 @@ class NativeDevice:
     def enter(self) -> None:
         """The device lock was just taken for a transaction: the state back to Python."""
         self._turn = self._turns()
+        self._entered = self._parks
         self._was = self._release()
 
     def exit(self) -> None:
         """The transaction's end, the lock still held: to the engine again if the device qualifies."""
         parks = self._parks
         try:
-            planned = plan(self.device)
-            if planned is not None:
+            if self._was and parks == self._entered and self._unchanged() and self._resume(self.slot):
+                pass  # nothing of its class-1 state changed (an explicit request): as it was
+            elif (planned := plan(self.device)) is not None:
                 self._load(self.slot, *planned)
                 if parks != self._parks:  # a park came while this was decided: it wins
                     self._release()
@@ -171,6 +175,13 @@ class NativeDevice:
         elif self._was:
             self._reschedule()  # the Python path produces its T->O from now on
         self._was = False
+
+    def _unchanged(self) -> bool:
+        """Whether what `plan` looks at outside the class-1 state kept no change this transaction
+        (the engine checks that state itself, `resume`): no connection event, nothing probing or recording."""
+        device = self.device
+        return not (device.table.pending_events or device.cyclic.stimuli or device.cyclic.expectations
+                    or device.recorder is not None or device.reset_window.deadline is not None)
 
     def sync(self) -> None:
         """A reader under the lock: the engine's values written back; the engine keeps the device."""
