@@ -71,6 +71,7 @@ typedef struct {
     Conn *conns;
     Stream *streams;
     int nconns, nstreams;
+    long long watch; /* the earliest supervision deadline of the connections Python keeps (class 3) */
     long long counter[NCOUNTERS], traffic_delta[NTRAFFIC];
 } Dev;
 
@@ -329,18 +330,22 @@ static PyObject *engine_add(Engine *e, PyObject *args) {
     return PyLong_FromLong(e->ndevs++);
 }
 
-/* load(slot, conns, streams, outputs_off_on_idle): the device in native mode with these connections,
- * each (connection, measure or None, consumed bytearray, originator's 4-byte address), and streams,
- * each (production, 6-byte destination, bytearray or None, header bytes, unicast). */
+/* load(slot, conns, streams, outputs_off_on_idle, watch=None): the device in native mode with these
+ * connections, each (connection, measure or None, consumed bytearray, originator's 4-byte address), and
+ * streams, each (production, 6-byte destination, bytearray or None, header bytes, unicast); watch: the
+ * earliest supervision deadline of its other connections (class 3), which hands it to Python when reached. */
 static PyObject *engine_load(Engine *e, PyObject *args) {
-    PyObject *conns, *streams;
+    PyObject *conns, *streams, *watch = Py_None;
     int off;
-    Dev *d = dev_of(e, args, "iO!O!p", &PyList_Type, &conns, &PyList_Type, &streams, &off, NULL);
+    Dev *d = dev_of(e, args, "iO!O!p|O", &PyList_Type, &conns, &PyList_Type, &streams, &off, &watch);
     if (d == NULL)
         return NULL;
     if (d->native && store_dev(d) < 0)
         return NULL;
     clear_dev(d);
+    d->watch = watch == Py_None ? LLONG_MAX : PyLong_AsLongLong(watch);
+    if (d->watch == -1 && PyErr_Occurred())
+        return NULL;
     Py_ssize_t nc = PyList_GET_SIZE(conns), ns = PyList_GET_SIZE(streams);
     d->conns = PyMem_Calloc((size_t)nc + 1, sizeof(Conn));
     d->streams = PyMem_Calloc((size_t)ns + 1, sizeof(Stream));
@@ -840,7 +845,7 @@ static PyObject *engine_produce(Engine *e, PyObject *args) {
         Dev *d = &e->devs[slot];
         if (!d->native)
             continue;
-        int expired = 0;
+        int expired = d->watch <= now;
         for (int i = 0; i < d->nconns; i++)
             if (d->conns[i].deadline <= now)
                 expired = 1;
@@ -878,6 +883,8 @@ static PyObject *engine_produce(Engine *e, PyObject *args) {
         for (int i = 0; i < d->nconns; i++)
             if (d->conns[i].deadline < timer)
                 timer = d->conns[i].deadline;
+        if (d->watch < timer)
+            timer = d->watch;
     }
     if (e->queued)
         flush(e);
@@ -903,6 +910,8 @@ static PyObject *engine_timer(Engine *e, PyObject *args) {
     for (int i = 0; d->native && i < d->nconns; i++)
         if (d->conns[i].deadline < timer)
             timer = d->conns[i].deadline;
+    if (d->native && d->watch < timer)
+        timer = d->watch;
     if (timer == LLONG_MAX)
         Py_RETURN_NONE;
     return PyLong_FromLongLong(timer);
@@ -930,7 +939,7 @@ static void engine_dealloc(Engine *e) {
 
 static PyMethodDef engine_methods[] = {
     {"add", (PyCFunction)engine_add, METH_VARARGS, "add(fd, source, counters, traffic) -> slot"},
-    {"load", (PyCFunction)engine_load, METH_VARARGS, "load(slot, conns, streams, outputs_off_on_idle)"},
+    {"load", (PyCFunction)engine_load, METH_VARARGS, "load(slot, conns, streams, outputs_off_on_idle, watch=None)"},
     {"store", (PyCFunction)engine_store, METH_VARARGS, "store(slot, release=False) -> was native"},
     {"sync", (PyCFunction)engine_sync, METH_VARARGS, "sync(count) -> devices written back"},
     {"turns", (PyCFunction)engine_turns, METH_NOARGS, "turns() -> produce calls so far"},

@@ -56,9 +56,10 @@ def _unicast(address: tuple[str, int]) -> bool:
     return not ipaddress.IPv4Address(address[0]).is_multicast
 
 
-def plan(device: Device) -> tuple[list[tuple], list[tuple], bool] | None:
-    """What the engine would hold of `device` (its connections and streams, and the idle policy),
-    or None when the device must stay on the Python path. Called under the device lock."""
+def plan(device: Device) -> tuple[list[tuple], list[tuple], bool, int | None] | None:
+    """What the engine would hold of `device` (its connections and streams, the idle policy and the
+    earliest supervision deadline of the connections Python keeps: class 3), or None when the device
+    must stay on the Python path. Called under the device lock."""
     faults, cyclic, guard, table = device.faults, device.cyclic, device.guard, device.table
     if not table.connections:
         return None  # nothing to run (most explicit requests' devices)
@@ -69,8 +70,10 @@ def plan(device: Device) -> tuple[list[tuple], list[tuple], bool] | None:
     if table.answers_queued or table.schedule.safety_consumers:
         return None
     conns = []
+    watch = None
     for connection in table.connections.values():
-        if connection.kind is ConnectionKind.EXPLICIT:
+        if connection.kind is ConnectionKind.EXPLICIT:  # its timeout is Python's: the engine hands it over then
+            watch = connection.deadline if watch is None else min(watch, connection.deadline)
             continue
         if (connection.safety is not None or not connection.o_t_run_idle_header or connection.o_t_modeless
                 or connection.o_t_variable or connection.multicast):
@@ -98,7 +101,7 @@ def plan(device: Device) -> tuple[list[tuple], list[tuple], bool] | None:
             data, header = (assembly.data if assembly is not None else None), production.header
         host, port = production.address
         streams.append((production, socket.inet_aton(host) + port.to_bytes(2, "big"), data, header, True))
-    return conns, streams, table.policy.outputs_off_on_idle
+    return conns, streams, table.policy.outputs_off_on_idle, watch
 
 
 class NativeDevice:

@@ -1,0 +1,147 @@
+"""Issue 29: a property-based differential fuzz of the native class-1 path (enip_farm/server/_class1.c,
+server/native.py) against the Python one, sans-IO, as tests/test_native_differential.py drives them
+(its `Path`): random sequences of O->T datagrams (valid, truncated, other ids, another originator or
+port, stale, duplicate and wrapped sequences, run/idle flips, other sizes, random bytes) at random
+injected times, with turns, Forward Opens and Closes (class 1 and class 3), explicit requests
+(unconnected and on the class-3 connection), input image writes,
+faults and image observers in between, through both paths with the same times. After every step
+every T->O byte, both images, the counters, the interface counters, the events and the report's
+figures are the same. The budget is fixed and reproducible (`derandomize`, no example database):
+a few seconds on two busy cores; ENIP_FARM_FUZZ_SCALE multiplies it, as in tests/test_fuzz.py.
+"""
+
+from __future__ import annotations
+
+import os
+
+import pytest
+from hypothesis import HealthCheck, event, given, settings
+from hypothesis import strategies as st
+
+from enip_farm.device.faults import Fault
+from enip_farm.protocol.connection import ConnectionTriad, decode_forward_open_reply, encode_io_packet
+from enip_farm.protocol.session import MessageContext
+from enip_farm.server.native import BUILT
+from tests.test_cip_services_unit import CLASS3, MS, SCANNER, get_list
+from tests.test_implicit import forward_close
+from tests.test_native_differential import CLASS1_10MS, PORT, T0, Path
+
+pytestmark = pytest.mark.skipif(not BUILT, reason="the native class-1 extension is not built")
+SCALE = float(os.environ.get("ENIP_FARM_FUZZ_SCALE", "1"))
+OUTPUT_SIZE = 2  # the DSQC1030's output image (the O->T data after the run/idle header)
+FAULTS = ("stop-io", "drop", None)
+
+_sequences = st.one_of(st.sampled_from(["next", "next", "next", "same", "back", "jump", "half", "wrap"]),
+                       st.integers(0, 0xFFFFFFFF))
+_o_t = st.tuples(st.just("o_t"), _sequences,
+                 st.sampled_from(["run", "run", "run", "idle", "short", "long", "empty", "header only"]),
+                 st.sampled_from(["scanner"] * 6 + ["other host", "other port", "other id"]),
+                 st.integers(0, 0xFFFF) | st.none(), st.integers(0, 3 * MS), st.binary(min_size=2, max_size=2))
+_step = st.one_of(
+    _o_t, _o_t, _o_t, _o_t,
+    st.tuples(st.just("turn")), st.tuples(st.just("turn")),
+    st.tuples(st.just("truncated"), st.integers(0, 25)),
+    st.tuples(st.just("raw"), st.binary(max_size=40)),
+    st.tuples(st.just("open")), st.tuples(st.just("close")),
+    st.tuples(st.just("class3")), st.tuples(st.just("class3 close")),
+    st.tuples(st.just("explicit")), st.tuples(st.just("class3 message")), st.tuples(st.just("class3 message")),
+    st.tuples(st.just("inputs"), st.binary(min_size=2, max_size=2)),
+    st.tuples(st.just("fault"), st.sampled_from(FAULTS)),
+    st.tuples(st.just("observe")), st.tuples(st.just("unobserve")))
+# how far each step is after the previous one: mostly within an RPI, sometimes past a timeout (400 ms)
+_gaps = st.one_of(st.integers(0, 12 * MS), st.integers(0, 12 * MS), st.integers(0, 700 * MS))
+
+
+class Driver:
+    """One path and the originator's view of it (the O->T sequence it sends next)."""
+
+    def __init__(self, native: bool) -> None:
+        self.path = Path(native)
+        self.oid = 0
+        self.class3 = 0  # the class-3 connection's O->T id
+        self.count = 0  # its sequence count
+        self.sequence = 0
+        self.unobserve: list = []
+
+    def ask(self, message: bytes, now: int) -> bytes:
+        reply, _ = self.path.device.handle_unconnected(message, MessageContext(SCANNER, None, (), now))
+        return reply
+
+    def step(self, step: tuple, now: int) -> None:
+        kind, *args = step
+        device = self.path.device
+        if kind == "o_t":
+            self.o_t(now, *args)
+        elif kind == "turn":
+            self.path.turn(now, now + MS)
+        elif kind == "truncated":
+            self.path.o_t(encode_io_packet(self.oid, self.sequence + 1, 1, b"\x01\0\0\0\0\0")[: args[0]], SCANNER,
+                          PORT, now, now)
+        elif kind == "raw":
+            self.path.o_t(args[0], SCANNER, PORT, now, now)
+        elif kind == "open":
+            reply = self.ask(CLASS1_10MS, now)
+            if reply[2] == 0:
+                self.oid = decode_forward_open_reply(reply[4:]).o_t_connection_id
+        elif kind == "close":
+            self.ask(forward_close(ConnectionTriad(1, 0x1234, 0xABCD)), now)
+        elif kind == "class3":
+            reply = self.ask(CLASS3, now)
+            if reply[2] == 0:
+                self.class3 = decode_forward_open_reply(reply[4:]).o_t_connection_id
+        elif kind == "explicit":  # an unconnected Get_Attribute_List of the identity
+            self.ask(get_list(1, 1, 1, 2, 3), now)
+        elif kind == "class3 message":  # the same on the class-3 connection: its watchdog fed
+            self.count += 1
+            device.handle_connected(self.class3, self.count, get_list(1, 1, 1, 2, 3),
+                                    MessageContext(SCANNER, None, (), now))
+        elif kind == "class3 close":
+            self.ask(forward_close(ConnectionTriad(2, 0x1234, 0xABCD), bytes.fromhex("20 02 24 01")), now)
+        elif kind == "inputs":
+            device.set_inputs(args[0], now)
+        elif kind == "fault":
+            if args[0] is None:
+                device.faults.clear()
+            else:
+                device.faults.set(Fault(args[0]), now)
+        elif kind == "observe":
+            self.unobserve.append(device.observe(lambda event: None))
+        elif kind == "unobserve" and self.unobserve:
+            self.unobserve.pop()()
+
+    def o_t(self, now: int, sequence: object, form: str, source: str, count: int | None, early: int,
+            data: bytes) -> None:
+        last = self.sequence
+        if isinstance(sequence, int):
+            chosen = sequence
+        else:
+            chosen = {"next": last + 1, "same": last, "back": last - 3, "jump": last + 1000, "half": last + 0x80000000,
+                      "wrap": 0xFFFFFFFE}[sequence]
+        chosen &= 0xFFFFFFFF
+        self.sequence = chosen
+        payload = {"run": b"\x01\0\0\0" + data, "idle": b"\0\0\0\0" + data, "short": b"\x01\0\0\0" + data[:1],
+                   "long": b"\x01\0\0\0" + data + b"\0", "empty": b"", "header only": b"\x01\0\0\0"}[form]
+        oid = self.oid + 1 if source == "other id" else self.oid
+        packet = encode_io_packet(oid, chosen, chosen if count is None else count, payload)
+        host = "127.0.0.77" if source == "other host" else SCANNER
+        port = PORT + 1 if source == "other port" else PORT
+        self.path.o_t(packet, host, port, now, max(T0, now - early))
+
+
+@settings(max_examples=max(1, round(300 * SCALE)), deadline=None, derandomize=True, database=None,
+          print_blob=False, suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large])
+@given(st.lists(st.tuples(_gaps, _step), min_size=1, max_size=40))
+def test_random_sequences_through_both_paths(steps: list[tuple[int, tuple]]) -> None:
+    python, native = Driver(False), Driver(True)
+    now = T0
+    for path in (python, native):  # every sequence starts with a connection (a Forward Open may come again)
+        path.step(("open",), now)
+    assert native.path.state(now) == python.path.state(now)
+    held = 0
+    for gap, step in steps:
+        now += gap
+        for path in (python, native):
+            path.step(step, now)
+        assert native.path.state(now) == python.path.state(now), step
+        held += native.path.engine.native(native.path.handle.slot)
+    event(f"steps with the device in the engine: {'none' if not held else 'some' if held < len(steps) else 'all'}")
