@@ -642,11 +642,17 @@ static int consume(Dev *d, const unsigned char *p, Py_ssize_t n, uint32_t host, 
 /* consume(slot, data, host, port, now, received_at) -> bool: the sans-IO entry (tests). */
 static PyObject *engine_consume(Engine *e, PyObject *args) {
     Py_buffer data, host;
-    int port;
+    int slot, port;
     long long now, at;
-    Dev *d = dev_of(e, args, "iy*y*iLL", &data, &host, &port, &now, &at, NULL);
-    if (d == NULL)
+    if (!PyArg_ParseTuple(args, "iy*y*iLL", &slot, &data, &host, &port, &now, &at))
         return NULL;
+    if (slot < 0 || slot >= e->ndevs) { /* the buffers given back: a bytearray stays resizable */
+        PyBuffer_Release(&data);
+        PyBuffer_Release(&host);
+        PyErr_SetString(PyExc_IndexError, "no such device slot");
+        return NULL;
+    }
+    Dev *d = &e->devs[slot];
     uint32_t address = 0;
     if (host.len == 4)
         memcpy(&address, host.buf, 4);
