@@ -735,6 +735,7 @@ static PyObject *engine_receive(Engine *e, PyObject *args) {
                 taken++;
                 continue;
             }
+            d = NULL; /* one datagram handed to Python: the rest of this socket's go after it, in order */
             char host[INET_ADDRSTRLEN];
             if (inet_ntop(AF_INET, &sources[i].sin_addr, host, sizeof(host)) == NULL)
                 host[0] = '\0';

@@ -32,7 +32,7 @@ from enip_farm.protocol.connection import (
 from enip_farm.protocol.cpf import CpfItem, ItemType
 from enip_farm.protocol.epath import LogicalType, encode_logical, encode_request_path
 from enip_farm.protocol.session import MessageContext
-from enip_farm.server.batch import RECEIVE_LIMIT, Datagrams
+from enip_farm.server.batch import NATIVE_RECEIVE_LIMIT, Datagrams
 from enip_farm.server.implicit import CyclicIoThread, DeviceIo
 
 #: Used when no device of the farm can carry an exclusive-owner connection to measure with.
@@ -121,7 +121,7 @@ def _pair_cost_ns(profiles: list[DeviceProfile], native: bool = False) -> tuple[
                 started = time.thread_time_ns()
                 now += _RPI_NS
                 fds = [fd for fd, _ in poll(0)]
-                for fd, data, host, port, received_at in (engine.receive(fds, RECEIVE_LIMIT, now)[0] if engine
+                for fd, data, host, port, received_at in (engine.receive(fds, NATIVE_RECEIVE_LIMIT, now)[0] if engine
                                                           else receive(fds)):
                     readers[fd].take(data, host, port, now, received_at or now)
                 if engine is not None:

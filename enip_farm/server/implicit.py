@@ -49,7 +49,7 @@ from collections.abc import Callable
 from enip_farm.cip.budget import CyclicBudget
 from enip_farm.device.device import Device
 from enip_farm.protocol.connection import IO_PORT
-from enip_farm.server.batch import RECEIVE_LIMIT, SO_TIMESTAMPNS, Datagrams, Message
+from enip_farm.server.batch import NATIVE_RECEIVE_LIMIT, SO_TIMESTAMPNS, Datagrams, Message
 from enip_farm.server.device_io import DeviceIo as DeviceIo
 from enip_farm.server.lag import OVERLOAD_LAG_NS as OVERLOAD_LAG_NS
 from enip_farm.server.lag import Lag
@@ -229,7 +229,7 @@ class CyclicIoThread(threading.Thread):
                         fds.append(fd)
                 if fds:
                     if native_receive is not None:  # the native devices' datagrams taken there, the rest here
-                        received, taken = native_receive(fds, RECEIVE_LIMIT, now)
+                        received, taken = native_receive(fds, NATIVE_RECEIVE_LIMIT, now)
                         running.datagrams += taken
                     else:
                         received = receive(fds)
