@@ -4,6 +4,7 @@ each pinned by the case that showed it, sans-IO unless it needs the cyclic I/O t
 from __future__ import annotations
 
 import gc
+import select
 import socket
 import sys
 import threading
@@ -191,3 +192,46 @@ def test_farms_started_and_stopped_in_one_process_let_everything_go(class1_path:
         gc.collect()
         assert [ref() for ref in gone] == [None] * len(gone), round_
     assert wait_for(lambda: threading.active_count() <= threads)
+
+
+class _Reader:
+    """Cyclic garbage whose finalizer reads another engine's socket (as another cyclic I/O thread
+    would, while a collection inside the first engine's `receive` lets it run), and leaves the
+    same garbage behind for the next collection."""
+
+    def __init__(self, engine: object, fd: int, read: list) -> None:
+        self.engine, self.fd, self.read, self.cycle = engine, fd, read, self
+
+    def __del__(self) -> None:
+        self.read += self.engine.receive([self.fd], 32, 1)[0]
+        _Reader(self.engine, self.fd, self.read)
+
+
+@pytest.mark.integration
+def test_two_engines_never_share_their_receive_buffers() -> None:
+    """`receive` read into one static buffer of the module: a collection while it built its
+    results ran another engine's `receive` (a second farm's I/O thread, or a finalizer), which
+    overwrote the datagrams the first had not copied yet."""
+    first, second = new_engine(), new_engine()
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as a, socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as b, \
+            socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as sender:
+        for sock in (a, b):
+            sock.bind(("127.0.0.1", 0))
+        sent = [bytes([n]) * 40 for n in range(1, 6)]
+        for payload in sent:
+            sender.sendto(payload, a.getsockname())
+        for _ in range(200):
+            sender.sendto(b"\xee" * 40, b.getsockname())
+        assert wait_for(lambda: len(select.select([a], [], [], 0)[0]) == 1)
+        read: list = []
+        thresholds = gc.get_threshold()
+        gc.collect()
+        _Reader(second, b.fileno(), read)
+        gc.set_threshold(1)  # a collection at the next allocation of a tracked object: inside `receive`
+        try:
+            rest, taken = first.receive([a.fileno()], 32, 1)
+        finally:
+            gc.set_threshold(*thresholds)
+            gc.collect()
+    assert read  # the other engine did read meanwhile
+    assert ([payload for _, payload, *_ in rest], taken) == (sent, 0)

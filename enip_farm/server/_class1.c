@@ -93,6 +93,9 @@ typedef struct {
     } controls[MAX_BATCH];
     unsigned char packets[MAX_BATCH][MAX_PACKET];
     int from[MAX_BATCH], queued;
+    /* the datagrams of one `receive` call: the engine's own (its thread's), never the module's, since
+     * a collection while it builds its results may run another engine's `receive` */
+    char buffers[MAX_RECEIVE][MAX_DATAGRAM];
 } Engine;
 
 static long long ns_of(const struct timespec *t) { return (long long)t->tv_sec * 1000000000LL + t->tv_nsec; }
@@ -676,7 +679,7 @@ static PyObject *engine_receive(Engine *e, PyObject *args) {
     PyObject *rest = PyList_New(0);
     if (rest == NULL)
         return NULL;
-    static char buffers[MAX_RECEIVE][MAX_DATAGRAM]; /* the GIL is held throughout */
+    char (*buffers)[MAX_DATAGRAM] = e->buffers;
     struct mmsghdr headers[MAX_RECEIVE];
     struct iovec vectors[MAX_RECEIVE];
     struct sockaddr_in sources[MAX_RECEIVE];
