@@ -3,11 +3,26 @@ each pinned by the case that showed it, sans-IO unless it needs the cyclic I/O t
 
 from __future__ import annotations
 
+import gc
+import select
+import socket
+import sys
+import threading
+import time
+import tracemalloc
+import weakref
+from contextlib import ExitStack
+
 import pytest
 
-from enip_farm.server.native import BUILT
-from tests.test_cip_services_unit import MS
-from tests.test_native_differential import T0
+from enip_farm.device.faults import Fault
+from enip_farm.protocol.connection import decode_forward_open_reply, encode_io_packet
+from enip_farm.pytest_plugin import start_farm
+from enip_farm.server.native import BUILT, NativeDevice, new_engine
+from tests.helpers import RawClient, wait_for
+from tests.test_cip_services_unit import MS, SCANNER
+from tests.test_implicit import forward_close, forward_open
+from tests.test_native_differential import PORT, T0, Path
 from tests.test_native_fuzz import Driver
 
 pytestmark = pytest.mark.skipif(not BUILT, reason="the native class-1 extension is not built")
@@ -29,3 +44,194 @@ def test_a_class3_connection_times_out_while_the_engine_runs_the_class1_one() ->
     assert python.path.device.counters["connection_timeouts"] == 1
     assert native.path.state(T0 + 600 * MS) == python.path.state(T0 + 600 * MS)
     assert native.path.device.counters["connection_timeouts"] == 1
+
+
+def test_the_sans_io_consume_releases_its_buffers_when_the_slot_is_wrong() -> None:
+    """`consume` took the buffers of its arguments, then refused the slot without giving them back:
+    the bytearray stayed exported and could never be resized again."""
+    engine = new_engine()
+    data = bytearray(30)
+    with pytest.raises(IndexError):
+        engine.consume(5, data, bytes(4), PORT, T0, T0)
+    data.append(1)  # BufferError while the export leaked
+    assert len(data) == 31
+
+
+def test_a_reader_under_the_device_lock_sees_one_image(class1_path: str, make_farm) -> None:
+    """`read` promises a whole view of the images and the table: on the native path the engine went
+    on consuming O->T into the output image (and writing its counters back) while a reader held the
+    device lock. A datagram that comes meanwhile is taken after the lock, on both paths."""
+    farm = make_farm({"name": "io1", "model": "DSQC1030", "implicit": {"first_watchdog_s": 30}})
+    device = farm.device("io1")
+    target = (device.profile.address, 2222)
+    with RawClient(device.profile.address) as client, socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as udp:
+        client.register()
+        udp.bind(("127.0.0.1", 0))
+        message, triad = forward_open(rpi=20_000, multiplier=4)  # a 1.28 s timeout: longer than the read
+        oid = decode_forward_open_reply(client.request(message).data).o_t_connection_id
+        udp.sendto(encode_io_packet(oid, 1, 1, b"\x01\0\0\0\x11\0"), target)
+        assert wait_for(lambda: device.outputs == b"\x11\0")
+        native = device.guard.native
+        assert (native is not None and native.active) == (class1_path == "native")
+
+        def reading() -> tuple[bytes, bytes, int]:
+            before = bytes(device.guard.output.data)
+            udp.sendto(encode_io_packet(oid, 2, 2, b"\x01\0\0\0\x22\0"), target)
+            deadline = time.monotonic() + 0.3  # the engine took it within a turn (1 ms) before the fix
+            while time.monotonic() < deadline and bytes(device.guard.output.data) == before:
+                time.sleep(0.002)
+            return before, bytes(device.guard.output.data), device.table.connections[oid].received
+
+        before, during, received = device.guard.read(reading)
+        assert (before, during, received) == (b"\x11\0", b"\x11\0", 1)
+        assert wait_for(lambda: device.outputs == b"\x22\0")  # taken once the lock went
+        assert device.guard.read(lambda: device.table.connections[oid].received) == 2
+        assert client.request(forward_close(triad)).general_status == 0
+
+
+def _held(path: Path) -> dict[str, object]:
+    """What the engine holds of a device (server/native.py `plan`), by name."""
+    device = path.device
+    (connection,) = device.table.connections.values()
+    (production,) = device.table.productions.values()
+    return {"output": device.guard.output.data, "input": device.guard.input.data, "connection": connection,
+            "measure": connection.measure, "production": production, "counters": device._counters,  # noqa: SLF001
+            "traffic": device.io_traffic}
+
+
+def _cycles(path: Path, oid: int, first: int, count: int, start: int) -> int:
+    """`count` O->T and turns, an input write (a transaction) every 50th, a fault set and cleared
+    (the device parked, then loaded again) every 100th (the 50th on)."""
+    now = start
+    for n in range(count):
+        now = start + n * 10 * MS
+        path.o_t(encode_io_packet(oid, first + n, first + n, b"\x01\0\0\0" + bytes([n & 0xFF, 0])), SCANNER, PORT, now,
+                 now)
+        path.turn(now + MS, now + 2 * MS)
+        path.sent.clear()
+        if n % 50 == 0:
+            path.device.set_inputs(bytes([n & 0xFF, 1]), now)  # a transaction (logs nothing)
+            if path.engine is not None:
+                path.engine.sync(1)
+        if n % 100 == 49:
+            path.device.faults.set(Fault("stop-io"), now)
+            path.device.faults.clear()
+    return now
+
+
+def _references(held: dict[str, object]) -> dict[str, int]:
+    return {name: sys.getrefcount(value) for name, value in held.items()}
+
+
+def test_the_engine_neither_leaks_nor_frees_early_what_it_holds() -> None:
+    """Over thousands of O->T, turns, transactions, parks, loads and write-backs the engine's
+    references to the images, the connection, its measurement, the stream and the counters stay
+    as they were and no memory grows; once the connection closed and the engine went, every one
+    of them has the references of its twin that only the Python path ran."""
+    python, native = Path(False), Path(False)
+    native.engine = new_engine()
+    native.handle = NativeDevice(native.engine, 3, native.device, lambda: None)
+    native.handle.attach()
+    oids = [path.open(T0) for path in (python, native)]
+    held = [_held(path) for path in (python, native)]
+    for path, oid in zip((python, native), oids, strict=True):
+        now = _cycles(path, oid, 1, 100, T0 + MS)
+    assert native.engine.native(native.handle.slot)
+    before = _references(held[1])
+    now = _cycles(native, oids[1], 101, 2000, now + 10 * MS)  # warm
+    tracemalloc.start()
+    try:
+        gc.collect()
+        first = tracemalloc.get_traced_memory()[0]
+        now = _cycles(native, oids[1], 2101, 3000, now + 10 * MS)
+        gc.collect()
+        grown = tracemalloc.get_traced_memory()[0] - first
+    finally:
+        tracemalloc.stop()
+    assert native.engine.native(native.handle.slot)
+    assert _references(held[1]) == before
+    assert grown < 32_000, grown  # one object a cycle kept would be 3000 x 28+ bytes
+    assert native.device.outputs == bytes([2999 & 0xFF, 0])
+    assert native.device.guard.read(lambda: (held[1]["connection"].received, held[1]["measure"].packets)) == (5100,
+                                                                                                                5100)
+    _cycles(python, oids[0], 101, 5000, T0 + 1000 * MS)
+    for path in (python, native):
+        path.close(now + MS)  # the Forward Close: the device's table lets them go
+    native.handle.detach()  # the farm's stop
+    del native.handle, native.engine
+    gc.collect()
+    assert _references(held[1]) == _references(held[0])
+
+
+def _one_farm(addresses, round_: int, class1_path: str) -> list[weakref.ref]:
+    """A farm with a connection the engine runs (on the native path), stopped as it runs."""
+    with ExitStack() as stack:
+        farm = start_farm(stack, addresses, name="io1", model="DSQC1030", implicit={"first_watchdog_s": 30})
+        device = farm.device("io1")
+        target = (device.profile.address, 2222)
+        with RawClient(device.profile.address) as client, socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as udp:
+            client.register()
+            udp.bind(("127.0.0.1", 0))
+            oid = decode_forward_open_reply(client.request(forward_open()[0]).data).o_t_connection_id
+            udp.sendto(encode_io_packet(oid, 1, 1, b"\x01\0\0\0" + bytes([round_ + 1, 0])), target)
+            assert wait_for(lambda: device.outputs == bytes([round_ + 1, 0]))
+            native = device.guard.native
+            assert (native is not None and native.active) == (class1_path == "native")
+            return [weakref.ref(device), weakref.ref(device.table.connections[oid]),
+                    weakref.ref(device._counters), weakref.ref(farm)]  # noqa: SLF001
+
+
+@pytest.mark.integration
+def test_farms_started_and_stopped_in_one_process_let_everything_go(class1_path: str, free_address) -> None:
+    """Three farms one after the other, each stopped while the engine runs a connection: every
+    farm, device, connection and counter is freed with its farm (the engine that held them too),
+    and no thread stays."""
+    threads = threading.active_count()
+    for round_ in range(3):
+        gone = _one_farm(free_address, round_, class1_path)
+        gc.collect()
+        assert [ref() for ref in gone] == [None] * len(gone), round_
+    assert wait_for(lambda: threading.active_count() <= threads)
+
+
+class _Reader:
+    """Cyclic garbage whose finalizer reads another engine's socket (as another cyclic I/O thread
+    would, while a collection inside the first engine's `receive` lets it run), and leaves the
+    same garbage behind for the next collection."""
+
+    def __init__(self, engine: object, fd: int, read: list) -> None:
+        self.engine, self.fd, self.read, self.cycle = engine, fd, read, self
+
+    def __del__(self) -> None:
+        self.read += self.engine.receive([self.fd], 32, 1)[0]
+        _Reader(self.engine, self.fd, self.read)
+
+
+@pytest.mark.integration
+def test_two_engines_never_share_their_receive_buffers() -> None:
+    """`receive` read into one static buffer of the module: a collection while it built its
+    results ran another engine's `receive` (a second farm's I/O thread, or a finalizer), which
+    overwrote the datagrams the first had not copied yet."""
+    first, second = new_engine(), new_engine()
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as a, socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as b, \
+            socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as sender:
+        for sock in (a, b):
+            sock.bind(("127.0.0.1", 0))
+        sent = [bytes([n]) * 40 for n in range(1, 6)]
+        for payload in sent:
+            sender.sendto(payload, a.getsockname())
+        for _ in range(200):
+            sender.sendto(b"\xee" * 40, b.getsockname())
+        assert wait_for(lambda: len(select.select([a], [], [], 0)[0]) == 1)
+        read: list = []
+        thresholds = gc.get_threshold()
+        gc.collect()
+        _Reader(second, b.fileno(), read)
+        gc.set_threshold(1)  # a collection at the next allocation of a tracked object: inside `receive`
+        try:
+            rest, taken = first.receive([a.fileno()], 32, 1)
+        finally:
+            gc.set_threshold(*thresholds)
+            gc.collect()
+    assert read  # the other engine did read meanwhile
+    assert ([payload for _, payload, *_ in rest], taken) == (sent, 0)

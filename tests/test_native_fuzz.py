@@ -3,11 +3,11 @@ server/native.py) against the Python one, sans-IO, as tests/test_native_differen
 (its `Path`): random sequences of O->T datagrams (valid, truncated, other ids, another originator or
 port, stale, duplicate and wrapped sequences, run/idle flips, other sizes, random bytes) at random
 injected times, with turns, Forward Opens and Closes (class 1 and class 3), explicit requests
-(unconnected and on the class-3 connection), input image writes,
-faults and image observers in between, through both paths with the same times. After every step
-every T->O byte, both images, the counters, the interface counters, the events and the report's
-figures are the same. The budget is fixed and reproducible (`derandomize`, no example database):
-a few seconds on two busy cores; ENIP_FARM_FUZZ_SCALE multiplies it, as in tests/test_fuzz.py.
+(unconnected and on the class-3 connection), input image writes, faults, image observers and
+images resized under the engine in between, through both paths with the same times. After every
+step every T->O byte, both images, the counters, the interface counters, the events and the
+report's figures are the same. The budget is fixed and reproducible (`derandomize`, no example
+database): a few seconds on two busy cores; ENIP_FARM_FUZZ_SCALE multiplies it, as in tests/test_fuzz.py.
 """
 
 from __future__ import annotations
@@ -46,6 +46,7 @@ _step = st.one_of(
     st.tuples(st.just("class3")), st.tuples(st.just("class3 close")),
     st.tuples(st.just("explicit")), st.tuples(st.just("class3 message")), st.tuples(st.just("class3 message")),
     st.tuples(st.just("inputs"), st.binary(min_size=2, max_size=2)),
+    st.tuples(st.just("resize"), st.sampled_from(["output", "input"]), st.integers(0, 6)),
     st.tuples(st.just("fault"), st.sampled_from(FAULTS)),
     st.tuples(st.just("observe")), st.tuples(st.just("unobserve")))
 # how far each step is after the previous one: mostly within an RPI, sometimes past a timeout (400 ms)
@@ -98,7 +99,10 @@ class Driver:
         elif kind == "class3 close":
             self.ask(forward_close(ConnectionTriad(2, 0x1234, 0xABCD), bytes.fromhex("20 02 24 01")), now)
         elif kind == "inputs":
-            device.set_inputs(args[0], now)
+            device.set_inputs((args[0] * 4)[: len(device.guard.input.data)], now)  # whatever its size now
+        elif kind == "resize":  # an image of another size while the engine may hold it (never exported)
+            image = device.guard.assemblies[args[0]].data
+            image[:] = bytes(range(1, args[1] + 1))
         elif kind == "fault":
             if args[0] is None:
                 device.faults.clear()

@@ -173,12 +173,17 @@ class DeviceGuard:
         return transaction
 
     def read(self, reading: Callable[[], T]) -> T:
-        """`reading()` under the lock: a whole view of the images and the table."""
+        """`reading()` under the lock: a whole view of the images and the table (the native path
+        lets the device go for it, as for a transaction: nothing changes under a reader)."""
         with self.lock:
             native = self.native
-            if native is not None:
-                native.sync()
-            return reading()
+            if native is None:
+                return reading()
+            native.enter()
+            try:
+                return reading()
+            finally:
+                native.exit()
 
     def settle(self) -> None:
         """The native path's counters and connection state written back (for readers without the

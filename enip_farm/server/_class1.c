@@ -93,6 +93,9 @@ typedef struct {
     } controls[MAX_BATCH];
     unsigned char packets[MAX_BATCH][MAX_PACKET];
     int from[MAX_BATCH], queued;
+    /* the datagrams of one `receive` call: the engine's own (its thread's), never the module's, since
+     * a collection while it builds its results may run another engine's `receive` */
+    char buffers[MAX_RECEIVE][MAX_DATAGRAM];
 } Engine;
 
 static long long ns_of(const struct timespec *t) { return (long long)t->tv_sec * 1000000000LL + t->tv_nsec; }
@@ -642,11 +645,17 @@ static int consume(Dev *d, const unsigned char *p, Py_ssize_t n, uint32_t host, 
 /* consume(slot, data, host, port, now, received_at) -> bool: the sans-IO entry (tests). */
 static PyObject *engine_consume(Engine *e, PyObject *args) {
     Py_buffer data, host;
-    int port;
+    int slot, port;
     long long now, at;
-    Dev *d = dev_of(e, args, "iy*y*iLL", &data, &host, &port, &now, &at, NULL);
-    if (d == NULL)
+    if (!PyArg_ParseTuple(args, "iy*y*iLL", &slot, &data, &host, &port, &now, &at))
         return NULL;
+    if (slot < 0 || slot >= e->ndevs) { /* the buffers given back: a bytearray stays resizable */
+        PyBuffer_Release(&data);
+        PyBuffer_Release(&host);
+        PyErr_SetString(PyExc_IndexError, "no such device slot");
+        return NULL;
+    }
+    Dev *d = &e->devs[slot];
     uint32_t address = 0;
     if (host.len == 4)
         memcpy(&address, host.buf, 4);
@@ -670,7 +679,7 @@ static PyObject *engine_receive(Engine *e, PyObject *args) {
     PyObject *rest = PyList_New(0);
     if (rest == NULL)
         return NULL;
-    static char buffers[MAX_RECEIVE][MAX_DATAGRAM]; /* the GIL is held throughout */
+    char (*buffers)[MAX_DATAGRAM] = e->buffers;
     struct mmsghdr headers[MAX_RECEIVE];
     struct iovec vectors[MAX_RECEIVE];
     struct sockaddr_in sources[MAX_RECEIVE];

@@ -12,7 +12,8 @@ authoritative for everything else through the device lock (device/guard.py):
 - a transaction takes the state back (`enter`: the engine's values written into the Connection,
   Production, OriginatorMeasure objects and the counters; the device is Python's) and, before it
   lets the lock go, hands it over again if the device still qualifies (`exit`);
-- a reader under the lock gets the values written back (`sync`); the engine keeps the device;
+- a reader under the lock (`DeviceGuard.read`) takes it back and hands it over as a transaction does;
+  `sync` writes the values back for the readers without the lock (the engine keeps the device);
 - a change of what qualifies outside a transaction (a fault, an observer, a probe) takes the
   device back at once (`park`, under the GIL), and its next transaction decides again.
 What the engine does not do (a run/idle change, an unknown connection, a malformed datagram, a
@@ -184,7 +185,7 @@ class NativeDevice:
                     or device.recorder is not None or device.reset_window.deadline is not None)
 
     def sync(self) -> None:
-        """A reader under the lock: the engine's values written back; the engine keeps the device."""
+        """The engine's values written back (`settle`, `counters`); the engine keeps the device."""
         try:
             self._store(self.slot, False)
         except Exception:
