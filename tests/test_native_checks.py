@@ -15,6 +15,7 @@ from contextlib import ExitStack
 
 import pytest
 
+from enip_farm.device.device import Device
 from enip_farm.device.faults import Fault
 from enip_farm.protocol.connection import decode_forward_open_reply, encode_io_packet
 from enip_farm.pytest_plugin import start_farm
@@ -235,3 +236,59 @@ def test_two_engines_never_share_their_receive_buffers() -> None:
             gc.collect()
     assert read  # the other engine did read meanwhile
     assert ([payload for _, payload, *_ in rest], taken) == (sent, 0)
+
+
+def take(device: Device, data: bytes, host: str, port: int, now: int) -> None:
+    """server/device_io.py DeviceIo.take: a datagram the engine handed back, on the Python path."""
+    device.io_traffic.received(len(data))
+    if not device.receive_io(data, (host, port), now, lambda packet, address: None, now):
+        device.io_traffic.discarded()
+
+
+@pytest.mark.integration
+def test_the_engine_reads_a_real_socket_as_the_python_path_takes_the_same_datagrams() -> None:
+    """`receive`'s glue (recvmmsg, the source address and port, the batch's order, what it hands
+    back): a burst of O->T of every kind read from a real socket by the engine, the rest through
+    the Python path as the I/O thread does, against the same datagrams given to a Python twin."""
+    python, native = Path(False), Path(False)
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as device_socket, \
+            socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as originator:
+        device_socket.bind(("127.0.0.1", 0))
+        originator.bind((SCANNER, 0))
+        native.engine = new_engine()
+        native.handle = NativeDevice(native.engine, device_socket.fileno(), native.device, lambda: None)
+        native.handle.attach()
+        oid = python.open(T0)
+        assert native.open(T0) == oid
+        run, idle = b"\x01\0\0\0", b"\0\0\0\0"
+        batches = [[(1, run + b"\x01\0")],  # run, from idle: Python's
+                   [(2, run + b"\x02\0"), (2, run + b"\x09\0"), (3, run + b"\x03\0"), None, (4, idle + b"\x04\0"),
+                    (5, idle + b"\x05\0"), (6, run + b"\x06\0\0"), (7, run + b"\x07\0")],  # Python's from the malformed
+                   [(8, run + b"\x08\0"), (9, run + b"\x09\0"), (7, run + b"\x0a\0")]]  # the engine's
+        port = originator.getsockname()[1]
+        now = T0 + 5 * MS
+        for batch, expected in zip(batches, (0, 3, 3), strict=True):
+            datagrams = [b"\x02\0\x02\x80\x08\0" if item is None else encode_io_packet(oid, item[0], item[0], item[1])
+                         for item in batch]
+            for datagram in datagrams:  # (on loopback each is queued when sendto returns)
+                originator.sendto(datagram, device_socket.getsockname())
+            assert wait_for(lambda: select.select([device_socket], [], [], 0)[0])
+            rest, taken = native.engine.receive([device_socket.fileno()], 32, now)
+            assert (taken, len(rest)) == (expected, len(batch) - expected)
+            for fd, data, host, source_port, _at in rest:
+                assert (fd, host, source_port) == (device_socket.fileno(), SCANNER, port)
+                take(native.device, data, host, source_port, now)  # DeviceIo.take, as the I/O thread does
+            for datagram in datagrams:
+                python.o_t(datagram, SCANNER, port, now, now)
+            for path in (python, native):
+                path.turn(now + MS, now + 2 * MS)
+            now += 10 * MS
+    states = [path.state(now) for path in (python, native)]
+    for state in states:
+        del state["figures"]  # (the kernel's receive times of the engine's datagrams: not the twin's)
+    assert states[1] == states[0]
+    connections = [path.device.guard.read(lambda p=path: vars(p.device.table.connections[oid]).copy())
+                   for path in (python, native)]
+    for connection in connections:
+        del connection["measure"], connection["owner"]
+    assert connections[1] == connections[0] and connections[0]["o_t_port"] == port
