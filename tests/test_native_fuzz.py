@@ -47,6 +47,7 @@ _step = st.one_of(
     st.tuples(st.just("explicit")), st.tuples(st.just("class3 message")), st.tuples(st.just("class3 message")),
     st.tuples(st.just("inputs"), st.binary(min_size=2, max_size=2)),
     st.tuples(st.just("resize"), st.sampled_from(["output", "input"]), st.integers(0, 6)),
+    st.tuples(st.just("t_o wrap"), st.integers(0xFFFFFFF0, 0x1_0000_FFF0)),
     st.tuples(st.just("fault"), st.sampled_from(FAULTS)),
     st.tuples(st.just("observe")), st.tuples(st.just("unobserve")))
 # how far each step is after the previous one: mostly within an RPI, sometimes past a timeout (400 ms)
@@ -100,6 +101,10 @@ class Driver:
             self.ask(forward_close(ConnectionTriad(2, 0x1234, 0xABCD), bytes.fromhex("20 02 24 01")), now)
         elif kind == "inputs":
             device.set_inputs((args[0] * 4)[: len(device.guard.input.data)], now)  # whatever its size now
+        elif kind == "t_o wrap":  # the T->O sequence near its 32-bit (and the count near its 16-bit) wrap
+            with device.guard.transaction(now):
+                for production in device.table.productions.values():
+                    production.sequence = args[0]
         elif kind == "resize":  # an image of another size while the engine may hold it (never exported)
             image = device.guard.assemblies[args[0]].data
             image[:] = bytes(range(1, args[1] + 1))
