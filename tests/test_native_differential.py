@@ -27,6 +27,7 @@ pytestmark = pytest.mark.skipif(not BUILT, reason="the native class-1 extension 
 T0 = 1_000 * MS
 PORT = 50_000
 CLASS1_10MS = forward_open(1, bytes.fromhex("20 04 24 01 2C 64 2C 65"), 0x01, 8, 4)
+INPUT_ONLY = forward_open(7, bytes.fromhex("20 04 24 01 2C C6 2C 65"), 0x01, 2, 4)  # O->T point 198: a heartbeat
 RUN, IDLE = b"\x01\x00\x00\x00", b"\x00\x00\x00\x00"
 
 
@@ -104,6 +105,14 @@ def _run(steps: list[tuple], native_expected: bool = True) -> None:
             kind, now, *args = step
             if kind == "open":
                 path.oid = path.open(now)
+            elif kind == "open2":  # an input-only connection beside the exclusive owner (its own T->O)
+                reply, _ = path.device.handle_unconnected(INPUT_ONLY, MessageContext(SCANNER, None, (), now))
+                path.oid2 = decode_forward_open_reply(reply[4:]).o_t_connection_id
+            elif kind == "o_t2":
+                path.o_t(_packet(path.oid2, args[0], args[1]), SCANNER, PORT, now, now)
+            elif kind == "close2":
+                path.device.handle_unconnected(forward_close(ConnectionTriad(7, 0x1234, 0xABCD)),
+                                               MessageContext(SCANNER, None, (), now))
             elif kind == "o_t":
                 sequence, data, *rest = args
                 host, port, at, count = (rest + [SCANNER, PORT, now, None][len(rest):])[:4]
@@ -176,6 +185,19 @@ def test_a_forward_close_in_the_middle_and_a_new_connection() -> None:
     steps = [("open", T0)] + _cyclic(T0 + MS, 1, 5)
     steps += [("close", T0 + 52 * MS), ("turn", T0 + 53 * MS), ("o_t", T0 + 54 * MS, 6, RUN + b"\x01\x00"),
               ("open", T0 + 60 * MS)] + _cyclic(T0 + 61 * MS, 1, 5)
+    _run(steps)
+
+
+def test_several_connections_on_one_device_an_exclusive_owner_and_an_input_only() -> None:
+    """The input-only connection's O->T is a heartbeat (nothing, or the run/idle header alone): the
+    engine runs both, each with its own T->O stream; one of them closed, the other goes on."""
+    steps = [("open", T0), ("open2", T0 + MS)]
+    for n in range(1, 8):
+        now = T0 + n * 10 * MS
+        steps += [("o_t", now, n, RUN + bytes([n, 0])), ("o_t2", now + 200_000, n, RUN if n % 3 else b""),
+                  ("o_t2", now + 300_000, n, b"\x01\x00"), ("turn", now + MS)]
+    steps += [("o_t2", T0 + 80 * MS, 8, IDLE), ("close2", T0 + 81 * MS), ("turn", T0 + 82 * MS)]
+    steps += _cyclic(T0 + 85 * MS, 8, 4)
     _run(steps)
 
 

@@ -185,14 +185,6 @@ class DeviceGuard:
             finally:
                 native.exit()
 
-    def settle(self) -> None:
-        """The native path's counters and connection state written back (for readers without the
-        lock: /metrics, the overview, the state API). Nothing to do on the Python path."""
-        native = self.native
-        if native is not None:
-            with self.lock:
-                native.sync()
-
     def image(self, role: str) -> bytes:
         """One image (b"" if the device has none), read under the lock."""
         assembly = self.assemblies.get(role)

@@ -37,7 +37,7 @@
 typedef struct {
     uint32_t id, host;
     long long port, last_sequence, last_received, deadline, timeout_ns, received;
-    int run, has_last_received;
+    int run, has_last_received, heartbeat; /* heartbeat: O->T carries no data (an input-only or listen-only one) */
     PyObject *conn, *measure, *image; /* owned references */
     /* the measurement (cip/o_t_measure.py), when the connection has one */
     long long bounds[NBOUNDS], counts[NBOUNDS + 1], written[NBOUNDS + 1]; /* written: as Python last has them */
@@ -335,7 +335,8 @@ static PyObject *engine_add(Engine *e, PyObject *args) {
 }
 
 /* load(slot, conns, streams, outputs_off_on_idle, watch=None): the device in native mode with these
- * connections, each (connection, measure or None, consumed bytearray, originator's 4-byte address), and
+ * connections, each (connection, measure or None, consumed bytearray, originator's 4-byte address[,
+ * heartbeat: its O->T carries no data, the header-less heartbeat of an input-only or listen-only one]), and
  * streams, each (production, 6-byte destination, bytearray or None, header bytes, unicast); watch: the
  * earliest supervision deadline of its other connections (class 3), which hands it to Python when reached. */
 static PyObject *engine_load(Engine *e, PyObject *args) {
@@ -362,11 +363,14 @@ static PyObject *engine_load(Engine *e, PyObject *args) {
         Conn *c = &d->conns[i];
         PyObject *conn, *measure, *image;
         Py_buffer host;
-        if (!PyArg_ParseTuple(PyList_GET_ITEM(conns, i), "OOO!y*", &conn, &measure, &PyByteArray_Type, &image, &host))
+        int heartbeat = 0;
+        if (!PyArg_ParseTuple(PyList_GET_ITEM(conns, i), "OOO!y*|p", &conn, &measure, &PyByteArray_Type, &image, &host,
+                              &heartbeat))
             goto fail;
         int good = host.len == 4;
         if (good)
             memcpy(&c->host, host.buf, 4);
+        c->heartbeat = heartbeat;
         PyBuffer_Release(&host);
         d->nconns = (int)i + 1;
         Py_INCREF(conn);
@@ -611,8 +615,14 @@ static int consume(Dev *d, const unsigned char *p, Py_ssize_t n, uint32_t host, 
     Py_ssize_t size = PyByteArray_GET_SIZE(c->image);
     long long step = ((long long)sequence - c->last_sequence) & 0xFFFFFFFFLL;
     int stale = c->last_sequence >= 0 && !(step > 0 && step < HALF);
-    int sized = n >= IMAGE && n - IMAGE == size;
-    int run = n >= IMAGE && (p[HEADER] & 1);
+    int sized, run;
+    if (c->heartbeat) { /* nothing, or the run/idle header alone */
+        sized = n == HEADER || n == IMAGE;
+        run = n == HEADER || (p[HEADER] & 1);
+    } else {
+        sized = n >= IMAGE && n - IMAGE == size;
+        run = n >= IMAGE && (p[HEADER] & 1);
+    }
     if (drop < 0 && !stale && sized && run != c->run)
         return 0; /* a run/idle change: Python's (the measurement's transitions, maybe events) */
     d->dirty = 1;
@@ -636,6 +646,8 @@ static int consume(Dev *d, const unsigned char *p, Py_ssize_t n, uint32_t host, 
     c->deadline = now + c->timeout_ns;
     c->received++;
     d->counter[C_OT]++;
+    if (c->heartbeat)
+        return 1;
     if (run)
         memcpy(PyByteArray_AS_STRING(c->image), p + IMAGE, (size_t)size);
     else if (d->off_on_idle)

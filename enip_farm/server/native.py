@@ -4,7 +4,8 @@
 A device is in native mode when the extension is built and on (`cyclic_io.native`, and not
 ENIP_FARM_NATIVE=0), no fault is active on it, it is not resetting, nothing records or probes it
 (no recorder, reaction probes or image observers) and every I/O connection is a plain class-1 one
-of the formats the engine serves: O->T with the 32-bit run/idle header and fixed-size data, T->O
+of the formats the engine serves: O->T with the 32-bit run/idle header and fixed-size data (or the
+heartbeat of an input-only or listen-only connection), T->O
 point to point (the input assembly, an EDS point with or without its run/idle header, or a
 heartbeat). Then the engine holds its hot state (sequences, deadlines, the streams, the counters,
 the originator measurement) and works on the assemblies' own bytearrays; Python stays
@@ -76,13 +77,14 @@ def plan(device: Device) -> tuple[list[tuple], list[tuple], bool, int | None] | 
         if connection.kind is ConnectionKind.EXPLICIT:  # its timeout is Python's: the engine hands it over then
             watch = connection.deadline if watch is None else min(watch, connection.deadline)
             continue
-        if (connection.safety is not None or not connection.o_t_run_idle_header or connection.o_t_modeless
-                or connection.o_t_variable or connection.multicast):
+        if (connection.safety is not None or connection.o_t_modeless or connection.o_t_variable
+                or connection.multicast):
             return None
         assembly = table.packets.consumed_assembly(connection)
         if assembly is None:
             return None
-        conns.append((connection, connection.measure, assembly.data, socket.inet_aton(connection.originator_host)))
+        conns.append((connection, connection.measure, assembly.data, socket.inet_aton(connection.originator_host),
+                      not connection.o_t_run_idle_header))  # without it: a heartbeat (input only, listen only)
     if not conns:
         return None
     streams = []
