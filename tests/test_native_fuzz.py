@@ -30,7 +30,7 @@ from tests.test_native_differential import CLASS1_10MS, INPUT_ONLY, PORT, T0, Pa
 pytestmark = pytest.mark.skipif(not BUILT, reason="the native class-1 extension is not built")
 SCALE = float(os.environ.get("ENIP_FARM_FUZZ_SCALE", "1"))
 OUTPUT_SIZE = 2  # the DSQC1030's output image (the O->T data after the run/idle header)
-FAULTS = ("stop-io", "drop", None)
+FAULTS = ("stop-io", "drop", "wrong-module", None)
 
 # mostly what a controller sends (the next sequence, run, from its port), so that the engine takes most
 _sequences = st.sampled_from(["next"] * 8 + ["same", "back", "jump", "half", "wrap", "any"]).flatmap(
