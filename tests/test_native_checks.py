@@ -292,3 +292,27 @@ def test_the_engine_reads_a_real_socket_as_the_python_path_takes_the_same_datagr
     for connection in connections:
         del connection["measure"], connection["owner"]
     assert connections[1] == connections[0] and connections[0]["o_t_port"] == port
+
+
+def test_a_class3_deadline_the_engine_watched_is_read_again_after_it_handed_the_device_over() -> None:
+    """A class-3 message moves its connection's deadline in a transaction the engine resumes
+    from, so the engine's watch stayed the old deadline: from then on it handed the device to
+    Python every turn until a T->O fell due (12 % of the turns here), not once a timeout period."""
+    driver = Driver(True)
+    path = driver.path
+    driver.step(("open",), T0)
+    driver.step(("class3",), T0)
+    handed = 0
+    for n in range(1000):  # 10 s: class 1 every 10 ms, a turn every 1 ms, a class-3 message every 100 ms
+        base = T0 + MS + n * 10 * MS
+        driver.step(("o_t", "next", "run", "scanner", None, 0, b"\x01\x00"), base)
+        if n % 10 == 5:
+            driver.step(("class3 message",), base)
+        for k in range(10):
+            now = base + k * MS
+            python = path.engine.produce(now, now + MS, True)[0]
+            if python:
+                handed += 1
+                path.device.service_io(now, path._send, now + MS)  # noqa: SLF001 - the I/O thread's Python turn
+    assert path.device.counters["connection_timeouts"] == 0
+    assert handed <= 10_000 // 400 + 1  # at most once per class-3 timeout (400 ms)

@@ -3,11 +3,12 @@ server/native.py) against the Python one, sans-IO, as tests/test_native_differen
 (its `Path`): random sequences of O->T datagrams (valid, truncated, other ids, another originator or
 port, stale, duplicate and wrapped sequences, run/idle flips, other sizes, random bytes) at random
 injected times, with turns, Forward Opens and Closes (class 1 and class 3), explicit requests
-(unconnected and on the class-3 connection), input image writes, faults, image observers and
-images resized under the engine in between, through both paths with the same times. After every
-step every T->O byte, both images, the counters, the interface counters, the events and the
-report's figures are the same. The budget is fixed and reproducible (`derandomize`, no example
-database): a few seconds on two busy cores; ENIP_FARM_FUZZ_SCALE multiplies it, as in tests/test_fuzz.py.
+(unconnected and on the class-3 connection), an input-only connection and its heartbeats, input
+image writes, faults, image observers, the T->O sequence near its wrap and images resized under
+the engine in between, through both paths with the same times. After every step every T->O byte,
+both images, the counters, the interface counters, the events and the report's figures are the
+same. The budget is fixed and reproducible (`derandomize`, no example database): a few seconds on
+two busy cores; ENIP_FARM_FUZZ_SCALE multiplies it, as in tests/test_fuzz.py.
 """
 
 from __future__ import annotations
@@ -24,34 +25,40 @@ from enip_farm.protocol.session import MessageContext
 from enip_farm.server.native import BUILT
 from tests.test_cip_services_unit import CLASS3, MS, SCANNER, get_list
 from tests.test_implicit import forward_close
-from tests.test_native_differential import CLASS1_10MS, PORT, T0, Path
+from tests.test_native_differential import CLASS1_10MS, INPUT_ONLY, PORT, T0, Path
 
 pytestmark = pytest.mark.skipif(not BUILT, reason="the native class-1 extension is not built")
 SCALE = float(os.environ.get("ENIP_FARM_FUZZ_SCALE", "1"))
 OUTPUT_SIZE = 2  # the DSQC1030's output image (the O->T data after the run/idle header)
-FAULTS = ("stop-io", "drop", None)
+FAULTS = ("stop-io", "drop", "wrong-module", None)
 
-_sequences = st.one_of(st.sampled_from(["next", "next", "next", "same", "back", "jump", "half", "wrap"]),
-                       st.integers(0, 0xFFFFFFFF))
+# mostly what a controller sends (the next sequence, run, from its port), so that the engine takes most
+_sequences = st.sampled_from(["next"] * 8 + ["same", "back", "jump", "half", "wrap", "any"]).flatmap(
+    lambda chosen: st.integers(0, 0xFFFFFFFF) if chosen == "any" else st.just(chosen))
 _o_t = st.tuples(st.just("o_t"), _sequences,
-                 st.sampled_from(["run", "run", "run", "idle", "short", "long", "empty", "header only"]),
-                 st.sampled_from(["scanner"] * 6 + ["other host", "other port", "other id"]),
-                 st.integers(0, 0xFFFF) | st.none(), st.integers(0, 3 * MS), st.binary(min_size=2, max_size=2))
-_step = st.one_of(
-    _o_t, _o_t, _o_t, _o_t,
-    st.tuples(st.just("turn")), st.tuples(st.just("turn")),
+                 st.sampled_from(["run"] * 8 + ["idle", "idle", "short", "long", "empty", "header only"]),
+                 st.sampled_from(["scanner"] * 12 + ["other host", "other port", "other id"]),
+                 st.none() | st.integers(0, 0xFFFF), st.integers(0, 3 * MS), st.binary(min_size=2, max_size=2))
+_heartbeat = st.tuples(st.just("heartbeat"), _sequences,  # nothing, the run/idle header alone, or another size
+                       st.sampled_from([b"", b"", b"\x01\0\0\0", b"\0\0\0\0", b"\x01", b"\x01\0\0\0\0"]),
+                       st.sampled_from(["scanner"] * 4 + ["other port"]))
+_rare = st.one_of(
     st.tuples(st.just("truncated"), st.integers(0, 25)),
     st.tuples(st.just("raw"), st.binary(max_size=40)),
     st.tuples(st.just("open")), st.tuples(st.just("close")),
     st.tuples(st.just("class3")), st.tuples(st.just("class3 close")),
+    st.tuples(st.just("input only")), st.tuples(st.just("input only close")),
     st.tuples(st.just("explicit")), st.tuples(st.just("class3 message")), st.tuples(st.just("class3 message")),
     st.tuples(st.just("inputs"), st.binary(min_size=2, max_size=2)),
     st.tuples(st.just("resize"), st.sampled_from(["output", "input"]), st.integers(0, 6)),
     st.tuples(st.just("t_o wrap"), st.integers(0xFFFFFFF0, 0x1_0000_FFF0)),
     st.tuples(st.just("fault"), st.sampled_from(FAULTS)),
     st.tuples(st.just("observe")), st.tuples(st.just("unobserve")))
+# the O->T and the turns weigh most (one_of picks a branch uniformly and takes a strategy once)
+_step = st.sampled_from([_o_t] * 12 + [_heartbeat] * 3 + [st.tuples(st.just("turn"))] * 5 + [_rare] * 6).flatmap(
+    lambda strategy: strategy)
 # how far each step is after the previous one: mostly within an RPI, sometimes past a timeout (400 ms)
-_gaps = st.one_of(st.integers(0, 12 * MS), st.integers(0, 12 * MS), st.integers(0, 700 * MS))
+_gaps = st.sampled_from([12 * MS] * 12 + [700 * MS]).flatmap(lambda most: st.integers(0, most))
 
 
 class Driver:
@@ -62,6 +69,8 @@ class Driver:
         self.oid = 0
         self.class3 = 0  # the class-3 connection's O->T id
         self.count = 0  # its sequence count
+        self.input_only = 0  # the input-only connection's O->T id (its O->T: a heartbeat)
+        self.heartbeats = 0  # the sequence of its heartbeats
         self.sequence = 0
         self.unobserve: list = []
 
@@ -91,6 +100,20 @@ class Driver:
             reply = self.ask(CLASS3, now)
             if reply[2] == 0:
                 self.class3 = decode_forward_open_reply(reply[4:]).o_t_connection_id
+        elif kind == "input only":
+            reply = self.ask(INPUT_ONLY, now)
+            if reply[2] == 0:
+                self.input_only = decode_forward_open_reply(reply[4:]).o_t_connection_id
+        elif kind == "input only close":
+            self.ask(forward_close(ConnectionTriad(7, 0x1234, 0xABCD), bytes.fromhex("20 04 24 01 2C C6 2C 65")), now)
+        elif kind == "heartbeat":
+            sequence, data, source = args
+            last = self.heartbeats
+            self.heartbeats = (sequence if isinstance(sequence, int) else {
+                "next": last + 1, "same": last, "back": last - 3, "jump": last + 1000, "half": last + 0x80000000,
+                "wrap": 0xFFFFFFFE}[sequence]) & 0xFFFFFFFF
+            self.path.o_t(encode_io_packet(self.input_only, self.heartbeats, self.heartbeats, data), SCANNER,
+                          PORT + 1 if source == "other port" else PORT, now, now)
         elif kind == "explicit":  # an unconnected Get_Attribute_List of the identity
             self.ask(get_list(1, 1, 1, 2, 3), now)
         elif kind == "class3 message":  # the same on the class-3 connection: its watchdog fed

@@ -72,6 +72,7 @@ typedef struct {
     Stream *streams;
     int nconns, nstreams;
     long long watch; /* the earliest supervision deadline of the connections Python keeps (class 3) */
+    int watched;     /* the watch handed the device to Python: `load` it again (a newer deadline), never `resume` */
     long long counter[NCOUNTERS], traffic_delta[NTRAFFIC];
 } Dev;
 
@@ -150,7 +151,7 @@ static void clear_dev(Dev *d) {
     d->conns = NULL;
     d->streams = NULL;
     d->nconns = d->nstreams = 0;
-    d->native = d->kept = 0;
+    d->native = d->kept = d->watched = 0;
 }
 
 static int load_measure(Conn *c, PyObject *m) {
@@ -477,7 +478,7 @@ static PyObject *engine_resume(Engine *e, PyObject *args) {
     Dev *d = dev_of(e, args, "i", NULL, NULL, NULL, NULL, NULL, NULL);
     if (d == NULL)
         return NULL;
-    if (!d->kept)
+    if (!d->kept || d->watched)
         Py_RETURN_FALSE;
     for (int i = 0; i < d->nconns; i++) {
         Conn *c = &d->conns[i];
@@ -869,6 +870,8 @@ static PyObject *engine_produce(Engine *e, PyObject *args) {
         if (!d->native)
             continue;
         int expired = d->watch <= now;
+        if (expired)
+            d->watched = 1;
         for (int i = 0; i < d->nconns; i++)
             if (d->conns[i].deadline <= now)
                 expired = 1;
