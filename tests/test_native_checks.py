@@ -4,6 +4,8 @@ each pinned by the case that showed it, sans-IO unless it needs the cyclic I/O t
 from __future__ import annotations
 
 import gc
+import pathlib
+import random
 import select
 import socket
 import sys
@@ -14,14 +16,18 @@ import weakref
 from contextlib import ExitStack
 
 import pytest
+import yaml
 
 from enip_farm.device.device import Device
 from enip_farm.device.faults import Fault
+from enip_farm.eds.reader import eds_document
 from enip_farm.protocol.connection import decode_forward_open_reply, encode_io_packet
+from enip_farm.protocol.session import MessageContext
 from enip_farm.pytest_plugin import start_farm
 from enip_farm.server.native import BUILT, NativeDevice, new_engine
 from tests.helpers import RawClient, wait_for
-from tests.test_cip_services_unit import MS, SCANNER
+from tests.test_cip_services_unit import MS, SCANNER, make_device
+from tests.test_cip_services_unit import forward_open as open_request
 from tests.test_implicit import forward_close, forward_open
 from tests.test_native_differential import PORT, T0, Path
 from tests.test_native_fuzz import Driver
@@ -316,3 +322,53 @@ def test_a_class3_deadline_the_engine_watched_is_read_again_after_it_handed_the_
                 path.device.service_io(now, path._send, now + MS)  # noqa: SLF001 - the I/O thread's Python turn
     assert path.device.counters["connection_timeouts"] == 0
     assert handed <= 10_000 // 400 + 1  # at most once per class-3 timeout (400 ms)
+
+
+def _eds_paths(tmp_path: pathlib.Path) -> tuple[Path, Path]:
+    """Two devices of an EDS's profile (OpENer's sample), its exclusive owner's T->O with the 32-bit
+    run/idle header and its input-only connection's T->O a heartbeat: one on each path."""
+    document = eds_document(pathlib.Path(__file__).parent / "data" / "eds" / "opener_sample_app.eds")
+    (model,) = document["models"].values()
+    owner, input_only, _ = model["connections"]
+    owner["t_o_format"] = "run/idle"
+    input_only["t_o_format"], input_only["t_o_size"] = "heartbeat", 0
+    profile = tmp_path / "opener.yaml"
+    profile.write_text(yaml.safe_dump(document))
+    paths = []
+    for native in (False, True):
+        path = Path(False)
+        path.device = make_device(model=str(profile), implicit={"first_watchdog_s": 1})
+        path.device.table.admission._rng = random.Random(29)  # noqa: SLF001 - the same connection ids on both
+        if native:
+            path.engine = new_engine()
+            path.handle = NativeDevice(path.engine, 3, path.device, lambda: None)
+            path.handle.attach()
+        paths.append(path)
+    return paths[0], paths[1]
+
+
+def test_an_eds_device_with_a_t_o_run_idle_header_and_a_t_o_heartbeat(tmp_path: pathlib.Path) -> None:
+    """The T->O formats an EDS may declare (the run/idle header before the data, nothing but the
+    sequence count), produced by the engine as the Python path does, beside its O->T."""
+    python, native = _eds_paths(tmp_path)
+    owner = open_request(1, bytes.fromhex("20 04 24 97 2C 96 2C 64"), 0x01, 2 + 4 + 32, 2 + 4 + 32)
+    heartbeat = open_request(2, bytes.fromhex("20 04 24 97 2C 98 2C 64"), 0x01, 2, 2)  # its own T->O stream
+    ids = []
+    for path in (python, native):
+        ids.append([decode_forward_open_reply(path.device.handle_unconnected(message, MessageContext(
+            SCANNER, None, (), T0))[0][4:]).o_t_connection_id for message in (owner, heartbeat)])
+    assert ids[0] == ids[1]
+    (oid, heartbeat_id), ran_native = ids[0], 0
+    for n in range(1, 40):
+        now = T0 + n * 10 * MS
+        for path in (python, native):
+            run = b"\0\0\0\0" if 20 <= n < 25 else b"\x01\0\0\0"
+            path.o_t(encode_io_packet(oid, n, n, run + bytes([n]) * 32), SCANNER, PORT, now, now - 100_000)
+            path.o_t(encode_io_packet(heartbeat_id, n, n, b"" if n % 2 else b"\x01\0\0\0"), SCANNER, PORT, now, now)
+            if n % 7 == 0:
+                path.device.set_inputs(bytes([n]) * 32, now)
+            path.turn(now + MS, now + 2 * MS)
+        ran_native += native.engine.native(native.handle.slot)
+        assert native.state(now) == python.state(now), n
+    assert ran_native > 30
+    assert {len(packet) for packet, _ in native.sent} == {20, 20 + 4 + 32}  # the heartbeat, the header and data
