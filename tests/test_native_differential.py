@@ -215,3 +215,20 @@ def test_the_engine_runs_a_plain_connection_and_leaves_what_it_does_not_serve() 
     path.device.observe(lambda event: None)  # an image observer: Python's
     assert not path.engine.native(path.handle.slot)
     assert plan(path.device) is None
+
+
+def test_a_turn_that_left_sockets_unread_times_nothing_out() -> None:
+    """produce(..., supervise=False), the I/O thread's turn that read at most NATIVE_TURN_SOCKETS of
+    the ready sockets: a device whose deadline has come is neither produced nor handed to Python (a
+    datagram still unread may feed it); the next full turn hands it over."""
+    path = Path(True)
+    path.oid = path.open(T0)
+    path.o_t(_packet(path.oid, 1, RUN + b"\x01\x00"), SCANNER, PORT, T0 + MS, T0 + MS)
+    path.o_t(_packet(path.oid, 2, RUN + b"\x01\x00"), SCANNER, PORT, T0 + 2 * MS, T0 + 2 * MS)
+    timeout = path.device.table.connections[path.oid].timeout_ns
+    late = T0 + 2 * MS + timeout
+    python, _, _, sent, packets = path.engine.produce(late, late + MS, True, False)
+    assert (python, sent, packets) == ([], 0, [])
+    assert path.engine.native(path.handle.slot)
+    python, _, _, _, _ = path.engine.produce(late, late + MS, True)
+    assert python == [path.handle.slot]

@@ -849,14 +849,16 @@ static int emit(Engine *e, int slot, Stream *s, PyObject *collect) {
     return 0;
 }
 
-/* produce(now, horizon, collect=False) -> (python, timer, served, sent, packets): every native device
+/* produce(now, horizon, collect=False, supervise=True) -> (python, timer, served, sent, packets): every native device
  * supervised at `now` (one whose deadline has come is Python's: its slot in `python`) and its T->O due
  * by `horizon` produced and sent (collect: returned in `packets` as (slot, bytes, (host, port)) instead);
- * `timer`: the earliest native deadline after them, `served`: the earliest deadline served (None: none). */
+ * `timer`: the earliest native deadline after them, `served`: the earliest deadline served (None: none).
+ * supervise=False: a device whose deadline has come is neither produced nor handed over (the I/O
+ * thread's turn that left sockets unread: their datagrams may feed that deadline). */
 static PyObject *engine_produce(Engine *e, PyObject *args) {
     long long now, horizon;
-    int collecting = 0;
-    if (!PyArg_ParseTuple(args, "LL|p", &now, &horizon, &collecting))
+    int collecting = 0, supervise = 1;
+    if (!PyArg_ParseTuple(args, "LL|pp", &now, &horizon, &collecting, &supervise))
         return NULL;
     long long until = horizon < now ? now : horizon, timer = LLONG_MAX, served = LLONG_MAX, sent = 0;
     e->turns++;
@@ -873,6 +875,8 @@ static PyObject *engine_produce(Engine *e, PyObject *args) {
         for (int i = 0; i < d->nconns; i++)
             if (d->conns[i].deadline <= now)
                 expired = 1;
+        if (expired && !supervise) /* datagrams may still wait unread: no verdict on it this turn */
+            continue;
         if (expired) { /* a timeout: Python's (pull, handle_timer, push) */
             PyObject *s = PyLong_FromLong(slot);
             if (s == NULL || PyList_Append(python, s) < 0) {
@@ -971,7 +975,7 @@ static PyMethodDef engine_methods[] = {
     {"native", (PyCFunction)engine_native, METH_VARARGS, "native(slot) -> bool"},
     {"consume", (PyCFunction)engine_consume, METH_VARARGS, "consume(slot, data, host, port, now, received_at)"},
     {"receive", (PyCFunction)engine_receive, METH_VARARGS, "receive(fds, limit, now) -> (rest, taken)"},
-    {"produce", (PyCFunction)engine_produce, METH_VARARGS, "produce(now, horizon, collect=False)"},
+    {"produce", (PyCFunction)engine_produce, METH_VARARGS, "produce(now, horizon, collect=False, supervise=True)"},
     {"timer", (PyCFunction)engine_timer, METH_VARARGS, "timer(slot) -> next deadline or None"},
     {NULL, NULL, 0, NULL},
 };

@@ -88,6 +88,9 @@ class CyclicIoThread(threading.Thread):
     #: How often the native engine writes its state into the Python objects that readers without the
     #: device lock look at (the lock's readers and transactions get it at once: server/native.py).
     NATIVE_SYNC_NS = 100_000_000
+    #: Sockets a turn reads at most with the native engine (server/native.py): a turn's reading is
+    #: one system call per ready socket (several us each), bounded so that T->O keep their time.
+    NATIVE_TURN_SOCKETS = 128
 
     @property
     def native_sync_slice(self) -> int:
@@ -195,6 +198,7 @@ class CyclicIoThread(threading.Thread):
         native, slots = self.native, self._slots
         native_receive = native.receive if native is not None else None
         native_produce = native.produce if native is not None else None
+        most = self.NATIVE_TURN_SOCKETS + 1 if native is not None else -1  # epoll's events a turn (+ the pipe)
         last = 0
         while not self._stopping:
             while requests:
@@ -208,14 +212,18 @@ class CyclicIoThread(threading.Thread):
                 first = self.native_timer
             wait = (first - turn_ns - monotonic_ns()) if first is not None else None  # until the next turn that is due
             if wait is None or wait > margin_ns + self._IDLE_WAIT * 1e9:
-                events = poll(self._IDLE_WAIT)  # nothing due soon: look again after the idle wait at most
+                events = poll(self._IDLE_WAIT, most)  # nothing due soon: look again after the idle wait at most
             elif wait > margin_ns:
-                events = poll(os_wait_ns(wait - margin_ns))
+                events = poll(os_wait_ns(wait - margin_ns), most)
             else:
-                events = poll(0)
+                events = poll(0, most)
                 if not events and wait > 0:
                     sleep(os_wait_ns(wait))
-                    events = poll(0)
+                    events = poll(0, most)
+            # with the native engine a turn reads at most NATIVE_TURN_SOCKETS sockets (epoll hands the
+            # others on next time, in turn), so that one late turn does not make the next one longer
+            # (reading is per ready socket); while some are left unread nothing is timed out
+            unread = len(events) == most
             now = last = self.turned_at = monotonic_ns()
             if events:  # first what came in: a packet that came in time counts, however late the thread is
                 fds = []
@@ -241,7 +249,7 @@ class CyclicIoThread(threading.Thread):
             horizon = now + turn_ns  # what falls due before the next turn is served in this one
             first = heap[0][0] if heap and heap[0][0] <= horizon else None
             if native_produce is not None:  # the native devices' T->O (sent), their timeouts to Python
-                python, self.native_timer, served, sent, _ = native_produce(now, horizon)
+                python, self.native_timer, served, sent, _ = native_produce(now, horizon, False, not unread)
                 running.datagrams += sent
                 if served is not None and (first is None or served < first):
                     first = served
@@ -249,13 +257,15 @@ class CyclicIoThread(threading.Thread):
                     endpoint = slots[slot]
                     self._schedule(endpoint, endpoint.service(now, horizon, True))
                 native.sync(self.native_sync_slice)  # a few devices a turn: a whole round every NATIVE_SYNC_NS
+            if unread:  # the Python path's devices wait for a turn that read every socket (supervision)
+                first = served if native_produce is not None else None
             if first is not None:
                 late = now - first  # <= 0 on time: the lag still starts its next second (worst_ns)
                 running.turn(late)
                 if lag.observe(late, now):
                     self._overloaded(late, now)
                 due = []
-                while heap and heap[0][0] <= horizon:
+                while heap and heap[0][0] <= horizon and not unread:
                     when, _, endpoint = heapq.heappop(heap)
                     if when == endpoint.scheduled:  # else superseded by an earlier wake-up
                         endpoint.scheduled = None
