@@ -199,6 +199,11 @@ class CyclicIoThread(threading.Thread):
         native_receive = native.receive if native is not None else None
         native_produce = native.produce if native is not None else None
         most = self.NATIVE_TURN_SOCKETS + 1 if native is not None else -1  # epoll's events a turn (+ the pipe)
+        if native is not None:
+            epoll_poll = poll
+
+            def poll(timeout: float) -> list[tuple[int, int]]:
+                return epoll_poll(timeout, most)
         last = 0
         while not self._stopping:
             while requests:
@@ -212,14 +217,14 @@ class CyclicIoThread(threading.Thread):
                 first = self.native_timer
             wait = (first - turn_ns - monotonic_ns()) if first is not None else None  # until the next turn that is due
             if wait is None or wait > margin_ns + self._IDLE_WAIT * 1e9:
-                events = poll(self._IDLE_WAIT, most)  # nothing due soon: look again after the idle wait at most
+                events = poll(self._IDLE_WAIT)  # nothing due soon: look again after the idle wait at most
             elif wait > margin_ns:
-                events = poll(os_wait_ns(wait - margin_ns), most)
+                events = poll(os_wait_ns(wait - margin_ns))
             else:
-                events = poll(0, most)
+                events = poll(0)
                 if not events and wait > 0:
                     sleep(os_wait_ns(wait))
-                    events = poll(0, most)
+                    events = poll(0)
             # with the native engine a turn reads at most NATIVE_TURN_SOCKETS sockets (epoll hands the
             # others on next time, in turn), so that one late turn does not make the next one longer
             # (reading is per ready socket); while some are left unread nothing is timed out
