@@ -4,6 +4,7 @@ each pinned by the case that showed it, sans-IO unless it needs the cyclic I/O t
 from __future__ import annotations
 
 import gc
+import os
 import pathlib
 import random
 import select
@@ -24,6 +25,8 @@ from enip_farm.eds.reader import eds_document
 from enip_farm.protocol.connection import decode_forward_open_reply, encode_io_packet
 from enip_farm.protocol.session import MessageContext
 from enip_farm.pytest_plugin import start_farm
+from enip_farm.server import implicit
+from enip_farm.server.implicit import CyclicIoThread
 from enip_farm.server.native import BUILT, NativeDevice, new_engine
 from tests.helpers import RawClient, wait_for
 from tests.test_cip_services_unit import MS, SCANNER, make_device
@@ -31,6 +34,7 @@ from tests.test_cip_services_unit import forward_open as open_request
 from tests.test_implicit import forward_close, forward_open
 from tests.test_native_differential import PORT, T0, Path
 from tests.test_native_fuzz import Driver
+from tests.test_pinned_paths import _Clock, _Endpoint
 
 pytestmark = pytest.mark.skipif(not BUILT, reason="the native class-1 extension is not built")
 
@@ -374,3 +378,40 @@ def test_an_eds_device_with_a_t_o_run_idle_header_and_a_t_o_heartbeat(tmp_path: 
         assert native.state(now) == python.state(now), n
     assert ran_native > 30
     assert {len(packet) for packet, _ in native.sent} == {20, 20 + 4 + 32}  # the heartbeat, the header and data
+
+
+class _BusyEpoll:
+    """An epoll that finds more sockets ready than a native turn reads, every turn (a farm
+    carrying more than it can read in a turn, for a while), and stops the thread after `turns`."""
+
+    def __init__(self, thread: CyclicIoThread, turns: int, clock: _Clock) -> None:
+        self.thread, self.turns, self.clock, self.polls = thread, turns, clock, 0
+
+    def poll(self, timeout: float, maxevents: int = -1) -> list:
+        self.polls += 1
+        self.clock.sleep(0.001)
+        if self.polls >= self.turns:
+            self.thread._stopping = True  # noqa: SLF001
+        return [(1_000_000 + n, select.EPOLLIN) for n in range(maxevents)]  # (no such descriptors: nothing read)
+
+
+@pytest.mark.xfail(strict=True, reason="4c814b0: a native turn that leaves sockets unread neither supervises nor "
+                   "serves the heap; while every turn does, the Python path's devices get no T->O and no timeout "
+                   "comes (a bound on how long that may last is the author's tuning: issue 29)")
+def test_a_turn_that_leaves_sockets_unread_does_not_starve_the_python_paths_devices(monkeypatch) -> None:
+    """One second of turns that each find more ready sockets than they read: a device on the Python
+    path, due at the start, is served within a few turns all the same."""
+    clock = _Clock(T0)
+    monkeypatch.setattr(implicit, "time", clock)
+    thread = CyclicIoThread(native=True)
+    real = thread._epoll  # noqa: SLF001
+    try:
+        thread._epoll = _BusyEpoll(thread, 1000, clock)  # noqa: SLF001
+        endpoint = _Endpoint()
+        thread._schedule(endpoint, T0)  # noqa: SLF001
+        thread._loop()  # noqa: SLF001
+    finally:
+        real.close()
+        os.close(thread._wake_read)  # noqa: SLF001
+        os.close(thread._wake_write)  # noqa: SLF001
+    assert endpoint.served and endpoint.served[0] <= T0 + 10 * MS
