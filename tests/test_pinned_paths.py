@@ -94,7 +94,7 @@ class _Epoll:
     def __init__(self, thread: CyclicIoThread, turns: int, clock: _Clock) -> None:
         self.thread, self.turns, self.clock, self.timeouts = thread, turns, clock, []
 
-    def poll(self, timeout: float) -> list:
+    def poll(self, timeout: float, maxevents: int = -1) -> list:  # (select.epoll.poll's)
         self.timeouts.append(timeout)
         self.clock.sleep(timeout)  # nothing comes: it waits the whole timeout
         if len(self.timeouts) >= self.turns:
