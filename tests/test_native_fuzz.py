@@ -22,7 +22,7 @@ from hypothesis import strategies as st
 from enip_farm.device.faults import Fault
 from enip_farm.protocol.connection import ConnectionTriad, decode_forward_open_reply, encode_io_packet
 from enip_farm.protocol.session import MessageContext
-from enip_farm.server.native import BUILT
+from enip_farm.server.native import BUILT, NativeDevice, new_engine
 from tests.test_cip_services_unit import CLASS3, MS, SCANNER, get_list
 from tests.test_implicit import forward_close
 from tests.test_native_differential import CLASS1_10MS, INPUT_ONLY, PORT, T0, Path
@@ -177,3 +177,46 @@ def test_random_sequences_through_both_paths(steps: list[tuple[int, tuple]]) -> 
         assert native.path.state(now) == python.path.state(now), step
         held += native.path.engine.native(native.path.handle.slot)
     event(f"steps with the device in the engine: {'none' if not held else 'some' if held < len(steps) else 'all'}")
+
+
+def _turn(drivers: list[Driver], now: int) -> None:
+    """The I/O thread's turn over devices that share one engine (server/implicit.py): its T->O to
+    their own lists, the devices it hands over or does not run on the Python path."""
+    engine = drivers[0].path.engine
+    if engine is None:
+        for driver in drivers:
+            driver.path.turn(now, now + MS)
+        return
+    python, _, _, _, packets = engine.produce(now, now + MS, True)
+    paths = {driver.path.handle.slot: driver.path for driver in drivers}
+    for slot, packet, address in packets:
+        paths[slot].sent.append((packet, address))
+    for slot, path in paths.items():
+        if slot in python or not engine.native(slot):
+            path.device.service_io(now, path._send, now + MS)  # noqa: SLF001 - DeviceIo.send's counting
+
+
+@settings(max_examples=max(1, round(100 * SCALE)), deadline=None, derandomize=True, database=None,
+          print_blob=False, suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large])
+@given(st.lists(st.tuples(_gaps, st.sampled_from([0, 1]), _step), min_size=1, max_size=40))
+def test_two_devices_in_one_engine(steps: list[tuple[int, int, tuple]]) -> None:
+    """Two devices of one engine (as one I/O thread's), each beside a twin on the Python path:
+    what happens to one never shows in the other, and the turns serve both."""
+    python, native = [Driver(False), Driver(False)], [Driver(False), Driver(False)]
+    engine = new_engine()
+    for fd, driver in enumerate(native, 3):
+        driver.path.engine = engine
+        driver.path.handle = NativeDevice(engine, fd, driver.path.device, lambda: None)
+        driver.path.handle.attach()
+    now = T0
+    for driver in python + native:
+        driver.step(("open",), now)
+    for gap, which, step in steps:
+        now += gap
+        for drivers in (python, native):
+            if step == ("turn",):
+                _turn(drivers, now)
+            else:
+                drivers[which].step(step, now)
+        for twin, driver in zip(python, native, strict=True):
+            assert driver.path.state(now) == twin.path.state(now), (which, step)
