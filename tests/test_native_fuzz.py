@@ -7,8 +7,9 @@ injected times, with turns, Forward Opens and Closes (class 1 and class 3), expl
 image writes, faults, image observers, the T->O sequence near its wrap and images resized under
 the engine in between, through both paths with the same times. After every step every T->O byte,
 both images, the counters, the interface counters, the events and the report's figures are the
-same. The budget is fixed and reproducible (`derandomize`, no example database): a few seconds on
-two busy cores; ENIP_FARM_FUZZ_SCALE multiplies it, as in tests/test_fuzz.py.
+same; and two devices sharing one engine, each against its twin. The budget is fixed and
+reproducible (`derandomize`, no example database): a few seconds on two busy cores;
+ENIP_FARM_FUZZ_SCALE multiplies it, as in tests/test_fuzz.py.
 """
 
 from __future__ import annotations
