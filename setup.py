@@ -6,6 +6,8 @@ recvfrom/sendto); enip_farm/server/_class1.c: the per-packet work of established
 from setuptools import Extension, setup
 
 setup(ext_modules=[Extension("enip_farm.server._mmsg", ["enip_farm/server/_mmsg.c"], optional=True,
+                             depends=["enip_farm/server/_receive.h"],
                              extra_compile_args=["-O2", "-Wall"]),
                    Extension("enip_farm.server._class1", ["enip_farm/server/_class1.c"], optional=True,
+                             depends=["enip_farm/server/_receive.h"],
                              extra_compile_args=["-O2", "-Wall"])])

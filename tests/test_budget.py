@@ -27,6 +27,8 @@ from tests.helpers import RawClient, metric_samples
 from tests.test_connection_table import INPUT_ONLY_PATH, LISTEN_ONLY_PATH, MULTICAST, T0, request
 from tests.test_implicit import forward_close, forward_open
 
+pytestmark = pytest.mark.class1_paths  # both class-1 paths (tests/conftest.py)
+
 ROOT = Path(__file__).resolve().parent.parent
 
 MS = 1_000_000

@@ -35,6 +35,8 @@ from enip_farm.protocol.epath import encode_request_path
 from tests.helpers import ROOT, RawClient, wait_for
 from tests.scanners import scanner
 
+pytestmark = pytest.mark.class1_paths  # both class-1 paths (tests/conftest.py)
+
 REAL = ROOT / "tests" / "data" / "eds"
 FILES = sorted(p.name for p in REAL.glob("*.eds"))
 #: What each file declares: (vendor id, product code, class-1 connection entries).

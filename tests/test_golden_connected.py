@@ -33,6 +33,8 @@ from enip_farm.protocol.encapsulation import HEADER, Command, decode_frame, enco
 from enip_farm.pytest_plugin import AddressPool
 from tests.helpers import CLI
 
+pytestmark = pytest.mark.class1_paths  # both class-1 paths (tests/conftest.py)
+
 
 def _connected_session(driver: CIPDriver) -> None:
     written = driver.generic_message(service=Services.set_attribute_single, class_code=4, instance=100,

@@ -22,7 +22,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "bench"))
 
 import misbehaviour  # noqa: E402
 
-pytestmark = [pytest.mark.system,
+pytestmark = [pytest.mark.system, pytest.mark.class1_paths,  # both class-1 paths (tests/conftest.py)
               pytest.mark.skipif(not (os.environ.get("CC") or shutil.which("cc") or shutil.which("gcc")),
                                  reason="no C compiler")]
 

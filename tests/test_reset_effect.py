@@ -28,6 +28,8 @@ from tests.helpers import ENIP_PORT, RawClient
 from tests.test_cip_services_unit import CLASS1, MS, SCANNER, T0, ask, make_device
 from tests.test_safety import ORIGINATOR, _pid, safety_open
 
+pytestmark = pytest.mark.class1_paths  # both class-1 paths (tests/conftest.py)
+
 RESET_PATH = encode_request_path(1, 1)
 
 

@@ -14,7 +14,7 @@ from enip_farm.scenario.run import run_scenario
 from tests.scanners import Scanner, start_scanner
 from tests.test_cell_faults import list_identity_answered
 
-pytestmark = pytest.mark.integration
+pytestmark = [pytest.mark.integration, pytest.mark.class1_paths]  # both class-1 paths (tests/conftest.py)
 
 CELL = {"devices": [{"name": "io1", "address": "127.0.0.1", "model": "DSQC1030",
                      "implicit": {"first_watchdog_s": 0}},

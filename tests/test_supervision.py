@@ -22,6 +22,8 @@ from enip_farm.server.waits import MAX_WAIT_S, os_wait_ns, os_wait_s
 from tests.helpers import ROOT, RawClient, metric_samples, wait_for
 from tests.test_implicit import forward_close, forward_open
 
+pytestmark = pytest.mark.class1_paths  # both class-1 paths (tests/conftest.py)
+
 MESSAGE_ROUTER_PATH = bytes.fromhex("20 02 24 01")
 CLASS_3 = 0xA3  # class 3, application triggered, server
 

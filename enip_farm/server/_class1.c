@@ -25,12 +25,12 @@
 #include <sys/socket.h>
 #include <time.h>
 
+#include "_receive.h"
+
 #define NBOUNDS 34 /* cip/o_t_measure.py BUCKETS_PERMILLE */
 #define HEADER 20  /* item count, sequenced address item, connected data item header, sequence count */
 #define IMAGE 24   /* + the 32-bit run/idle header */
 #define HALF 0x80000000LL
-#define MAX_RECEIVE 32
-#define MAX_DATAGRAM 2048
 #define MAX_BATCH 256
 #define MAX_PACKET 600
 
@@ -98,8 +98,6 @@ typedef struct {
      * a collection while it builds its results may run another engine's `receive` */
     char buffers[MAX_RECEIVE][MAX_DATAGRAM];
 } Engine;
-
-static long long ns_of(const struct timespec *t) { return (long long)t->tv_sec * 1000000000LL + t->tv_nsec; }
 
 /* -- loading and storing a device's state (server/native.py) --------------------------------------- */
 
@@ -693,13 +691,7 @@ static PyObject *engine_receive(Engine *e, PyObject *args) {
     if (rest == NULL)
         return NULL;
     char (*buffers)[MAX_DATAGRAM] = e->buffers;
-    struct mmsghdr headers[MAX_RECEIVE];
-    struct iovec vectors[MAX_RECEIVE];
-    struct sockaddr_in sources[MAX_RECEIVE];
-    union {
-        char buffer[CMSG_SPACE(sizeof(struct timespec)) + CMSG_SPACE(sizeof(struct in_pktinfo))];
-        struct cmsghdr align;
-    } controls[MAX_RECEIVE];
+    Received r;
     long long taken = 0;
     for (Py_ssize_t f = 0; f < PyList_GET_SIZE(fds); f++) {
         int fd = (int)PyLong_AsLong(PyList_GET_ITEM(fds, f));
@@ -707,53 +699,20 @@ static PyObject *engine_receive(Engine *e, PyObject *args) {
             Py_DECREF(rest);
             return NULL;
         }
-        for (int i = 0; i < limit; i++) {
-            vectors[i].iov_base = buffers[i];
-            vectors[i].iov_len = MAX_DATAGRAM;
-            memset(&headers[i].msg_hdr, 0, sizeof(headers[i].msg_hdr));
-            headers[i].msg_hdr.msg_name = &sources[i];
-            headers[i].msg_hdr.msg_namelen = sizeof(sources[i]);
-            headers[i].msg_hdr.msg_iov = &vectors[i];
-            headers[i].msg_hdr.msg_iovlen = 1;
-            headers[i].msg_hdr.msg_control = controls[i].buffer;
-            headers[i].msg_hdr.msg_controllen = sizeof(controls[i].buffer);
-        }
-        int received = recvmmsg(fd, headers, (unsigned int)limit, MSG_DONTWAIT, NULL);
-        long long offset = 0, read_at = 0;
-        if (received > 0) { /* the wall clock between two monotonic reads, against their midpoint */
-            struct timespec before, real, after;
-            clock_gettime(CLOCK_MONOTONIC, &before);
-            clock_gettime(CLOCK_REALTIME, &real);
-            clock_gettime(CLOCK_MONOTONIC, &after);
-            read_at = ns_of(&after);
-            offset = ns_of(&real) - (ns_of(&before) + read_at) / 2;
-        }
+        int received = receive_batch(fd, &r, buffers, limit);
         Dev *d = fd < e->nfd && e->by_fd[fd] >= 0 ? &e->devs[e->by_fd[fd]] : NULL;
         for (int i = 0; i < received; i++) {
-            struct msghdr *h = &headers[i].msg_hdr;
-            long long at = 0;
-            if (!(h->msg_flags & MSG_CTRUNC))
-                for (struct cmsghdr *c = CMSG_FIRSTHDR(h); c != NULL; c = CMSG_NXTHDR(h, c))
-                    if (c->cmsg_level == SOL_SOCKET && c->cmsg_type == SCM_TIMESTAMPNS) {
-                        struct timespec stamp;
-                        memcpy(&stamp, CMSG_DATA(c), sizeof(stamp));
-                        at = ns_of(&stamp) - offset;
-                        if (at > read_at)
-                            at = read_at;
-                        break;
-                    }
-            size_t length = headers[i].msg_len;
-            if (h->msg_flags & MSG_TRUNC)
-                length = MAX_DATAGRAM;
-            int port = ntohs(sources[i].sin_port);
-            if (d != NULL && consume(d, (unsigned char *)buffers[i], (Py_ssize_t)length, sources[i].sin_addr.s_addr,
+            long long at = received_at(&r, i);
+            size_t length = received_length(&r, i);
+            int port = ntohs(r.sources[i].sin_port);
+            if (d != NULL && consume(d, (unsigned char *)buffers[i], (Py_ssize_t)length, r.sources[i].sin_addr.s_addr,
                                      port, now, at ? at : now)) {
                 taken++;
                 continue;
             }
             d = NULL; /* one datagram handed to Python: the rest of this socket's go after it, in order */
             char host[INET_ADDRSTRLEN];
-            if (inet_ntop(AF_INET, &sources[i].sin_addr, host, sizeof(host)) == NULL)
+            if (inet_ntop(AF_INET, &r.sources[i].sin_addr, host, sizeof(host)) == NULL)
                 host[0] = '\0';
             PyObject *item = Py_BuildValue("(iy#siL)", fd, buffers[i], (Py_ssize_t)length, host, port, at);
             if (item == NULL || PyList_Append(rest, item) < 0) {

@@ -5,7 +5,7 @@
  * sendmmsg(2) of every T->O packet due in one tick from one socket, each with its device's source
  * address (IP_PKTINFO, ipi_spec_dst). One system call per socket read and one per tick sent, instead
  * of one per datagram. Linux only; server/batch.py falls back to recvmsg/sendto when this module is
- * not built. */
+ * not built. The receiving half is server/_receive.h's, shared with server/_class1.c. */
 #define _GNU_SOURCE
 #define PY_SSIZE_T_CLEAN
 #include <Python.h>
@@ -17,9 +17,9 @@
 #include <sys/socket.h>
 #include <time.h>
 
+#include "_receive.h"
+
 #define MAX_BATCH 256
-#define MAX_RECEIVE 32 /* datagrams per socket and call: 64 KiB of buffers, below malloc's mmap threshold */
-#define MAX_DATAGRAM 2048
 
 /* send_batch(fd, messages) -> list of (index, errno): messages is a list of (payload, destination,
  * source); destination is 6 bytes (IPv4 address, port, both in network order), source 4 bytes
@@ -112,24 +112,6 @@ static PyObject *send_batch(PyObject *self, PyObject *args) {
     return failures;
 }
 
-static long long ns_of(const struct timespec *t) { return (long long)t->tv_sec * 1000000000LL + t->tv_nsec; }
-
-/* The kernel's receive time of a datagram (SCM_TIMESTAMPNS) on the monotonic clock; 0 if it has none.
- * `offset` is CLOCK_REALTIME - CLOCK_MONOTONIC now; a stamp is never later than `now` (a clock step). */
-static long long received_at(struct msghdr *header, long long offset, long long now) {
-    if (header->msg_flags & MSG_CTRUNC)
-        return 0;
-    for (struct cmsghdr *c = CMSG_FIRSTHDR(header); c != NULL; c = CMSG_NXTHDR(header, c)) {
-        if (c->cmsg_level == SOL_SOCKET && c->cmsg_type == SCM_TIMESTAMPNS) {
-            struct timespec stamp;
-            memcpy(&stamp, CMSG_DATA(c), sizeof(stamp));
-            long long at = ns_of(&stamp) - offset;
-            return at > now ? now : at;
-        }
-    }
-    return 0;
-}
-
 /* recv_batch(fds, limit) -> list of (fd, payload, host, port, received_at): up to `limit` datagrams
  * from each socket that has some, without blocking (one recvmmsg per socket); received_at is the
  * kernel's receive time in CLOCK_MONOTONIC ns (time.monotonic_ns), 0 where the socket gave none. */
@@ -148,13 +130,7 @@ static PyObject *recv_batch(PyObject *self, PyObject *args) {
         Py_DECREF(out);
         return PyErr_NoMemory();
     }
-    struct mmsghdr headers[MAX_RECEIVE];
-    struct iovec vectors[MAX_RECEIVE];
-    struct sockaddr_in sources[MAX_RECEIVE];
-    union {
-        char buffer[CMSG_SPACE(sizeof(struct timespec)) + CMSG_SPACE(sizeof(struct in_pktinfo))];
-        struct cmsghdr align;
-    } controls[MAX_RECEIVE];
+    Received r;
     Py_ssize_t count = PyList_GET_SIZE(fds);
     for (Py_ssize_t f = 0; f < count; f++) {
         int fd = (int)PyLong_AsLong(PyList_GET_ITEM(fds, f));
@@ -163,37 +139,13 @@ static PyObject *recv_batch(PyObject *self, PyObject *args) {
             Py_DECREF(out);
             return NULL;
         }
-        for (int i = 0; i < limit; i++) {
-            vectors[i].iov_base = buffers[i];
-            vectors[i].iov_len = MAX_DATAGRAM;
-            memset(&headers[i].msg_hdr, 0, sizeof(headers[i].msg_hdr));
-            headers[i].msg_hdr.msg_name = &sources[i];
-            headers[i].msg_hdr.msg_namelen = sizeof(sources[i]);
-            headers[i].msg_hdr.msg_iov = &vectors[i];
-            headers[i].msg_hdr.msg_iovlen = 1;
-            headers[i].msg_hdr.msg_control = controls[i].buffer;
-            headers[i].msg_hdr.msg_controllen = sizeof(controls[i].buffer);
-        }
-        int received = recvmmsg(fd, headers, (unsigned int)limit, MSG_DONTWAIT, NULL); /* never waits: GIL held */
-        long long offset = 0, now = 0;
-        if (received > 0) { /* the wall clock between two monotonic reads, against their midpoint */
-            struct timespec before, real, after;
-            clock_gettime(CLOCK_MONOTONIC, &before);
-            clock_gettime(CLOCK_REALTIME, &real);
-            clock_gettime(CLOCK_MONOTONIC, &after);
-            now = ns_of(&after);
-            offset = ns_of(&real) - (ns_of(&before) + now) / 2;
-        }
+        int received = receive_batch(fd, &r, buffers, limit);
         for (int i = 0; i < received; i++) {
             char host[INET_ADDRSTRLEN];
-            if (inet_ntop(AF_INET, &sources[i].sin_addr, host, sizeof(host)) == NULL)
+            if (inet_ntop(AF_INET, &r.sources[i].sin_addr, host, sizeof(host)) == NULL)
                 host[0] = '\0';
-            size_t length = headers[i].msg_len;
-            if (headers[i].msg_hdr.msg_flags & MSG_TRUNC)
-                length = MAX_DATAGRAM; /* longer than any class-1 packet: the table refuses it by size */
-            PyObject *item = Py_BuildValue("(iy#siL)", fd, buffers[i], (Py_ssize_t)length, host,
-                                           (int)ntohs(sources[i].sin_port),
-                                           received_at(&headers[i].msg_hdr, offset, now));
+            PyObject *item = Py_BuildValue("(iy#siL)", fd, buffers[i], (Py_ssize_t)received_length(&r, i), host,
+                                           (int)ntohs(r.sources[i].sin_port), received_at(&r, i));
             if (item == NULL || PyList_Append(out, item) < 0) {
                 Py_XDECREF(item);
                 PyMem_RawFree(buffers);
