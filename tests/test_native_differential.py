@@ -15,11 +15,12 @@ from dataclasses import asdict
 import pytest
 
 from enip_farm.device.device import Device
+from enip_farm.device.events import Event, ImageChanged
 from enip_farm.device.faults import Fault
 from enip_farm.device.report import connection_figures
 from enip_farm.protocol.connection import ConnectionTriad, decode_forward_open_reply, encode_io_packet
 from enip_farm.protocol.session import MessageContext
-from enip_farm.server.native import BUILT, NativeDevice, new_engine, plan
+from enip_farm.server.native import BUILT, NativeDevice, new_engine, plan, publish_changes
 from tests.test_cip_services_unit import MS, SCANNER, forward_open, get_list, make_device
 from tests.test_implicit import forward_close
 
@@ -38,11 +39,20 @@ class Path:
         self.device: Device = make_device(implicit={"first_watchdog_s": 1})
         self.device.table.admission._rng = random.Random(29)  # noqa: SLF001 - the same connection ids on both
         self.sent: list[tuple[bytes, tuple[str, int]]] = []
+        self.seen: list[tuple] = []  # what its observers (`observe`) were told, in order
         self.engine = new_engine() if native else None
         self.handle: NativeDevice | None = None
         if self.engine is not None:
             self.handle = NativeDevice(self.engine, 3, self.device, lambda: None)
             self.handle.attach()
+
+    def observe(self) -> object:
+        """An observer of every event (the dashboard's hub's kind: image changes too); the unsubscribe."""
+        return self.device.observe(self._saw)
+
+    def _saw(self, event: Event) -> None:
+        detail = event.detail
+        self.seen.append((event.monotonic_ns, _text(detail), tuple(detail) if isinstance(detail, ImageChanged) else ()))
 
     def _send(self, packet: bytes, address: tuple[str, int]) -> None:  # DeviceIo.send's counting
         self.device.io_traffic.sent(len(packet), True)
@@ -58,9 +68,11 @@ class Path:
 
     def o_t(self, data: bytes, host: str, port: int, now: int, received_at: int) -> None:
         """DeviceIo.take, behind the engine where there is one."""
-        if self.engine is not None and self.engine.consume(self.handle.slot, data, socket.inet_aton(host), port, now,
-                                                           received_at):
-            return
+        if self.engine is not None:  # the image changes it made told before what it leaves to Python
+            taken = self.engine.consume(self.handle.slot, data, socket.inet_aton(host), port, now, received_at)
+            publish_changes(self.engine.changes, lambda slot: self.device)
+            if taken:
+                return
         traffic = self.device.io_traffic
         traffic.received(len(data))
         if not self.device.receive_io(data, (host, port), now, self._send, received_at):
@@ -83,7 +95,7 @@ class Path:
         connections = device.guard.read(lambda: list(device.table.connections.values()) + list(device.table.ended))
         figures = [asdict(connection_figures(device, c, now)) for c in connections if c.measure is not None]
         return {"sent": list(self.sent), "outputs": device.outputs, "inputs": device.inputs, "counters": counters,
-                "traffic": device.io_traffic.values(), "figures": figures,
+                "traffic": device.io_traffic.values(), "figures": figures, "seen": list(self.seen),
                 "events": [(e.monotonic_ns, _text(e.detail)) for e in device.events]}
 
 
@@ -96,9 +108,12 @@ def _packet(oid: int, sequence: int, data: bytes, count: int | None = None) -> b
     return encode_io_packet(oid, sequence, sequence if count is None else count, data)
 
 
-def _run(steps: list[tuple], native_expected: bool = True) -> None:
-    """Each step through both paths; the states compared after each."""
+def _run(steps: list[tuple], native_expected: bool = True, observed: bool = False) -> tuple[Path, Path]:
+    """Each step through both paths; the states compared after each (with `observed`, what an
+    observer of every event of each device was told too)."""
     python, native = Path(False), Path(True)
+    if observed:
+        python.observe(), native.observe()
     ran_native = False
     for step in steps:
         for path in (python, native):
@@ -135,6 +150,7 @@ def _run(steps: list[tuple], native_expected: bool = True) -> None:
         ran_native = ran_native or native.engine.native(native.handle.slot)
         assert native.state(step[1]) == python.state(step[1]), step
     assert ran_native == native_expected
+    return python, native
 
 
 def _cyclic(start: int, first: int, count: int, data: bytes = RUN + b"\x01\x00", every: int = 10) -> list[tuple]:
@@ -212,9 +228,28 @@ def test_the_engine_runs_a_plain_connection_and_leaves_what_it_does_not_serve() 
     path = Path(True)
     path.oid = path.open(T0)
     assert plan(path.device) is not None and path.engine.native(path.handle.slot)
-    path.device.observe(lambda event: None)  # an image observer: Python's
+    path.device.faults.set(Fault("stop-io"), T0)  # a fault: Python's
     assert not path.engine.native(path.handle.slot)
     assert plan(path.device) is None
+
+
+def test_an_observed_device_stays_native_and_its_observer_hears_every_output_change() -> None:
+    """An observer of every event (the dashboard's hub, an io-change watcher): the device stays in
+    the engine, which reports each O->T that changes the output image (run data, and the zeros of
+    an idle one where the outputs go off on idle); the observer hears the same events, with the same
+    bytes before and after and the same times, in the same order as on the Python path."""
+    steps = [("open", T0), ("turn", T0)] + _cyclic(T0 + 5 * MS, 1, 3)
+    steps += _cyclic(T0 + 35 * MS, 4, 3, RUN + b"\x02\x00") + _cyclic(T0 + 65 * MS, 7, 2, RUN + b"\x03\x80")
+    steps += [("inputs", T0 + 86 * MS, b"\x5a\xa5"), ("explicit", T0 + 87 * MS)]
+    steps += _cyclic(T0 + 95 * MS, 9, 2, IDLE + b"\x07\x00") + _cyclic(T0 + 115 * MS, 11, 2, RUN + b"\x04\x00")
+    python, native = _run(steps, observed=True)
+    changes = [seen[2] for seen in native.seen if seen[2]]
+    assert changes == [("output", b"\0\0", b"\x01\0"), ("output", b"\x01\0", b"\x02\0"),
+                       ("output", b"\x02\0", b"\x03\x80"), ("input", b"\0\0", b"\x5a\xa5"),
+                       ("output", b"\x03\x80", b"\0\0"), ("output", b"\0\0", b"\x04\0")]
+    connection = native.device.table.connections[native.oid]
+    assert plan(native.device)[0][0][5] is True and native.engine.native(native.handle.slot)
+    assert connection.received == python.device.table.connections[python.oid].received
 
 
 def test_a_turn_that_left_sockets_unread_times_nothing_out() -> None:
@@ -232,3 +267,4 @@ def test_a_turn_that_left_sockets_unread_times_nothing_out() -> None:
     assert path.engine.native(path.handle.slot)
     python, _, _, _, _ = path.engine.produce(late, late + MS, True)
     assert python == [path.handle.slot]
+

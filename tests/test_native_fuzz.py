@@ -6,8 +6,8 @@ injected times, with turns, Forward Opens and Closes (class 1 and class 3), expl
 (unconnected and on the class-3 connection), an input-only connection and its heartbeats, input
 image writes, faults, image observers, the T->O sequence near its wrap and images resized under
 the engine in between, through both paths with the same times. After every step every T->O byte,
-both images, the counters, the interface counters, the events and the report's figures are the
-same; and two devices sharing one engine, each against its twin. The budget is fixed and
+both images, the counters, the interface counters, the events, what the observers were told and
+the report's figures are the same; and two devices sharing one engine, each against its twin. The budget is fixed and
 reproducible (`derandomize`, no example database): a few seconds on two busy cores;
 ENIP_FARM_FUZZ_SCALE multiplies it, as in tests/test_fuzz.py.
 """
@@ -138,7 +138,7 @@ class Driver:
             else:
                 device.faults.set(Fault(args[0]), now)
         elif kind == "observe":
-            self.unobserve.append(device.observe(lambda event: None))
+            self.unobserve.append(self.path.observe())  # what it is told compared (`Path.state`)
         elif kind == "unobserve" and self.unobserve:
             self.unobserve.pop()()
 

@@ -1,6 +1,7 @@
 """Issue 29: defects found in the native class-1 path (enip_farm/server/_class1.c, server/native.py)
 where it meets the cyclic I/O thread, the device lock and the sockets: a reader under the lock,
-farms started and stopped, the engine's receive on real sockets, a turn that leaves sockets unread."""
+farms started and stopped, the engine's receive on real sockets, a turn that leaves sockets unread,
+an observed device driven by a real scanner."""
 
 from __future__ import annotations
 
@@ -15,13 +16,16 @@ from contextlib import ExitStack
 
 import pytest
 
+from enip_farm.control.stream import EventHub
 from enip_farm.device.device import Device
+from enip_farm.device.events import ImageChanged
 from enip_farm.protocol.connection import decode_forward_open_reply, encode_io_packet
 from enip_farm.pytest_plugin import start_farm
 from enip_farm.server import implicit
 from enip_farm.server.implicit import CyclicIoThread
 from enip_farm.server.native import BUILT, NativeDevice, new_engine
 from tests.helpers import RawClient, wait_for
+from tests.scanners import scanner
 from tests.test_cip_services_unit import MS, SCANNER
 from tests.test_implicit import forward_close, forward_open
 from tests.test_native_differential import T0, Path
@@ -245,3 +249,36 @@ def test_a_turn_that_leaves_sockets_unread_does_not_starve_the_python_paths_devi
     for served, due in zip(endpoint.served, endpoint.due, strict=False):  # 3 turns skipped, the 4th serves
         assert due - MS <= served <= due + 4 * 2 * MS, (served - due)
     assert max(served - due for served, due in zip(endpoint.served, endpoint.due, strict=False)) == 7 * MS
+
+
+@pytest.mark.integration
+def test_an_observed_device_stays_native_and_its_observer_sees_every_output_change(class1_path: str,
+                                                                                   make_farm) -> None:
+    """The dashboard's event hub observes a device while the `ethernetip` scanner drives its outputs
+    one bit more at a time: on the native path the engine keeps the device (it reports the output
+    image's changes), and on both paths the hub is told every change, in order, each once, with the
+    bytes before and after."""
+    farm = make_farm({"name": "io1", "model": "DSQC1030", "implicit": {"first_watchdog_s": 30}})
+    device = farm.device("io1")
+    native = class1_path == "native"
+    with scanner(device.profile.address) as scan:
+        assert scan.forward_open(10, 2) == 0
+        scan.outputs[0] = True
+        scan.conn.produce()
+        assert wait_for(lambda: device.outputs == b"\x01\0")
+        hub = EventHub([device])
+        unobserve = device.observe(hub.deliver)  # as the hub's first subscriber does
+        try:
+            assert wait_for(lambda: (device.guard.native is not None and device.guard.native.active) == native)
+            expected, value = [b"\x01\0"], 1
+            for bit in range(1, 16):
+                scan.outputs[bit] = True
+                value |= 1 << bit
+                expected.append(value.to_bytes(2, "little"))
+                assert wait_for(lambda e=expected[-1]: device.outputs == e)
+                assert (device.guard.native is not None and device.guard.native.active) == native, bit
+        finally:
+            unobserve()
+    changes = [tuple(event.detail) for event in hub._pending  # noqa: SLF001 - what its tick would hand on
+               if isinstance(event.detail, ImageChanged) and event.detail.role == "output"]
+    assert changes == [("output", old, new) for old, new in zip(expected, expected[1:], strict=False)]

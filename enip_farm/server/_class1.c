@@ -16,6 +16,7 @@
 #define _GNU_SOURCE
 #define PY_SSIZE_T_CLEAN
 #include <Python.h>
+#include <structmember.h>
 
 #include <arpa/inet.h>
 #include <errno.h>
@@ -38,6 +39,7 @@ typedef struct {
     uint32_t id, host;
     long long port, last_sequence, last_received, deadline, timeout_ns, received;
     int run, has_last_received, heartbeat; /* heartbeat: O->T carries no data (an input-only or listen-only one) */
+    int observed; /* its image is the device's output image and someone observes it: each change reported */
     PyObject *conn, *measure, *image; /* owned references */
     /* the measurement (cip/o_t_measure.py), when the connection has one */
     long long bounds[NBOUNDS], counts[NBOUNDS + 1], written[NBOUNDS + 1]; /* written: as Python last has them */
@@ -66,8 +68,10 @@ static const char *traffic_names[NTRAFFIC] = {"in_octets", "in_ucast", "in_disca
 
 typedef struct {
     int fd, native, dirty, off_on_idle, kept; /* kept: released to Python with its state kept (`resume`) */
+    int slot;
     uint32_t source;
     PyObject *counters, *traffic;
+    PyObject *changes; /* the engine's `changes` list (borrowed: the engine owns it, and outlives its devices) */
     Conn *conns;
     Stream *streams;
     int nconns, nstreams;
@@ -78,6 +82,7 @@ typedef struct {
 
 typedef struct {
     PyObject_HEAD
+    PyObject *changes; /* (slot, now, before, after) of each output image change of an observed connection */
     Dev *devs;
     int ndevs, cap;
     int *by_fd, nfd;
@@ -320,6 +325,8 @@ static PyObject *engine_add(Engine *e, PyObject *args) {
     Dev *d = &e->devs[e->ndevs];
     memset(d, 0, sizeof(*d));
     d->fd = fd;
+    d->slot = e->ndevs;
+    d->changes = e->changes;
     memcpy(&d->source, source.buf, 4);
     PyBuffer_Release(&source);
     Py_INCREF(counters);
@@ -334,9 +341,10 @@ static PyObject *engine_add(Engine *e, PyObject *args) {
 
 /* load(slot, conns, streams, outputs_off_on_idle, watch=None): the device in native mode with these
  * connections, each (connection, measure or None, consumed bytearray, originator's 4-byte address[,
- * heartbeat: its O->T carries no data, the header-less heartbeat of an input-only or listen-only one]), and
- * streams, each (production, 6-byte destination, bytearray or None, header bytes, unicast); watch: the
- * earliest supervision deadline of its other connections (class 3), which hands it to Python when reached. */
+ * heartbeat: its O->T carries no data, the header-less heartbeat of an input-only or listen-only one[,
+ * observed: each change of its image reported in `changes`]]), and streams, each (production, 6-byte
+ * destination, bytearray or None, header bytes, unicast); watch: the earliest supervision deadline of its other connections (class 3), which hands
+ * it to Python when reached. */
 static PyObject *engine_load(Engine *e, PyObject *args) {
     PyObject *conns, *streams, *watch = Py_None;
     int off;
@@ -361,14 +369,15 @@ static PyObject *engine_load(Engine *e, PyObject *args) {
         Conn *c = &d->conns[i];
         PyObject *conn, *measure, *image;
         Py_buffer host;
-        int heartbeat = 0;
-        if (!PyArg_ParseTuple(PyList_GET_ITEM(conns, i), "OOO!y*|p", &conn, &measure, &PyByteArray_Type, &image, &host,
-                              &heartbeat))
+        int heartbeat = 0, observed = 0;
+        if (!PyArg_ParseTuple(PyList_GET_ITEM(conns, i), "OOO!y*|pp", &conn, &measure, &PyByteArray_Type, &image, &host,
+                              &heartbeat, &observed))
             goto fail;
         int good = host.len == 4;
         if (good)
             memcpy(&c->host, host.buf, 4);
         c->heartbeat = heartbeat;
+        c->observed = observed;
         PyBuffer_Release(&host);
         d->nconns = (int)i + 1;
         Py_INCREF(conn);
@@ -588,6 +597,32 @@ static void measure_o_t(Conn *c, long long at, uint32_t sequence, unsigned count
 static uint32_t le32(const unsigned char *p) { return p[0] | p[1] << 8 | p[2] << 16 | (uint32_t)p[3] << 24; }
 static unsigned le16(const unsigned char *p) { return p[0] | p[1] << 8; }
 
+static int zeros(const char *p, Py_ssize_t n) {
+    for (Py_ssize_t i = 0; i < n; i++)
+        if (p[i])
+            return 0;
+    return 1;
+}
+
+/* An observed connection's O->T about to be consumed: (slot, now, before, after) in the device's
+ * `changes` when it changes the image (device/guard.py's ImageChanged of the Python path's
+ * transaction), before anything changes; -1 (no exception left set) when that cannot be told. */
+static int observe(Dev *d, Conn *c, const unsigned char *p, Py_ssize_t size, int run, long long now) {
+    const char *image = PyByteArray_AS_STRING(c->image);
+    if (run ? memcmp(image, p + IMAGE, (size_t)size) == 0 : !d->off_on_idle || zeros(image, size))
+        return 0;
+    PyObject *after = run ? PyBytes_FromStringAndSize((const char *)p + IMAGE, size) : PyBytes_FromStringAndSize(NULL, size);
+    if (after != NULL && !run)
+        memset(PyBytes_AS_STRING(after), 0, (size_t)size);
+    PyObject *change = after == NULL ? NULL : Py_BuildValue("(iLy#O)", d->slot, now, image, size, after);
+    int r = change == NULL || d->changes == NULL ? -1 : PyList_Append(d->changes, change);
+    Py_XDECREF(after);
+    Py_XDECREF(change);
+    if (r < 0)
+        PyErr_Clear();
+    return r;
+}
+
 /* One O->T datagram of a native device: 1 if the engine took or dropped it (counted), 0 if it is
  * Python's (nothing changed). */
 static int consume(Dev *d, const unsigned char *p, Py_ssize_t n, uint32_t host, long long port, long long now,
@@ -623,6 +658,8 @@ static int consume(Dev *d, const unsigned char *p, Py_ssize_t n, uint32_t host, 
     }
     if (drop < 0 && !stale && sized && run != c->run)
         return 0; /* a run/idle change: Python's (the measurement's transitions, maybe events) */
+    if (c->observed && drop < 0 && !stale && sized && !c->heartbeat && observe(d, c, p, size, run, now) < 0)
+        return 0; /* no memory to tell it: Python's (nothing changed) */
     d->dirty = 1;
     d->traffic_delta[T_IN_OCTETS] += n;
     d->traffic_delta[T_IN_UCAST]++;
@@ -908,8 +945,13 @@ static PyObject *engine_timer(Engine *e, PyObject *args) {
 
 static PyObject *engine_new(PyTypeObject *type, PyObject *args, PyObject *kwargs) {
     Engine *e = (Engine *)type->tp_alloc(type, 0);
-    if (e != NULL)
-        e->sender = -1;
+    if (e == NULL)
+        return NULL;
+    e->sender = -1;
+    if ((e->changes = PyList_New(0)) == NULL) {
+        Py_DECREF(e);
+        return NULL;
+    }
     return (PyObject *)e;
 }
 
@@ -921,6 +963,7 @@ static void engine_dealloc(Engine *e) {
     }
     PyMem_Free(e->devs);
     PyMem_Free(e->by_fd);
+    Py_XDECREF(e->changes);
     Py_TYPE(e)->tp_free((PyObject *)e);
 }
 
@@ -939,6 +982,13 @@ static PyMethodDef engine_methods[] = {
     {NULL, NULL, 0, NULL},
 };
 
+static PyMemberDef engine_members[] = {
+    {"changes", T_OBJECT_EX, offsetof(Engine, changes), READONLY,
+     "[(slot, now, before, after)]: the output image changes of observed connections, in order (the "
+     "caller takes and clears them)"},
+    {NULL, 0, 0, 0, NULL},
+};
+
 static PyTypeObject EngineType = {
     PyVarObject_HEAD_INIT(NULL, 0).tp_name = "enip_farm.server._class1.Engine",
     .tp_basicsize = sizeof(Engine),
@@ -946,6 +996,7 @@ static PyTypeObject EngineType = {
     .tp_new = engine_new,
     .tp_dealloc = (destructor)engine_dealloc,
     .tp_methods = engine_methods,
+    .tp_members = engine_members,
     .tp_doc = "The class-1 per-packet work of the native devices of one cyclic I/O thread.",
 };
 

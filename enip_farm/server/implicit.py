@@ -54,7 +54,7 @@ from enip_farm.server.device_io import DeviceIo as DeviceIo
 from enip_farm.server.lag import OVERLOAD_LAG_NS as OVERLOAD_LAG_NS
 from enip_farm.server.lag import Lag
 from enip_farm.server.limits import RateLimitedLog
-from enip_farm.server.native import NativeDevice, native_wanted, new_engine
+from enip_farm.server.native import NativeDevice, native_wanted, new_engine, publish_changes
 from enip_farm.server.running_budget import RunningBudget
 from enip_farm.server.udp import udp_socket
 from enip_farm.server.waits import os_wait_ns
@@ -207,6 +207,7 @@ class CyclicIoThread(threading.Thread):
         native, slots = self.native, self._slots
         native_receive = native.receive if native is not None else None
         native_produce = native.produce if native is not None else None
+        native_changes = native.changes if native is not None else None  # (its image changes: observers told)
         most = self.NATIVE_TURN_SOCKETS + 1 if native is not None else -1  # epoll's events a turn (+ the pipe)
         if native is not None:
             epoll_poll = poll
@@ -255,6 +256,8 @@ class CyclicIoThread(threading.Thread):
                     if native_receive is not None:  # the native devices' datagrams taken there, the rest here
                         received, taken = native_receive(fds, NATIVE_RECEIVE_LIMIT, now)
                         running.datagrams += taken
+                        if native_changes:  # told before what it left to Python, as that path would have
+                            publish_changes(native_changes, self._device_of, self._publish_failed)
                     else:
                         received = receive(fds)
                     running.datagrams += len(received)
@@ -292,6 +295,12 @@ class CyclicIoThread(threading.Thread):
                 running.datagrams += len(outbox)
                 self._flush()
             running.tick(now)
+
+    def _device_of(self, slot: int) -> Device:
+        return self._slots[slot].device
+
+    def _publish_failed(self, slot: int, now: int) -> None:
+        self._slots[slot]._failed("telling an output image change", now)  # noqa: SLF001 - as DeviceIo.take's
 
     def _flush(self) -> None:
         """Send every T->O of this turn in one call; a packet that could not be sent is counted as

@@ -3,9 +3,10 @@
 
 A device is in native mode when the extension is built and on (`cyclic_io.native`, and not
 ENIP_FARM_NATIVE=0), no fault is active on it, it is not resetting, nothing records or probes it
-(no recorder, reaction probes or image observers) and every I/O connection is a plain class-1 one
-of the formats the engine serves: O->T with the 32-bit run/idle header and fixed-size data (or the
-heartbeat of an input-only or listen-only connection), T->O
+(no recorder or reaction probes; image observers are told each change of the output image that the
+engine makes, `publish_changes`, as the Python path's transactions tell them) and every I/O
+connection is a plain class-1 one of the formats the engine serves: O->T with the 32-bit run/idle
+header and fixed-size data (or the heartbeat of an input-only or listen-only connection), T->O
 point to point (the input assembly, an EDS point with or without its run/idle header, or a
 heartbeat). Then the engine holds its hot state (sequences, deadlines, the streams, the counters,
 the originator measurement) and works on the assemblies' own bytearrays; Python stays
@@ -31,6 +32,7 @@ from typing import Any
 
 from enip_farm.cip.connection import ConnectionKind
 from enip_farm.device.device import Device
+from enip_farm.device.events import ImageChanged
 
 try:
     from enip_farm.server import _class1
@@ -67,8 +69,9 @@ def plan(device: Device) -> tuple[list[tuple], list[tuple], bool, int | None] | 
         return None  # nothing to run (most explicit requests' devices)
     if (faults.active or faults.io_stopped or faults.impairment is not None or faults.safety_tamper is not None
             or device.reset_window.deadline is not None or device.recorder is not None or cyclic.stimuli
-            or cyclic.expectations or guard.observers.of_images):
+            or cyclic.expectations):
         return None
+    observed = bool(guard.observers.of_images)  # each change of the output image told (`publish_changes`)
     if table.answers_queued or table.schedule.safety_consumers:
         return None
     conns = []
@@ -84,7 +87,8 @@ def plan(device: Device) -> tuple[list[tuple], list[tuple], bool, int | None] | 
         if assembly is None:
             return None
         conns.append((connection, connection.measure, assembly.data, socket.inet_aton(connection.originator_host),
-                      not connection.o_t_run_idle_header))  # without it: a heartbeat (input only, listen only)
+                      not connection.o_t_run_idle_header,  # without it: a heartbeat (input only, listen only)
+                      observed and assembly is guard.output))  # the image the Python path's transaction compares
     if not conns:
         return None
     streams = []
@@ -105,6 +109,24 @@ def plan(device: Device) -> tuple[list[tuple], list[tuple], bool, int | None] | 
         host, port = production.address
         streams.append((production, socket.inet_aton(host) + port.to_bytes(2, "big"), data, header, True))
     return conns, streams, table.policy.outputs_off_on_idle, watch
+
+
+def publish_changes(changes: list[tuple[int, int, bytes, bytes]], device_of: Callable[[int], Device],
+                    failed: Callable[[int, int], None] | None = None) -> None:
+    """The engine's output image changes (`Engine.changes`: slot, now, before, after), taken and
+    published in order as the Python path's O->T transaction publishes them (device/guard.py): an
+    ImageChanged of the output at the turn's `now`, told to the image observers. In the I/O thread,
+    after the engine's `receive` or `consume` and before the datagrams it left to Python. An
+    observer's exception goes to `failed(slot, now)` where given (the others are told all the same)."""
+    pending = changes[:]
+    changes.clear()
+    for slot, now, before, after in pending:
+        try:
+            device_of(slot).guard.publish(now, (), (), (ImageChanged("output", before, after),), ())
+        except Exception:
+            if failed is None:
+                raise
+            failed(slot, now)
 
 
 class NativeDevice:
