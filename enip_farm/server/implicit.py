@@ -90,12 +90,21 @@ class CyclicIoThread(threading.Thread):
     NATIVE_SYNC_NS = 100_000_000
     #: Sockets a turn reads at most with the native engine (server/native.py): a turn's reading is
     #: one system call per ready socket (several us each), bounded so that T->O keep their time.
+    #: A turn that leaves some unread supervises nothing (a datagram still unread may feed a
+    #: deadline), unless the turns before it left some unread for a whole round (`skip_rounds`).
     NATIVE_TURN_SOCKETS = 128
 
     @property
     def native_sync_slice(self) -> int:
         """Devices the engine writes back a turn, for a whole round every NATIVE_SYNC_NS."""
         return -(-len(self._slots) * self.TURN_NS // self.NATIVE_SYNC_NS)
+
+    @property
+    def skip_rounds(self) -> int:
+        """Turns in a row that may leave sockets unread and skip supervision and the Python path's
+        devices: epoll hands its ready sockets on in turn, so after these every socket that was
+        ready when they began has been read, and the next turn serves and supervises what is due."""
+        return max(1, -(-len(self._readers) // self.NATIVE_TURN_SOCKETS))
 
     def __init__(self, datagrams: Datagrams | None = None, budget: CyclicBudget | None = None,
                  native: bool = False) -> None:
@@ -204,7 +213,7 @@ class CyclicIoThread(threading.Thread):
 
             def poll(timeout: float) -> list[tuple[int, int]]:
                 return epoll_poll(timeout, most)
-        last = 0
+        last = skipped = 0
         while not self._stopping:
             while requests:
                 endpoint = requests.popleft()
@@ -227,8 +236,10 @@ class CyclicIoThread(threading.Thread):
                     events = poll(0)
             # with the native engine a turn reads at most NATIVE_TURN_SOCKETS sockets (epoll hands the
             # others on next time, in turn), so that one late turn does not make the next one longer
-            # (reading is per ready socket); while some are left unread nothing is timed out
-            unread = len(events) == most
+            # (reading is per ready socket); while some are left unread nothing is timed out, for a
+            # round of turns at most (then a turn serves and supervises what is due all the same)
+            unread = len(events) == most and skipped < self.skip_rounds
+            skipped = skipped + 1 if unread else 0
             now = last = self.turned_at = monotonic_ns()
             if events:  # first what came in: a packet that came in time counts, however late the thread is
                 fds = []
