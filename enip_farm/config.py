@@ -276,7 +276,7 @@ class CyclicIoConfig(_Strict):
         f"past it a Forward Open gets 0x01/0x0113. auto: measured at start (a pair's CPU, for {BUDGET_UTILISATION:.0%}"
         " of a core), lowered to what the I/O thread really spends, held while it runs late")
     measure: bool = Field(True, description="measure every O->T stream for the report (cip/o_t_measure.py)")
-    native: Literal["auto", "off"] = Field("auto", description="auto: the native class-1 path where built; off: Python")
+    native: Literal["auto", "off"] | bool = Field("auto", description="native class-1 path: auto (true), off (false)")
     @field_validator("budget_datagrams_per_s")
     @classmethod
     def _positive(cls, value: int | str) -> int | str:

@@ -258,3 +258,21 @@ def test_shipped_default_cell_is_valid() -> None:
     addons = {addon for device in config.devices for addon in device.addons}
     assert addons == {"DSQC1031", "DSQC1032", "DSQC1033"}
     assert {device.model for device in config.devices} == {"DSQC1030", "DSQC1042"}
+
+
+@pytest.mark.integration
+@pytest.mark.parametrize(("setting", "native"), [("off", False), ('"off"', False), ("false", False),
+                                                  ("auto", True), ("true", True)])
+def test_the_native_class1_path_is_switched_off_by_a_bare_off_too(
+        setting: str, native: bool, free_address: AddressPool, tmp_path: Path,
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    """YAML reads a bare `off` as false: the farm takes it as off, not as a configuration error."""
+    from enip_farm.server.native import BUILT, ENVIRONMENT
+
+    monkeypatch.delenv(ENVIRONMENT, raising=False)
+    path = _write(tmp_path, f"devices:\n  - {{name: a, address: {free_address()}, model: DSQC1030}}\n"
+                            f"discovery: false\ncyclic_io: {{native: {setting}, budget_datagrams_per_s: 1000}}\n")
+    farm = Farm(load_config(path))
+    with farm.running_in_thread():
+        engine = farm._implicit.thread.native  # type: ignore[union-attr]
+        assert (engine is not None) is (native and BUILT)

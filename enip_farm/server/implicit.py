@@ -328,7 +328,7 @@ class CyclicIoThread(threading.Thread):
 class ImplicitIo:
     """UDP 2222 of every device of a farm, and the cyclic I/O thread."""
 
-    def __init__(self, budget: CyclicBudget | None = None, native: str = "auto") -> None:
+    def __init__(self, budget: CyclicBudget | None = None, native: str | bool = "auto") -> None:
         # a measured budget: checked while the thread runs; native: server/native.py, where built and wanted
         self.thread = CyclicIoThread(budget=budget, native=native_wanted(native))
         self.endpoints: list[DeviceIo] = []

@@ -45,9 +45,11 @@ BUILT = _class1 is not None
 ENVIRONMENT = "ENIP_FARM_NATIVE"
 
 
-def native_wanted(setting: str = "auto") -> bool:
-    """Whether the native path runs: built, `setting` not off and ENIP_FARM_NATIVE not 0."""
-    return BUILT and setting != "off" and os.environ.get(ENVIRONMENT, "").lower() not in ("0", "off", "false")
+def native_wanted(setting: str | bool = "auto") -> bool:
+    """Whether the native path runs: built, `setting` not off (nor false: YAML's bare off) and
+    ENIP_FARM_NATIVE not 0."""
+    return (BUILT and setting not in ("off", False)
+            and os.environ.get(ENVIRONMENT, "").lower() not in ("0", "off", "false"))
 
 
 def new_engine() -> Any:
