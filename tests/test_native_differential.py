@@ -20,7 +20,7 @@ from enip_farm.device.faults import Fault
 from enip_farm.device.report import connection_figures
 from enip_farm.protocol.connection import ConnectionTriad, decode_forward_open_reply, encode_io_packet
 from enip_farm.protocol.session import MessageContext
-from enip_farm.server.native import BUILT, NativeDevice, new_engine, plan, publish_changes
+from enip_farm.server.native import BUILT, MAX_T_O_PAYLOAD, NativeDevice, new_engine, plan, publish_changes
 from tests.test_cip_services_unit import MS, SCANNER, forward_open, get_list, make_device
 from tests.test_implicit import forward_close
 
@@ -268,3 +268,36 @@ def test_a_turn_that_left_sockets_unread_times_nothing_out() -> None:
     python, _, _, _, _ = path.engine.produce(late, late + MS, True)
     assert python == [path.handle.slot]
 
+
+def test_a_t_o_longer_than_the_engines_packet_stays_on_the_python_path() -> None:
+    """The engine's packets hold MAX_T_O_PAYLOAD bytes of header and data (it cut a longer T->O
+    short before): a produced image that fits is loaded; one byte more is refused by `plan` (the
+    Python path keeps the device) and by `load` (ValueError); and an image grown past it under the
+    engine (never exported: Python may resize it) hands the device to Python, which sends it whole."""
+    path = Path(True)
+    path.oid = path.open(T0)
+    slot = path.handle.slot
+    planned = plan(path.device)
+    (_, _, data, header, _), = planned[1]
+    data[:] = bytes(range(256)) * 2 + bytes(MAX_T_O_PAYLOAD - len(header) - 512)
+    assert plan(path.device) is not None
+    path.engine.load(slot, *plan(path.device))
+    _, _, _, sent, packets = path.engine.produce(T0 + MS, T0 + 2 * MS, True)
+    assert sent == 1 and len(packets[0][1]) == 20 + MAX_T_O_PAYLOAD and packets[0][1].endswith(bytes(data))
+    data.append(0x5A)
+    assert plan(path.device) is None
+    with pytest.raises(ValueError, match="MAX_PACKET"):
+        path.engine.load(slot, *planned)
+    assert not path.engine.native(slot)
+    del data[-1]
+    path.engine.load(slot, *planned)
+    data.append(0x5A)  # grown under the engine
+    python, _, _, sent, packets = path.engine.produce(T0 + 25 * MS, T0 + 26 * MS, True)
+    assert (python, sent, packets) == ([slot], 0, [])
+    path.device.service_io(T0 + 25 * MS, path._send, T0 + 26 * MS)  # noqa: SLF001 - the I/O thread's hand-over
+    assert not path.engine.native(slot) and plan(path.device) is None
+    (due,) = [production.due for production in path.device.table.productions.values()]
+    path.device.service_io(due, path._send, due + MS)  # noqa: SLF001 - Python's from now on
+    assert not path.engine.native(slot)
+    packet, _ = path.sent[-1]
+    assert len(packet) == 20 + len(header) + len(data) == 20 + MAX_T_O_PAYLOAD + 1 and packet.endswith(bytes(data))

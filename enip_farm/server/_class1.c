@@ -343,7 +343,8 @@ static PyObject *engine_add(Engine *e, PyObject *args) {
  * connections, each (connection, measure or None, consumed bytearray, originator's 4-byte address[,
  * heartbeat: its O->T carries no data, the header-less heartbeat of an input-only or listen-only one[,
  * observed: each change of its image reported in `changes`]]), and streams, each (production, 6-byte
- * destination, bytearray or None, header bytes, unicast); watch: the earliest supervision deadline of its other connections (class 3), which hands
+ * destination, bytearray or None, header bytes, unicast; a T->O of at most MAX_PACKET bytes, else
+ * ValueError); watch: the earliest supervision deadline of its other connections (class 3), which hands
  * it to Python when reached. */
 static PyObject *engine_load(Engine *e, PyObject *args) {
     PyObject *conns, *streams, *watch = Py_None;
@@ -410,7 +411,8 @@ static PyObject *engine_load(Engine *e, PyObject *args) {
         int unicast;
         if (!PyArg_ParseTuple(PyList_GET_ITEM(streams, i), "Oy*Oy*p", &production, &to, &data, &header, &unicast))
             goto fail;
-        int good = to.len == 6 && header.len <= 4 && (data == Py_None || PyByteArray_Check(data));
+        int good = to.len == 6 && header.len <= 4 && (data == Py_None || PyByteArray_Check(data)) &&
+                   HEADER + header.len + (data == Py_None ? 0 : PyByteArray_GET_SIZE(data)) <= MAX_PACKET;
         if (good) {
             s->to.sin_family = AF_INET;
             memcpy(&s->to.sin_addr, to.buf, 4);
@@ -434,7 +436,7 @@ static PyObject *engine_load(Engine *e, PyObject *args) {
             get_ll(production, "due", &s->due, 0) || get_ll(production, "late", &s->late, 0) ||
             get_ll(production, "sequence", &s->sequence, 0)) {
             if (!PyErr_Occurred())
-                PyErr_SetString(PyExc_ValueError, "a stream of another shape");
+                PyErr_SetString(PyExc_ValueError, "a stream of another shape, or a T->O over MAX_PACKET bytes");
             goto fail;
         }
         if (s->period <= 0)
@@ -478,6 +480,16 @@ static int same(PyObject *o, const char *name, long long value, long long none) 
     return now == value;
 }
 
+/* Whether a produced image grew past what a packet of the engine holds (Python may resize it): the
+ * device is Python's then (its T->O whole, never cut short). */
+static int oversize(const Dev *d) {
+    for (int i = 0; i < d->nstreams; i++)
+        if (d->streams[i].data != NULL &&
+            HEADER + d->streams[i].header_len + PyByteArray_GET_SIZE(d->streams[i].data) > MAX_PACKET)
+            return 1;
+    return 0;
+}
+
 /* resume(slot) -> bool: the device back in native mode with what the engine held when it was released,
  * if Python changed none of it meanwhile (a transaction that did not touch its connections: an
  * explicit request); False: `load` it again. */
@@ -485,7 +497,7 @@ static PyObject *engine_resume(Engine *e, PyObject *args) {
     Dev *d = dev_of(e, args, "i", NULL, NULL, NULL, NULL, NULL, NULL);
     if (d == NULL)
         return NULL;
-    if (!d->kept || d->watched)
+    if (!d->kept || d->watched || oversize(d))
         Py_RETURN_FALSE;
     for (int i = 0; i < d->nconns; i++) {
         Conn *c = &d->conns[i];
@@ -873,7 +885,7 @@ static PyObject *engine_produce(Engine *e, PyObject *args) {
                 expired = 1;
         if (expired && !supervise) /* datagrams may still wait unread: no verdict on it this turn */
             continue;
-        if (expired) { /* a timeout: Python's (pull, handle_timer, push) */
+        if (expired || oversize(d)) { /* a timeout, or an image past a packet: Python's (pull, handle_timer, push) */
             PyObject *s = PyLong_FromLong(slot);
             if (s == NULL || PyList_Append(python, s) < 0) {
                 Py_XDECREF(s);
@@ -1014,6 +1026,10 @@ PyMODINIT_FUNC PyInit__class1(void) {
     PyObject *m = PyModule_Create(&module);
     if (m == NULL)
         return NULL;
+    if (PyModule_AddIntConstant(m, "MAX_T_O_PAYLOAD", MAX_PACKET - HEADER) < 0) { /* run/idle header and data */
+        Py_DECREF(m);
+        return NULL;
+    }
     Py_INCREF(&EngineType);
     if (PyModule_AddObject(m, "Engine", (PyObject *)&EngineType) < 0) {
         Py_DECREF(&EngineType);

@@ -4,13 +4,14 @@
 A device is in native mode when the extension is built and on (`cyclic_io.native`, and not
 ENIP_FARM_NATIVE=0), no fault is active on it, it is not resetting, nothing records or probes it
 (no recorder or reaction probes; image observers are told each change of the output image that the
-engine makes, `publish_changes`, as the Python path's transactions tell them) and every I/O
-connection is a plain class-1 one of the formats the engine serves: O->T with the 32-bit run/idle
-header and fixed-size data (or the heartbeat of an input-only or listen-only connection), T->O
-point to point (the input assembly, an EDS point with or without its run/idle header, or a
-heartbeat). Then the engine holds its hot state (sequences, deadlines, the streams, the counters,
-the originator measurement) and works on the assemblies' own bytearrays; Python stays
-authoritative for everything else through the device lock (device/guard.py):
+engine makes, `publish_changes`, as the Python path's transactions tell them), every T->O fits
+the engine's packet (MAX_T_O_PAYLOAD bytes of header and data) and every I/O connection is a plain
+class-1 one of the formats the engine serves: O->T with the 32-bit run/idle header and fixed-size
+data (or the heartbeat of an input-only or listen-only connection), T->O point to point (the input
+assembly, an EDS point with or without its run/idle header, or a heartbeat). Then the engine holds
+its hot state (sequences, deadlines, the streams, the counters, the originator measurement) and
+works on the assemblies' own bytearrays; Python stays authoritative for everything else through
+the device lock (device/guard.py):
 - a transaction takes the state back (`enter`: the engine's values written into the Connection,
   Production, OriginatorMeasure objects and the counters; the device is Python's) and, before it
   lets the lock go, hands it over again if the device still qualifies (`exit`);
@@ -41,6 +42,8 @@ except ImportError:  # no compiler where the package was built: the pure-Python 
 
 #: Whether the extension is built.
 BUILT = _class1 is not None
+#: The most bytes of run/idle header and data a T->O of the engine carries: a longer one stays on the Python path.
+MAX_T_O_PAYLOAD: int = _class1.MAX_T_O_PAYLOAD if _class1 is not None else 0
 #: Set to 0 (or off) to run every connection on the Python path, whatever the configuration says.
 ENVIRONMENT = "ENIP_FARM_NATIVE"
 
@@ -108,6 +111,8 @@ def plan(device: Device) -> tuple[list[tuple], list[tuple], bool, int | None] | 
         else:
             assembly = points.get(production.point)
             data, header = (assembly.data if assembly is not None else None), production.header
+        if len(header) + (len(data) if data is not None else 0) > MAX_T_O_PAYLOAD:
+            return None  # more than the engine's packet holds
         host, port = production.address
         streams.append((production, socket.inet_aton(host) + port.to_bytes(2, "big"), data, header, True))
     return conns, streams, table.policy.outputs_off_on_idle, watch
