@@ -5,7 +5,7 @@
  * sendmmsg(2) of every T->O packet due in one tick from one socket, each with its device's source
  * address (IP_PKTINFO, ipi_spec_dst). One system call per socket read and one per tick sent, instead
  * of one per datagram. Linux only; server/batch.py falls back to recvmsg/sendto when this module is
- * not built. The receiving half is server/_receive.h's, shared with server/_class1.c. */
+ * not built. The receiving half is server/_receive.h's, shared with server/_class1_o_t.c. */
 #define _GNU_SOURCE
 #define PY_SSIZE_T_CLEAN
 #include <Python.h>

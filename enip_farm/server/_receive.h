@@ -1,5 +1,5 @@
-/* The receiving half shared by the two native parts (server/_mmsg.c, server/_class1.c): recvmmsg(2)
- * of up to MAX_RECEIVE datagrams from one socket, each with the kernel's receive time
+/* The receiving half shared by the two native parts (server/_mmsg.c, server/_class1_o_t.c):
+ * recvmmsg(2) of up to MAX_RECEIVE datagrams from one socket, each with the kernel's receive time
  * (SO_TIMESTAMPNS, CLOCK_REALTIME) turned into CLOCK_MONOTONIC ns by the offset between the two
  * clocks read once per call (the wall clock between two monotonic reads, against their midpoint).
  * Linux only. Header-only: each extension gets its own static copy. */

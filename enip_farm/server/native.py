@@ -1,5 +1,6 @@
 """The native class-1 path (CIP Networks Library Vol. 2, 3-2 and 3-3): which devices the extension
-`_class1` (enip_farm/server/_class1.c) runs, and the moves of their state between it and Python.
+`_class1` (enip_farm/server/_class1.c and the sources beside it) runs, and the moves of their state
+between it and Python (this side of _class1_state.c).
 
 A device is in native mode when the extension is built and on (`cyclic_io.native`, and not
 ENIP_FARM_NATIVE=0), no fault is active on it, it is not resetting, nothing records or probes it
