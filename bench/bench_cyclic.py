@@ -194,15 +194,17 @@ def originator_socket() -> socket.socket:
 
 
 def write_farm_config(path: Path, count: int, first: str, implicit: str = "", measure: bool = True,
-                      budget: str = "auto", native: bool = True) -> None:
+                      budget: str = "auto", native: bool = True, realtime: int = 0) -> None:
     """N DSQC1030; the watchdog before the first O->T is 60 s (the default 10 s could pass while
     Python opens 1600 connections on a busy machine, and it is not what this measures). `measure`:
     the report's measurement of every O->T stream (`cyclic_io: {measure: false}` turns it off);
     `budget`: each worker's `cyclic_io.budget_datagrams_per_s` (auto, or a number); `native`: the
-    native class-1 path where built (`cyclic_io: {native: auto}`), else the Python one (`off`)."""
+    native class-1 path where built (`cyclic_io: {native: auto}`), else the Python one (`off`);
+    `realtime`: the cyclic I/O thread's SCHED_FIFO priority (`cyclic_io.realtime_priority`, 0: none)."""
     with path.open("w") as config:
         config.write(f"discovery: false\ncyclic_io: {{measure: {'true' if measure else 'false'}, "
-                     f"budget_datagrams_per_s: {budget}, native: {'auto' if native else repr('off')}}}\ndevices:\n")
+                     f"budget_datagrams_per_s: {budget}, native: {'auto' if native else repr('off')}, "
+                     f"realtime_priority: {realtime}}}\ndevices:\n")
         for i in range(count):
             config.write(f"  - {{name: c{i}, address: {address(i, first)}, model: DSQC1030, "
                          f"implicit: {{first_watchdog_s: 60{', ' + implicit if implicit else ''}}}}}\n")
@@ -435,7 +437,8 @@ def py_spy(pids: list[int], seconds: float, directory: Path) -> list[subprocess.
 def run_farm(count: int, rpi_us: int, args: argparse.Namespace, originator: Path, work: Path,
              measure: bool = True, native: bool = True) -> dict:
     config = work / "cell.yaml"
-    write_farm_config(config, count, args.first_address, args.implicit, measure, args.budget, native)
+    write_farm_config(config, count, args.first_address, args.implicit, measure, args.budget, native,
+                      args.farm_realtime)
     farm = start_farm(config, args.workers, args.farm_cpus, work / "farm.log")
     try:
         pids = descendants(farm.pid)
@@ -591,6 +594,9 @@ def main() -> None:
     parser.add_argument("--realtime", type=int, default=10, metavar="PRIORITY",
                         help="the originator's threads run SCHED_FIFO at this priority (root; 0: not), so that "
                              "the machine's other load does not make it late (10)")
+    parser.add_argument("--farm-realtime", type=int, default=0, metavar="PRIORITY",
+                        help="the farm's cyclic I/O threads run SCHED_FIFO at this priority (root; 0: not): "
+                             "cyclic_io.realtime_priority")
     parser.add_argument("--budget", default="auto",
                         help="each worker's cyclic_io.budget_datagrams_per_s: auto (measured at start) or a number")
     parser.add_argument("--originator-threads", type=int, default=0, metavar="N",

@@ -272,11 +272,11 @@ class CyclicIoConfig(_Strict):
     """What the farm's cyclic I/O thread (one per worker) may carry."""
 
     budget_datagrams_per_s: int | Literal["auto"] = Field(
-        "auto", description="class-1 datagrams/s (O->T taken plus T->O sent) one worker admits connections for; "
-        f"past it a Forward Open gets 0x01/0x0113. auto: measured at start (a pair's CPU, for {BUDGET_UTILISATION:.0%}"
-        " of a core), lowered to what the I/O thread really spends, held while it runs late")
+        "auto", description="class-1 datagrams/s (O->T plus T->O) one worker admits connections for, past it "
+        f"0x01/0x0113; auto: measured at start for {BUDGET_UTILISATION:.0%} of a core, lowered to what it spends")
     measure: bool = Field(True, description="measure every O->T stream for the report (cip/o_t_measure.py)")
     native: Literal["auto", "off"] | bool = Field("auto", description="native class-1 path: auto (true), off (false)")
+    realtime_priority: int = Field(0, ge=0, le=99, description="the cyclic I/O thread's SCHED_FIFO priority; 0: none")
     @field_validator("budget_datagrams_per_s")
     @classmethod
     def _positive(cls, value: int | str) -> int | str:

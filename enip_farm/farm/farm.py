@@ -190,7 +190,8 @@ class Farm:
                 self.budget.set(measured.datagrams_per_s, measured.source, measured.ceiling)
             else:
                 self.budget.set(budget, "configured")
-            self._implicit = ImplicitIo(self.budget if budget == "auto" else None, self.config.cyclic_io.native)
+            self._implicit = ImplicitIo(self.budget if budget == "auto" else None, self.config.cyclic_io.native,
+                                        self.config.cyclic_io.realtime_priority)
             for device in self.devices.values():
                 if device.name in self.address_owners:
                     continue

@@ -55,6 +55,7 @@ from enip_farm.server.lag import OVERLOAD_LAG_NS as OVERLOAD_LAG_NS
 from enip_farm.server.lag import Lag
 from enip_farm.server.limits import RateLimitedLog
 from enip_farm.server.native import NativeDevice, native_wanted, new_engine, publish_changes
+from enip_farm.server.realtime import run_realtime
 from enip_farm.server.running_budget import RunningBudget
 from enip_farm.server.udp import udp_socket
 from enip_farm.server.waits import os_wait_ns
@@ -107,8 +108,9 @@ class CyclicIoThread(threading.Thread):
         return max(1, -(-len(self._readers) // self.NATIVE_TURN_SOCKETS))
 
     def __init__(self, datagrams: Datagrams | None = None, budget: CyclicBudget | None = None,
-                 native: bool = False) -> None:
+                 native: bool = False, realtime_priority: int = 0) -> None:
         super().__init__(name="enip-farm-cyclic-io", daemon=True)
+        self.realtime_priority = realtime_priority  # SCHED_FIFO's, 0: the normal policy (server/realtime.py)
         #: The native class-1 engine (server/native.py) of this thread's devices, None: all on Python's path.
         self.native = new_engine() if native else None
         self.native_timer: int | None = None  # the engine's earliest deadline after its last turn
@@ -185,6 +187,9 @@ class CyclicIoThread(threading.Thread):
         return self.is_alive() and not self._stopping and now - self.turned_at < self._STALL_NS
 
     def run(self) -> None:
+        problem = run_realtime(self.realtime_priority)
+        if problem is not None:
+            log.warning("%s; it runs at the normal policy", problem)
         while not self._stopping:
             try:
                 self._loop()
@@ -328,9 +333,10 @@ class CyclicIoThread(threading.Thread):
 class ImplicitIo:
     """UDP 2222 of every device of a farm, and the cyclic I/O thread."""
 
-    def __init__(self, budget: CyclicBudget | None = None, native: str | bool = "auto") -> None:
+    def __init__(self, budget: CyclicBudget | None = None, native: str | bool = "auto",
+                 realtime_priority: int = 0) -> None:
         # a measured budget: checked while the thread runs; native: server/native.py, where built and wanted
-        self.thread = CyclicIoThread(budget=budget, native=native_wanted(native))
+        self.thread = CyclicIoThread(budget=budget, native=native_wanted(native), realtime_priority=realtime_priority)
         self.endpoints: list[DeviceIo] = []
         self._sockets: list[socket.socket] = []
         if sys.getswitchinterval() > 0.0005:
